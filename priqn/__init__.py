@@ -1,0 +1,20 @@
+"""priqn: preordered distributional RL (Pr-IQN) for autonomous driving in SUMO.
+
+Importing the package registers the gymnasium environment ``priqn/Intersection-v0``;
+the environment module itself (and SUMO) is only imported when an env is made.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+
+from priqn.objectives import OBJECTIVES
+
+__version__ = "0.1.0"
+__all__ = ["OBJECTIVES", "__version__"]
+
+if "priqn/Intersection-v0" not in gymnasium.registry:
+    gymnasium.register(
+        id="priqn/Intersection-v0",
+        entry_point="priqn.env.intersection:IntersectionEnv",
+    )

@@ -1,0 +1,68 @@
+"""The ``priqn`` command line.
+
+Each sub-command lives in its own module exposing ``configure_parser(parser)`` and
+``run(args) -> int``. Only the chosen command's module is imported, so ``priqn
+--help`` is instant and SUMO / torch load only for commands that need them.
+A :class:`~priqn.errors.PriqnError` is printed as one line, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from priqn.errors import PriqnError
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "scenario": ("priqn.sim.cli", "generate SUMO nets from scenario families; draw a net"),
+    "train": ("priqn.train", "train one agent into runs/<name>/"),
+    "evaluate": ("priqn.evaluate", "evaluate trained runs on the hold-out nets"),
+    "report": ("analysis.report", "tables, rliable statistics and figures from evaluated runs"),
+    "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),
+    "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
+}
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="priqn",
+        description="Preordered distributional RL (Pr-IQN) for driving at SUMO intersections.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="commands:\n"
+        + "\n".join(f"  {name:<10} {text}" for name, (_, text) in COMMANDS.items())
+        + "\n\nRun 'priqn COMMAND --help' for a command's options.",
+    )
+    parser.add_argument("command", choices=sorted(COMMANDS), metavar="COMMAND")
+    parser.add_argument("--version", action="version", version="priqn 0.1.0")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``priqn`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    top = _top_parser()
+    if not argv or argv[0].startswith("-"):
+        top.parse_args(argv or ["--help"])
+        return 0
+    command, rest = argv[0], argv[1:]
+    if command not in COMMANDS:
+        top.error(f"unknown command {command!r} (choose from {', '.join(COMMANDS)})")
+    module_name, text = COMMANDS[command]
+    parser = argparse.ArgumentParser(prog=f"priqn {command}", description=text)
+    try:
+        module = importlib.import_module(module_name)
+        module.configure_parser(parser)
+        args = parser.parse_args(rest)
+        return int(module.run(args) or 0)
+    except PriqnError as exc:
+        print(f"priqn: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("priqn: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

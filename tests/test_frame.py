@@ -1,0 +1,96 @@
+"""The shared frame: config loading, atomic writes, CLI error handling."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json, atomic_write_text
+
+
+@dataclasses.dataclass(frozen=True)
+class Inner:
+    lr: float = 1e-3
+    """Learning rate."""
+    names: tuple[str, ...] = ("a", "b")
+    """Some names."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Outer:
+    seed: int = 0
+    """Master seed."""
+    inner: Inner = dataclasses.field(default_factory=Inner)
+    """Nested section."""
+    mode: str = "x"
+    """A mode."""
+
+
+def test_from_dict_roundtrip_and_coercion():
+    cfg = from_dict(Outer, {"seed": 3, "inner": {"lr": 1, "names": ["p"]}}, "t.toml")
+    assert cfg == Outer(seed=3, inner=Inner(lr=1.0, names=("p",)))
+    assert from_dict(Outer, to_dict(cfg), "x") == cfg
+
+
+def test_unknown_key_names_file_field_and_valid_keys():
+    with pytest.raises(PriqnError, match=r"t.toml.inner: unknown key 'lrr' \(valid: lr, names\)"):
+        from_dict(Outer, {"inner": {"lrr": 1}}, "t.toml")
+
+
+def test_wrong_type_is_one_line():
+    with pytest.raises(PriqnError, match=r"t.toml.seed: expected an integer, got 'a'"):
+        from_dict(Outer, {"seed": "a"}, "t.toml")
+
+
+def test_overrides():
+    cfg = apply_overrides(Outer(), ["inner.lr=0.5", "mode=fast"])
+    assert cfg.inner.lr == 0.5 and cfg.mode == "fast"
+    with pytest.raises(PriqnError, match="unknown key 'inner.nope'"):
+        apply_overrides(Outer(), ["inner.nope=1"])
+
+
+def test_describe_reads_field_docstrings():
+    rows = {k: doc for k, _, doc in describe(Outer)}
+    assert rows["inner.lr"] == "Learning rate."
+    assert rows["seed"] == "Master seed."
+
+
+def test_toml_roundtrip(tmp_path: Path):
+    p = tmp_path / "c.toml"
+    atomic_write_text(p, dumps_toml(to_dict(Outer(seed=7))))
+    assert from_dict(Outer, load_toml(p), str(p)) == Outer(seed=7)
+
+
+def test_malformed_and_missing_toml(tmp_path: Path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("a = [1,\n")
+    with pytest.raises(PriqnError, match="bad.toml: malformed TOML"):
+        load_toml(bad)
+    with pytest.raises(PriqnError, match="nope.toml: file not found"):
+        load_toml(tmp_path / "nope.toml")
+
+
+def test_atomic_write_keeps_old_file_on_failure(tmp_path: Path):
+    p = tmp_path / "m.json"
+    atomic_write_json(p, {"a": 1})
+    with pytest.raises(TypeError):
+        from priqn.io import atomic_open
+
+        with atomic_open(p, "w") as fh:
+            fh.write("partial")
+            raise TypeError("boom")
+    assert p.read_text() == '{\n  "a": 1\n}\n'
+    assert [x.name for x in tmp_path.iterdir()] == ["m.json"]
+
+
+def test_cli_unknown_command_and_help():
+    out = subprocess.run([sys.executable, "-m", "priqn.cli", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "scenario" in out.stdout
+    bad = subprocess.run([sys.executable, "-m", "priqn.cli", "nope"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "unknown command 'nope'" in bad.stderr
