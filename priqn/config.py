@@ -212,7 +212,7 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
         elif origin is tuple and args:
             if len(args) != len(value):
                 raise PriqnError(f"{where}: expected {len(args)} values, got {len(value)}")
-            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(args, value))]
+            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args))]
         else:
             sub = args[0] if args else Any
             items = [_coerce(v, sub, f"{where}[{i}]") for i, v in enumerate(value)]

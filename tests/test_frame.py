@@ -94,3 +94,26 @@ def test_cli_unknown_command_and_help():
     assert out.returncode == 0 and "scenario" in out.stdout
     bad = subprocess.run([sys.executable, "-m", "priqn.cli", "nope"], capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown command 'nope'" in bad.stderr
+
+
+@dataclasses.dataclass(frozen=True)
+class Pair:
+    range_m: tuple[float, float] = (0.0, 1.0)
+    """A (lo, hi) range."""
+
+
+def test_fixed_length_tuple_coerces_values_not_types():
+    assert from_dict(Pair, {"range_m": [1, 2.5]}, "p").range_m == (1.0, 2.5)
+    with pytest.raises(PriqnError, match="expected 2 values"):
+        from_dict(Pair, {"range_m": [1]}, "p")
+
+
+def test_atomic_files_get_umask_mode(tmp_path: Path):
+    import os
+    import stat
+
+    p = tmp_path / "f.txt"
+    atomic_write_text(p, "x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask
