@@ -1,0 +1,185 @@
+"""Figures in the paper's style (rliable's plot utilities), saved as PNG and PDF.
+
+Output is deterministic for the same inputs: no timestamps in PDF metadata, a fixed
+SVG hash salt, the Agg backend.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
+from priqn.io import atomic_write_bytes  # noqa: E402
+
+plt.rcParams["svg.hashsalt"] = "priqn"
+plt.rcParams["pdf.compression"] = 6
+
+
+def save_figure(fig: plt.Figure, out_dir: Path, name: str) -> list[Path]:
+    """Write ``name.png`` (150 dpi) and ``name.pdf`` atomically; close the figure."""
+    import io
+
+    paths = []
+    for ext, kwargs in (
+        ("png", {"dpi": 150, "metadata": {"Software": None}}),
+        ("pdf", {"metadata": {"CreationDate": None, "ModDate": None}}),
+    ):
+        buf = io.BytesIO()
+        fig.savefig(buf, format=ext, bbox_inches="tight", **kwargs)
+        path = Path(out_dir) / f"{name}.{ext}"
+        atomic_write_bytes(path, buf.getvalue())
+        paths.append(path)
+    plt.close(fig)
+    return paths
+
+
+def _colors(labels: list[str]) -> dict[str, tuple]:
+    cmap = plt.get_cmap("tab10" if len(labels) <= 10 else "tab20")
+    return {label: cmap(i % cmap.N) for i, label in enumerate(labels)}
+
+
+def select_pairs(result: RliableResult, max_pairs: int) -> pd.DataFrame:
+    """Pairs to draw: all if few, else the top-IQM policy against every other (both ways)."""
+    poi = result.improvement
+    if len(poi) <= max_pairs:
+        return poi
+    best = result.aggregates.sort_values(["iqm", "label"], ascending=[False, True])["label"].iloc[0]
+    return poi[(poi["x"] == best) | (poi["y"] == best)].sort_values(
+        ["x", "y"], key=lambda s: s != best
+    )
+
+
+def probability_of_improvement_figure(result: RliableResult, max_pairs: int = 24) -> plt.Figure:
+    """P(X > Y) with CIs, X on the left, Y on the right (the paper's Figure 4)."""
+    from rliable import plot_utils
+
+    pairs = select_pairs(result, max_pairs)
+    keys = [f"{x}{PAIR_SEPARATOR}{y}" for x, y in zip(pairs["x"], pairs["y"], strict=True)]
+    estimates = dict(zip(keys, pairs["p"], strict=True))
+    intervals = {
+        k: np.array([lo, hi]) for k, lo, hi in zip(keys, pairs["lo"], pairs["hi"], strict=True)
+    }
+    colors = _colors(list(result.scores))
+    fig, ax = plt.subplots(figsize=(6.5, 0.45 * len(keys) + 1.2))
+    plot_utils.plot_probability_of_improvement(
+        estimates,
+        intervals,
+        pair_separator=PAIR_SEPARATOR,
+        ax=ax,
+        colors=[colors[x] for x in pairs["x"]],
+        xticks=[0.0, 0.25, 0.5, 0.75, 1.0],
+        xlabel=f"P(X > Y), {SCORE_METRICS.get(result.metric, result.metric)} per task",
+        ticklabelsize="medium",
+        labelsize="medium",
+    )
+    ax.set_xlim(0.0, 1.0)
+    ax.axvline(0.5, color="grey", linestyle="--", linewidth=0.8)
+    return fig
+
+
+def aggregates_figure(results: dict[str, RliableResult]) -> plt.Figure:
+    """IQM and optimality gap with 95% CIs, per scored metric (the paper's Figure 5)."""
+    from rliable import plot_utils
+
+    first = next(iter(results.values()))
+    labels = list(first.scores)
+    names, points, intervals = [], {k: [] for k in labels}, {k: [[], []] for k in labels}
+    for metric, res in results.items():
+        short = SCORE_METRICS.get(metric, metric)
+        agg = res.aggregates.set_index("label")
+        for stat, title in (("iqm", f"IQM {short} ↑"), ("og", f"Optimality gap {short} ↓")):
+            names.append(title)
+            for k in labels:
+                points[k].append(agg.loc[k, stat])
+                intervals[k][0].append(agg.loc[k, f"{stat}_lo"])
+                intervals[k][1].append(agg.loc[k, f"{stat}_hi"])
+    fig, axes = plot_utils.plot_interval_estimates(
+        {k: np.array(v) for k, v in points.items()},
+        {k: np.array(v) for k, v in intervals.items()},
+        metric_names=names,
+        algorithms=labels,
+        colors=_colors(labels),
+        xlabel="score (success rate / route progress, 95% stratified-bootstrap CI)",
+        subfigure_width=3.0,
+        row_height=0.45,
+        xlabel_y_coordinate=-0.02 - 0.5 / max(len(labels), 1),
+    )
+    for ax in np.atleast_1d(axes):
+        ax.title.set_fontsize("medium")
+        ax.tick_params(labelsize="small")
+    for text in fig.texts:  # rliable's x label is xx-large
+        text.set_fontsize("medium")
+    return fig
+
+
+def performance_profile_figure(result: RliableResult) -> plt.Figure:
+    """Fraction of (run, task) scores above tau, with CIs."""
+    from rliable import plot_utils
+
+    prof = result.profiles
+    labels = list(result.scores)
+    taus = np.sort(prof["tau"].unique())
+    profiles, cis = {}, {}
+    for label in labels:
+        p = prof[prof["label"] == label].sort_values("tau")
+        profiles[label] = p["fraction"].to_numpy()
+        cis[label] = np.stack([p["lo"].to_numpy(), p["hi"].to_numpy()])
+    fig, ax = plt.subplots(figsize=(6.5, 4.0))
+    plot_utils.plot_performance_profiles(
+        profiles,
+        taus,
+        performance_profile_cis=cis,
+        colors=_colors(labels),
+        xlabel=f"{SCORE_METRICS.get(result.metric, result.metric)} per (run, task) τ",
+        ylabel="Fraction of runs with score > τ",
+        ax=ax,
+        labelsize="medium",
+        ticklabelsize="small",
+    )
+    ax.legend(fontsize="small", loc="lower left")
+    return fig
+
+
+def learning_curves_figure(curves: pd.DataFrame, order: list[str]) -> plt.Figure:
+    """Training curves per policy: mean over training seeds, band = min..max across seeds.
+
+    Each seed's curve is interpolated onto the union of its policy's step values.
+    """
+    fig, ax = plt.subplots(figsize=(6.5, 4.0))
+    colors = _colors(order)
+    if len(curves):
+        curves = curves[curves["y_name"] == curves["y_name"].iloc[0]]
+    for label in order:
+        part = curves[curves["label"] == label]
+        if part.empty:
+            continue
+        grid = np.unique(part["x"].to_numpy())
+        ys = []
+        for _, seed_part in part.groupby("train_seed", sort=True):
+            s = seed_part.sort_values("x")
+            ys.append(np.interp(grid, s["x"].to_numpy(), s["y"].to_numpy()))
+        ys_SX = np.stack(ys)
+        n = len(ys)
+        ax.plot(
+            grid,
+            ys_SX.mean(axis=0),
+            color=colors[label],
+            label=f"{label} ({n} seed{'s' * (n > 1)})",
+        )
+        if n > 1:
+            ax.fill_between(
+                grid, ys_SX.min(axis=0), ys_SX.max(axis=0), color=colors[label], alpha=0.2
+            )
+    ax.set_xlabel(str(curves["x_name"].iloc[0]) if len(curves) else "step")
+    ax.set_ylabel(str(curves["y_name"].iloc[0]) if len(curves) else "")
+    ax.grid(True, alpha=0.25)
+    ax.legend(fontsize="small")
+    ax.set_title("Learning curves (mean over seeds, band = min..max)", fontsize="medium")
+    return fig

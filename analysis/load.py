@@ -1,0 +1,342 @@
+"""Load every evaluated run under a folder into one tidy episode table.
+
+Mixed inputs are refused, never averaged: runs evaluated on different hold-out sets
+(manifest hashes differ) or with different evaluation settings, two runs claiming
+the same (policy, training seed), one label naming two configurations, or runs
+that were trained but not (fully) evaluated all raise a one-line
+:class:`~priqn.errors.PriqnError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from priqn.errors import PriqnError
+from priqn.evaluate import EPISODE_COLUMNS, EPISODES_FILE, EVAL_DIR, META_FILE
+
+CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
+"""Columns that define a policy configuration (one row of Table II)."""
+
+SORT_COLUMNS: tuple[str, ...] = ("label", "train_seed", "eval_run", "net", "density", "episode")
+"""Canonical row order of the loaded table (so every statistic sees the same order)."""
+
+EVAL_SETTINGS: tuple[str, ...] = (
+    "family",
+    "densities",
+    "eval_runs",
+    "episodes_per_cell",
+    "seed",
+    "commands",
+    "max_episode_steps",
+)
+"""EvalConfig fields that must agree between runs compared in one report."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunInfo:
+    """One evaluated run as found on disk."""
+
+    name: str
+    """Run folder name."""
+    path: Path
+    """Run folder."""
+    holdout_hash: str
+    """Hold-out manifest hash the run was evaluated on."""
+    eval_config: dict[str, Any]
+    """The recorded EvalConfig."""
+    label: str
+    """Policy-configuration label."""
+    train_seed: int
+    """Training seed."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """Everything a report needs from a runs folder."""
+
+    episodes: pd.DataFrame
+    """One row per episode (columns of ``priqn.evaluate.EPISODE_COLUMNS``), sorted."""
+    runs: tuple[RunInfo, ...]
+    """The evaluated runs, sorted by name."""
+    holdout_hash: str
+    """The single hold-out manifest hash every run was evaluated on."""
+    eval_config: dict[str, Any]
+    """The shared evaluation settings."""
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PriqnError(f"{path}: unreadable JSON ({exc})") from exc
+
+
+def find_run_dirs(runs_dir: str | Path) -> list[Path]:
+    """Run folders in ``runs_dir`` (a folder with ``config.toml`` or ``eval/``), sorted.
+
+    ``runs_dir`` may itself be one run folder.
+    """
+    root = Path(runs_dir)
+    if not root.is_dir():
+        raise PriqnError(f"{root}: no such folder; expected a folder of runs (e.g. runs/)")
+
+    def is_run(p: Path) -> bool:
+        return (p / "config.toml").is_file() or (p / EVAL_DIR).is_dir()
+
+    if is_run(root):
+        return [root]
+    return sorted(p for p in root.iterdir() if p.is_dir() and is_run(p))
+
+
+def load_evaluation(runs_dir: str | Path) -> Evaluation:
+    """Load and cross-check every evaluated run under ``runs_dir``."""
+    root = Path(runs_dir)
+    run_dirs = find_run_dirs(root)
+    if not run_dirs:
+        raise PriqnError(
+            f"{root}: no runs here; train with 'priqn train' and evaluate with 'priqn evaluate'"
+        )
+    unevaluated = []
+    for run in run_dirs:
+        meta = run / EVAL_DIR / META_FILE
+        if not meta.is_file() or _read_json(meta).get("status") != "complete":
+            unevaluated.append(run.name)
+    if unevaluated:
+        shown = ", ".join(unevaluated[:5]) + (" ..." if len(unevaluated) > 5 else "")
+        raise PriqnError(
+            f"{root}: {len(unevaluated)} of {len(run_dirs)} runs not (fully) evaluated: {shown}; "
+            f"run 'priqn evaluate {root}' first (a report never mixes in missing runs)"
+        )
+
+    frames, infos = [], []
+    for run in run_dirs:
+        meta = _read_json(run / EVAL_DIR / META_FILE)
+        csv = run / EVAL_DIR / EPISODES_FILE
+        try:
+            frame = pd.read_csv(csv, keep_default_na=True)
+        except (OSError, ValueError) as exc:
+            raise PriqnError(f"{csv}: unreadable episode table ({exc})") from exc
+        missing = [c for c in EPISODE_COLUMNS if c not in frame.columns]
+        if missing:
+            raise PriqnError(
+                f"{csv}: missing column {missing[0]!r}; re-run 'priqn evaluate --force'"
+            )
+        if frame.empty:
+            raise PriqnError(f"{csv}: no episodes; re-run 'priqn evaluate --force {run}'")
+        for column in ("holdout_hash", "label", "train_seed"):
+            if frame[column].nunique(dropna=False) != 1:
+                raise PriqnError(f"{csv}: column {column!r} is not constant within one run")
+        holdout = str(meta.get("holdout_hash"))
+        if str(frame["holdout_hash"].iloc[0]) != holdout:
+            raise PriqnError(f"{csv}: holdout_hash differs from {run / EVAL_DIR / META_FILE}")
+        frame["run"] = run.name
+        frames.append(frame[list(EPISODE_COLUMNS)])
+        infos.append(
+            RunInfo(
+                name=run.name,
+                path=run,
+                holdout_hash=holdout,
+                eval_config=dict(meta.get("eval_config") or {}),
+                label=str(frame["label"].iloc[0]),
+                train_seed=int(frame["train_seed"].iloc[0]),
+            )
+        )
+
+    _check_same(
+        infos, "holdout_hash", lambda i: i.holdout_hash, "evaluated on different hold-out sets"
+    )
+    for key in EVAL_SETTINGS:
+        _check_same(
+            infos, key, lambda i, k=key: i.eval_config.get(k), f"evaluated with different {key}"
+        )
+
+    episodes = pd.concat(frames, ignore_index=True)
+    _check_policies(episodes)
+    episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort").reset_index(drop=True)
+    return Evaluation(
+        episodes=episodes,
+        runs=tuple(infos),
+        holdout_hash=infos[0].holdout_hash,
+        eval_config=infos[0].eval_config,
+    )
+
+
+def load_episodes(runs_dir: str | Path) -> pd.DataFrame:
+    """All evaluated runs under ``runs_dir`` as one episode table (see :func:`load_evaluation`)."""
+    return load_evaluation(runs_dir).episodes
+
+
+def _check_same(infos: list[RunInfo], what: str, get: Any, message: str) -> None:
+    groups: dict[str, list[str]] = {}
+    for info in infos:
+        groups.setdefault(json.dumps(get(info), sort_keys=True), []).append(info.name)
+    if len(groups) > 1:
+        parts = "; ".join(
+            f"{value[:24]}: {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}"
+            for value, names in sorted(groups.items())
+        )
+        raise PriqnError(
+            f"runs were {message} ({what} {parts}); re-evaluate them alike or report them apart"
+        )
+
+
+def config_key(row: pd.Series | dict[str, Any]) -> tuple[Any, ...]:
+    """A policy configuration as a hashable tuple (NaN/empty -> None)."""
+    return tuple(None if pd.isna(row[c]) or row[c] == "" else row[c] for c in CONFIG_COLUMNS)
+
+
+def _check_policies(episodes: pd.DataFrame) -> None:
+    per_run = episodes.drop_duplicates("run")
+    configs: dict[str, tuple[Any, str]] = {}
+    seeds: dict[tuple[str, int], str] = {}
+    for _, row in per_run.iterrows():
+        label, run = str(row["label"]), str(row["run"])
+        key = config_key(row)
+        if label in configs and configs[label][0] != key:
+            other = configs[label][1]
+            raise PriqnError(
+                f"label {label!r} names two configurations (run {other}: {configs[label][0]}, "
+                f"run {run}: {key}); give them distinct labels"
+            )
+        configs.setdefault(label, (key, run))
+        seed_key = (label, int(row["train_seed"]))
+        if seed_key in seeds:
+            raise PriqnError(
+                f"runs {seeds[seed_key]} and {run} are both policy {label!r} with training seed "
+                f"{seed_key[1]}; remove one (a report never averages duplicates)"
+            )
+        seeds[seed_key] = run
+
+
+def check_seeds(episodes: pd.DataFrame, min_seeds: int) -> None:
+    """Raise if any policy has fewer than ``min_seeds`` training seeds."""
+    counts = episodes.groupby("label", sort=True)["train_seed"].nunique()
+    short = counts[counts < min_seeds]
+    if len(short):
+        label, n = short.index[0], int(short.iloc[0])
+        raise PriqnError(
+            f"policy {label!r} has {n} training seed(s) but {min_seeds} were asked for "
+            f"({len(short)} policies short); train the missing seeds or lower --seeds"
+        )
+
+
+LEARNING_X = ("step", "env_steps", "global_step", "steps", "frames")
+"""Candidate step columns of ``metrics.csv``, first found wins."""
+LEARNING_Y = ("return_weighted", "episode_return", "return", "reward")
+"""Candidate per-episode return columns of ``metrics.csv``, first found wins."""
+SMOOTHING_EPISODES = 20
+"""Training-episode returns are smoothed with a trailing mean over this many episodes."""
+
+
+EVAL_SUCCESS_CURVE = "hold-out success rate (training-time evaluation)"
+
+
+def learning_curves_of(metrics: pd.DataFrame) -> tuple[str, dict[str, pd.DataFrame]] | str:
+    """Every curve one run's ``metrics.csv`` offers: ``(x_name, {y_name: frame[x, y]})``.
+
+    priqn's own ``metrics.csv`` (``kind`` = train / eval rows) offers the success
+    rate of the training-time hold-out evaluations per step (if any were run) and the
+    training episodes' weighted return (trailing mean over
+    :data:`SMOOTHING_EPISODES`); other layouts the first step and return columns
+    found. A string says why there is no curve.
+    """
+    x_name = next((c for c in LEARNING_X if c in metrics.columns), None)
+    if x_name is None:
+        return f"metrics.csv has no step column ({', '.join(LEARNING_X)})"
+    found: dict[str, pd.DataFrame] = {}
+    if "kind" in metrics.columns and "success" in metrics.columns:
+        evals = metrics[metrics["kind"] == "eval"]
+        part = pd.DataFrame(
+            {
+                "x": pd.to_numeric(evals[x_name], errors="coerce"),
+                "y": pd.to_numeric(evals["success"].map(_as_float), errors="coerce"),
+            }
+        ).dropna()
+        if len(part):
+            found[EVAL_SUCCESS_CURVE] = part.groupby("x", sort=True)["y"].mean().reset_index()
+    train = metrics[metrics["kind"] != "eval"] if "kind" in metrics.columns else metrics
+    y_name = next((c for c in LEARNING_Y if c in train.columns), None)
+    if y_name is not None:
+        part = pd.DataFrame(
+            {
+                "x": pd.to_numeric(train[x_name], errors="coerce"),
+                "y": pd.to_numeric(train[y_name], errors="coerce"),
+            }
+        ).dropna()
+        if len(part):
+            part = part.sort_values("x", kind="mergesort").reset_index(drop=True)
+            part["y"] = part["y"].rolling(SMOOTHING_EPISODES, min_periods=1).mean()
+            found[f"{y_name} (trailing mean of {SMOOTHING_EPISODES} training episodes)"] = part
+    if not found:
+        return f"metrics.csv has no success or return column ({', '.join(LEARNING_Y)})"
+    return x_name, found
+
+
+def _as_float(v: Any) -> float:
+    if isinstance(v, str):
+        return {"true": 1.0, "false": 0.0}.get(v.strip().lower(), float("nan"))
+    return float(v)
+
+
+def load_learning_curves(
+    run_dirs: list[Path], evaluation: Evaluation
+) -> tuple[pd.DataFrame, list[str]]:
+    """Training curves from each evaluated run's ``metrics.csv``, read defensively.
+
+    One quantity for all runs: the hold-out success rate if every run with a usable
+    ``metrics.csv`` logged it, else the smoothed training return. Returns ``(curves,
+    notes)``: ``curves`` has columns ``label, train_seed, run, x_name, x, y_name, y``
+    (empty if nothing usable); ``notes`` say which runs lack a curve and why.
+    """
+    by_name = {r.name: r for r in evaluation.runs}
+    offered: dict[str, tuple[str, dict[str, pd.DataFrame]]] = {}
+    notes = []
+    for run in run_dirs:
+        if run.name not in by_name:
+            continue
+        path = run / "metrics.csv"
+        if not path.is_file():
+            notes.append(f"{run.name}: no metrics.csv, so no learning curve")
+            continue
+        try:
+            found = learning_curves_of(pd.read_csv(path))
+        except (OSError, ValueError) as exc:
+            found = f"metrics.csv unreadable ({exc})"
+        if isinstance(found, str):
+            notes.append(f"{run.name}: {found}, so no learning curve")
+        else:
+            offered[run.name] = found
+    columns = ["label", "train_seed", "run", "x_name", "x", "y_name", "y"]
+    if not offered:
+        return pd.DataFrame(columns=columns), notes
+    names = [set(curves) for _, curves in offered.values()]
+    common = set.intersection(*names)
+    y_name = EVAL_SUCCESS_CURVE if EVAL_SUCCESS_CURVE in common else None
+    if y_name is None:
+        y_name = next((n for n in sorted(common)), None)
+    if y_name is None:
+        notes.append("runs log no common learning-curve quantity; no learning curves")
+        return pd.DataFrame(columns=columns), notes
+    frames = []
+    for name, (x_name, curves) in offered.items():
+        info = by_name[name]
+        part = curves[y_name]
+        frames.append(
+            pd.DataFrame(
+                {
+                    "label": info.label,
+                    "train_seed": info.train_seed,
+                    "run": name,
+                    "x_name": x_name,
+                    "x": part["x"].to_numpy(float),
+                    "y_name": y_name,
+                    "y": part["y"].to_numpy(float),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)[columns], notes

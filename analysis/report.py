@@ -1,0 +1,266 @@
+"""``priqn report``: Tables I and II, rliable statistics and figures from evaluated runs.
+
+``make_report(runs_dir, out_dir, seed=0)`` writes::
+
+    out_dir/report.md                 everything at a glance
+    out_dir/meta.json                 inputs (runs, hold-out hash), seed, reps, command
+    out_dir/tables/table2.{md,tex,csv}, table1.{md,tex,csv}
+    out_dir/tables/rliable_aggregates.csv, probability_of_improvement.csv,
+                   performance_profiles.csv
+    out_dir/figures/{probability_of_improvement,iqm_optimality_gap,
+                     performance_profile,learning_curves}.{png,pdf}
+
+Same inputs and seed give byte-identical tables and report.md (no timestamps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from pathlib import Path
+from typing import Any
+
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json, atomic_write_text
+
+DEFAULT_REPS = 2000
+"""Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
+
+
+def _fmt_ci(point: float, lo: float, hi: float) -> str:
+    return f"{point:.3f} [{lo:.3f}, {hi:.3f}]"
+
+
+def _rliable_markdown(results: dict[str, Any], order: list[str]) -> str:
+    from analysis.stats import SCORE_METRICS
+
+    heads = ["Policy"]
+    for metric in results:
+        short = SCORE_METRICS[metric]
+        heads += [f"IQM {short} ↑", f"Optimality gap {short} ↓"]
+    lines = ["| " + " | ".join(heads) + " |", "|:--|" + "--:|" * (len(heads) - 1)]
+    aggs = {m: r.aggregates.set_index("label") for m, r in results.items()}
+    for label in order:
+        row = [label]
+        for agg in aggs.values():
+            a = agg.loc[label]
+            row += [
+                _fmt_ci(a["iqm"], a["iqm_lo"], a["iqm_hi"]),
+                _fmt_ci(a["og"], a["og_lo"], a["og_hi"]),
+            ]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _poi_matrix_markdown(result: Any, order: list[str]) -> str:
+    poi = result.improvement.set_index(["x", "y"])
+    short = [f"({i + 1})" for i in range(len(order))]
+    lines = [
+        "| X \\ Y | " + " | ".join(short) + " |",
+        "|:--|" + "--:|" * len(order),
+    ]
+    for i, x in enumerate(order):
+        cells = []
+        for y in order:
+            if x == y:
+                cells.append("–")
+            else:
+                r = poi.loc[(x, y)]
+                cells.append(f"{r['p']:.2f} [{r['lo']:.2f}, {r['hi']:.2f}]")
+        lines.append(f"| ({i + 1}) {x} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def make_report(
+    runs_dir: str | Path,
+    out_dir: str | Path,
+    seed: int = 0,
+    reps: int = DEFAULT_REPS,
+    min_seeds: int | None = None,
+    command: str | None = None,
+) -> Path:
+    """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
+
+    ``min_seeds``: refuse when a policy has fewer training seeds. ``seed`` goes to
+    ``np.random.seed`` before every rliable call (recorded in the report).
+    """
+    import pandas as pd
+
+    from analysis import figures, tables
+    from analysis.load import check_seeds, find_run_dirs, load_evaluation, load_learning_curves
+    from analysis.stats import RUN_AXIS, SCORE_METRICS, TASK_AXIS, rliable_statistics
+
+    out = Path(out_dir)
+    runs_root = Path(runs_dir)
+    evaluation = load_evaluation(runs_root)
+    episodes = evaluation.episodes
+    if min_seeds is not None:
+        check_seeds(episodes, min_seeds)
+    notes: list[str] = []
+    seeds_per_policy = episodes.groupby("label")["train_seed"].nunique()
+    if seeds_per_policy.nunique() > 1:
+        notes.append(
+            "Policies have different numbers of training seeds: "
+            + ", ".join(f"{k}: {v}" for k, v in seeds_per_policy.sort_index().items())
+        )
+
+    t2, t1 = tables.table2(episodes), tables.table1(episodes)
+    order = list(t2.configs)
+    if tables.reference_label(t2.configs) is None:
+        notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
+    tdir, fdir = out / "tables", out / "figures"
+    for name, table in (("table2", t2), ("table1", t1)):
+        atomic_write_text(tdir / f"{name}.md", tables.to_markdown(table))
+        atomic_write_text(tdir / f"{name}.tex", tables.to_latex(table))
+        atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
+
+    results = {m: rliable_statistics(episodes, m, order, reps, seed) for m in SCORE_METRICS}
+    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+    atomic_write_text(
+        tdir / "rliable_aggregates.csv",
+        pd.concat([r.aggregates.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+    )
+    atomic_write_text(
+        tdir / "probability_of_improvement.csv",
+        pd.concat([r.improvement.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+    )
+    atomic_write_text(
+        tdir / "performance_profiles.csv",
+        pd.concat([r.profiles.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+    )
+
+    sr = results["success"]
+    figures.save_figure(
+        figures.probability_of_improvement_figure(sr), fdir, "probability_of_improvement"
+    )
+    figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
+    figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
+    curves, curve_notes = load_learning_curves(find_run_dirs(runs_root), evaluation)
+    if len(curves):
+        figures.save_figure(figures.learning_curves_figure(curves, order), fdir, "learning_curves")
+    notes += curve_notes
+
+    cmd = (
+        command
+        or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
+    )
+    ec = evaluation.eval_config
+    n_runs, n_tasks = len(next(iter(sr.scores.values()))), len(sr.tasks)
+    md = [
+        "# priqn evaluation report",
+        "",
+        f"Made by `{cmd}`; episodes by `priqn evaluate` on every run below.",
+        "",
+        f"- **Hold-out set**: family `{ec.get('family')}`, manifest hash `{evaluation.holdout_hash}` "
+        "(identical for every run).",
+        f"- **Evaluation**: densities {ec.get('densities')}, {ec.get('eval_runs')} evaluation runs, "
+        f"{ec.get('episodes_per_cell')} episodes per (evaluation run, net, density), evaluation seed "
+        f"{ec.get('seed')}.",
+        f"- **Statistics seed**: `np.random.seed({seed})` before every rliable call; "
+        f"{reps} bootstrap replications, 95% percentile CIs.",
+        f"- **rliable axes**: run = ({' × '.join(RUN_AXIS)}), task = ({' × '.join(TASK_AXIS)}); "
+        f"e.g. {n_runs} runs × {n_tasks} tasks for {order[0]}. Scores: success rate (SR) and mean "
+        "route progress (RP) per cell; optimality-gap threshold 1.",
+        "- **Tables**: mean ± sample std (ddof=1) over training seeds × evaluation runs; "
+        "**best** / <u>second</u> per column and density on the printed means (ties share).",
+        "",
+        "## Table II — driving metrics",
+        "",
+        tables.to_markdown(t2),
+        "## Table I — objective returns",
+        "",
+        tables.to_markdown(t1),
+        "## rliable",
+        "",
+        _rliable_markdown(results, order),
+        "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
+        "",
+        _poi_matrix_markdown(sr, order),
+        "![P(X > Y)](figures/probability_of_improvement.png) "
+        "([pdf](figures/probability_of_improvement.pdf))",
+        "",
+        "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
+        "",
+        "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
+        "",
+        "## Learning curves",
+        "",
+        (
+            "![Learning curves](figures/learning_curves.png) ([pdf](figures/learning_curves.pdf))"
+            if len(curves)
+            else "No usable metrics.csv in any run; no learning curves."
+        ),
+        "",
+        "## Inputs",
+        "",
+        "| run | policy | training seed | hold-out hash |",
+        "|:--|:--|--:|:--|",
+        *[
+            f"| {r.name} | {r.label} | {r.train_seed} | `{r.holdout_hash[:16]}` |"
+            for r in evaluation.runs
+        ],
+        "",
+    ]
+    if notes:
+        md += ["## Notes", "", *[f"- {n}" for n in notes], ""]
+    md += [
+        "Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.",
+        "",
+    ]
+    report = out / "report.md"
+    atomic_write_text(report, "\n".join(md))
+    atomic_write_json(
+        out / "meta.json",
+        {
+            "command": cmd,
+            "seed": seed,
+            "bootstrap_reps": reps,
+            "min_seeds": min_seeds,
+            "run_axis": list(RUN_AXIS),
+            "task_axis": list(TASK_AXIS),
+            "holdout_hash": evaluation.holdout_hash,
+            "eval_config": ec,
+            "runs": [
+                {
+                    "name": r.name,
+                    "label": r.label,
+                    "train_seed": r.train_seed,
+                    "holdout_hash": r.holdout_hash,
+                }
+                for r in evaluation.runs
+            ],
+            "policies": order,
+            "notes": notes,
+        },
+    )
+    return report
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "runs", nargs="?", default="runs", help="folder of evaluated runs (default runs/)"
+    )
+    parser.add_argument("--out", help="output folder (default reports/<runs folder name>/)")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="np.random seed before every rliable call"
+    )
+    parser.add_argument("--reps", type=int, default=DEFAULT_REPS, help="bootstrap replications")
+    parser.add_argument(
+        "--seeds", type=int, default=None, help="refuse if a policy has fewer training seeds"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.reps < 1:
+        raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
+    out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
+    command = (
+        f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "
+        f"--seed {args.seed} --reps {args.reps}" + (f" --seeds {args.seeds}" if args.seeds else "")
+    )
+    print(
+        make_report(
+            args.runs, out, seed=args.seed, reps=args.reps, min_seeds=args.seeds, command=command
+        )
+    )
+    return 0

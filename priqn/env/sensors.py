@@ -1,0 +1,570 @@
+"""Ego-centred sensors in vectorised numpy: a BEV raster and a synthesised LiDAR grid.
+
+Both share one ego-aligned grid of ``size_px × size_px`` cells covering a square of
+``extent_m`` metres: the ego's heading points **up** (row 0 is farthest ahead), column
+0 is the ego's far **left**, and the ego's centre lies ``behind_m`` above the bottom
+edge, on the vertical centre line (default: 48 m ahead, 16 m behind, 32 m to each
+side). The cell of a point ``(fwd, left)`` in the ego frame (x forward, y left, m) is::
+
+    row = floor((extent_m - behind_m - fwd) / res)     col = floor((extent_m / 2 - left) / res)
+
+with ``res = extent_m / size_px`` metres per cell.
+
+* **BEV** ``uint8 [C, H, W]``, values 0/255. Map channels (``drivable``,
+  ``lane_markings``, ``route``) are gathered from a :class:`~priqn.env.geometry.MapRaster`
+  at the cell centres (nearest neighbour, one gather for all map channels: they are bits
+  of one byte). ``actors`` fills every cell whose centre lies inside a vehicle's or
+  obstacle's oriented footprint (not only its centre cell); boxes thinner than a cell
+  get a half-width of at least ``res/√2`` so that they never vanish. Optional: ``ego``
+  (the ego footprint) and ``actor_speed`` (footprints filled with
+  ``1 + 254·min(speed / speed_scale_mps, 1)``).
+* **LiDAR** ``uint8 [2, H, W]`` point counts saturating at 255, bin 0 below and bin 1
+  at or above ``lidar_split_height_m``. A spinning sensor on the ego roof
+  (``lidar_height_m`` above the ego centre) casts ``lidar_rays`` azimuths ×
+  ``lidar_beams`` elevations. The (ray, box face) intersections are found by
+  ray–segment tests against the sensor-facing box edges, only for the rays inside each
+  edge's angular span. Along each ray a beam stops at the first face whose height at
+  that range covers it (``h + t·tan(elevation) ∈ [0, box height]``): a car behind a car
+  is hidden except where beams pass over the front one. A downward beam that meets no
+  face returns from the ground at its ring distance ``h / tan(−elevation)``, and only on
+  the drivable area (off-road surfaces return nothing: the net knows none). Not
+  modelled: roofs, ground clearance, noise, intensity.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from priqn.env.geometry import DRIVABLE, MARKING, ROUTE, Boxes, MapRaster, boxes_corners
+
+BEV_CHANNELS: dict[str, str] = {
+    "drivable": "drivable area (all lanes, internal lanes, junction)",
+    "lane_markings": "lane markings and road edges",
+    "route": "the ego route, half a lane width either side of its centre line",
+    "actors": "footprints of other vehicles and obstacles",
+    "ego": "the ego footprint (constant; for pictures)",
+    "actor_speed": "actor footprints filled with 255 * min(speed / speed_scale_mps, 1)",
+}
+"""BEV channels that :class:`SensorConfig.bev_channels` may name, in no particular order."""
+
+_MAP_BITS = {"drivable": DRIVABLE, "lane_markings": MARKING, "route": ROUTE}
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Grid and sensor parameters shared by the BEV and the LiDAR grid."""
+
+    size_px: int = 128
+    """Grid side in cells (H = W); the paper uses 128, 64 is convenient on CPUs."""
+    extent_m: float = 64.0
+    """Side of the square area covered (m)."""
+    behind_m: float = 16.0
+    """Distance from the ego centre to the bottom (rear) edge of the grid (m)."""
+    bev_channels: tuple[str, ...] = ("drivable", "lane_markings", "route", "actors")
+    """BEV channels, in this order; names from ``BEV_CHANNELS``."""
+    speed_scale_mps: float = 20.0
+    """Speed shown at full intensity in the ``actor_speed`` channel (m/s)."""
+    lidar_height_m: float = 2.0
+    """Height of the LiDAR above the road (m)."""
+    lidar_rays: int = 720
+    """Azimuth steps per revolution."""
+    lidar_beams: int = 32
+    """Vertical beams (channels), spread evenly between the two elevations below."""
+    lidar_elevation_min_deg: float = -25.0
+    """Lowest beam elevation (deg, negative = down)."""
+    lidar_elevation_max_deg: float = 5.0
+    """Highest beam elevation (deg)."""
+    lidar_range_m: float = 60.0
+    """Maximum range (m)."""
+    lidar_split_height_m: float = 0.5
+    """Height separating the two vertical bins (m)."""
+
+    def __post_init__(self) -> None:
+        if self.size_px < 4:
+            raise ValueError(f"sensors.size_px must be >= 4, got {self.size_px}")
+        if not self.extent_m > 0 or not 0 <= self.behind_m <= self.extent_m:
+            raise ValueError("sensors: need extent_m > 0 and 0 <= behind_m <= extent_m")
+        unknown = [c for c in self.bev_channels if c not in BEV_CHANNELS]
+        if unknown or len(set(self.bev_channels)) != len(self.bev_channels):
+            raise ValueError(
+                f"sensors.bev_channels: unknown or repeated {unknown or self.bev_channels}; "
+                f"valid: {', '.join(BEV_CHANNELS)}"
+            )
+        if self.lidar_rays < 8 or self.lidar_beams < 1:
+            raise ValueError("sensors: need lidar_rays >= 8 and lidar_beams >= 1")
+        if not self.lidar_elevation_min_deg <= self.lidar_elevation_max_deg:
+            raise ValueError("sensors: lidar_elevation_min_deg > lidar_elevation_max_deg")
+        if not (-89.0 <= self.lidar_elevation_min_deg and self.lidar_elevation_max_deg <= 89.0):
+            raise ValueError("sensors: lidar elevations must lie in [-89, 89] deg")
+        if not self.lidar_height_m > 0 or not self.lidar_range_m > 0:
+            raise ValueError("sensors: lidar_height_m and lidar_range_m must be > 0")
+        if not self.lidar_split_height_m >= 0 or not self.speed_scale_mps > 0:
+            raise ValueError("sensors: need lidar_split_height_m >= 0 and speed_scale_mps > 0")
+
+    @property
+    def metres_per_px(self) -> float:
+        """Cell size (m)."""
+        return self.extent_m / self.size_px
+
+    @property
+    def marking_width_m(self) -> float:
+        """Width to draw lane markings in the :class:`MapRaster` (1.25 cells, m).
+
+        Nearest-neighbour sampling sees a line in every row/column it crosses only if it
+        is wider than a cell; a quarter cell more absorbs the raster's own rounding.
+        """
+        return 1.25 * self.metres_per_px
+
+    def cell_of(self, fwd_m: np.ndarray, left_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) of ego-frame points (float, floor them for indices)."""
+        res = self.metres_per_px
+        return (
+            (self.extent_m - self.behind_m - np.asarray(fwd_m)) / res,
+            (0.5 * self.extent_m - np.asarray(left_m)) / res,
+        )
+
+
+class Sensors:
+    """Builds BEV and LiDAR observations; precomputes everything that does not move."""
+
+    def __init__(self, cfg: SensorConfig | None = None) -> None:
+        self.cfg = cfg = cfg or SensorConfig()
+        n = cfg.size_px
+        res = cfg.metres_per_px
+        self._res = res
+        self._fwd_max = cfg.extent_m - cfg.behind_m
+        self._left_max = 0.5 * cfg.extent_m
+        centres = (np.arange(n) + 0.5) * res
+        fwd = (self._fwd_max - centres)[:, None] * np.ones((1, n))
+        left = np.ones((n, 1)) * (self._left_max - centres)[None, :]
+        self._pix_fwd = fwd.ravel().astype(np.float32)
+        self._pix_left = left.ravel().astype(np.float32)
+        self._luts = {
+            name: np.where(np.arange(256) & bit, 255, 0).astype(np.uint8)
+            for name, bit in _MAP_BITS.items()
+        }
+        # LiDAR geometry.
+        az = np.arange(cfg.lidar_rays) * (2 * np.pi / cfg.lidar_rays)
+        self._ray_cos, self._ray_sin = np.cos(az), np.sin(az)
+        el = np.radians(
+            np.linspace(cfg.lidar_elevation_min_deg, cfg.lidar_elevation_max_deg, cfg.lidar_beams)
+        )
+        self._tan_el = np.sort(np.tan(el))
+        h = cfg.lidar_height_m
+        down = self._tan_el[self._tan_el < 0]
+        ring = h / -down  # ground distance of each downward beam
+        keep = ring <= cfg.lidar_range_m
+        down, ring = down[keep], ring[keep]
+        ray_i = np.repeat(np.arange(cfg.lidar_rays), len(ring))
+        gx = np.outer(self._ray_cos, ring).ravel()
+        gy = np.outer(self._ray_sin, ring).ravel()
+        row, col = cfg.cell_of(gx, gy)
+        inside = (row >= 0) & (row < n) & (col >= 0) & (col < n)
+        self._g_ray = ray_i[inside]
+        beam_k = np.flatnonzero(self._tan_el < 0)[keep]  # index into the sorted elevations
+        self._g_rk = (ray_i * len(self._tan_el) + np.tile(beam_k, cfg.lidar_rays))[inside]
+        self._g_range = np.tile(ring, cfg.lidar_rays)[inside]
+        self._g_cell = (np.floor(row[inside]) * n + np.floor(col[inside])).astype(np.intp)
+        self._ego_mask_key: tuple[float, float] | None = None
+        self._ego_mask = np.zeros(n * n, dtype=bool)
+
+    # ------------------------------------------------------------------ public API
+    @property
+    def bev_shape(self) -> tuple[int, int, int]:
+        """(C, H, W) of the BEV."""
+        n = self.cfg.size_px
+        return (len(self.cfg.bev_channels), n, n)
+
+    @property
+    def lidar_shape(self) -> tuple[int, int, int]:
+        """(2, H, W) of the LiDAR grid."""
+        n = self.cfg.size_px
+        return (2, n, n)
+
+    def observe(
+        self,
+        map_raster: MapRaster,
+        ego: Boxes,
+        actors: Boxes,
+        actor_speed_mps: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(bev uint8 [C, H, W], lidar uint8 [2, H, W])`` for one ego box and M actors."""
+        bits = self._sample_map(map_raster, ego)
+        rel, visible = self._to_ego_frame(ego, actors)
+        return (
+            self._bev_from(bits, ego, rel, visible, actor_speed_mps),
+            self._lidar_from(bits, rel),
+        )
+
+    def bev(
+        self,
+        map_raster: MapRaster,
+        ego: Boxes,
+        actors: Boxes,
+        actor_speed_mps: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """BEV only, ``uint8 [C, H, W]``."""
+        bits = self._sample_map(map_raster, ego)
+        rel, visible = self._to_ego_frame(ego, actors)
+        return self._bev_from(bits, ego, rel, visible, actor_speed_mps)
+
+    def lidar(self, map_raster: MapRaster, ego: Boxes, actors: Boxes) -> np.ndarray:
+        """LiDAR grid only, ``uint8 [2, H, W]``."""
+        bits = self._sample_map(map_raster, ego)
+        return self._lidar_from(bits, self._to_ego_frame(ego, actors)[0])
+
+    def lidar_points(self, map_raster: MapRaster, ego: Boxes, actors: Boxes) -> np.ndarray:
+        """The synthesised point cloud ``[N, 3]`` (fwd, left, height) in the ego frame (m).
+
+        Same model as :meth:`lidar` (which bins these points), for pictures and checks;
+        ground returns are traced only inside the grid, face returns up to the range.
+        """
+        bits = self._sample_map(map_raster, ego)
+        ret = self._returns(bits, self._to_ego_frame(ego, actors)[0])
+        gi = self._g_ray[ret.ground]
+        rng = self._g_range[ret.ground]
+        ground = np.stack([rng * self._ray_cos[gi], rng * self._ray_sin[gi], 0 * rng], axis=1)
+        i, k = np.nonzero(ret.claimed)
+        t, ray = ret.hit_t[i], ret.hit_ray[i]
+        z = self.cfg.lidar_height_m + t * self._tan_el[k]
+        boxes = np.stack([t * self._ray_cos[ray], t * self._ray_sin[ray], z], axis=1)
+        return np.concatenate([ground, boxes])
+
+    def render_rgb(self, bev: np.ndarray, lidar: np.ndarray, scale: int = 1) -> np.ndarray:
+        """RGB frame ``uint8 [H·scale, 2·W·scale, 3]``: BEV on the left, LiDAR on the right.
+
+        BEV: road grey, route green, markings white, actors red, ego blue (the footprint
+        of the ego passed to the last :meth:`observe`). LiDAR: ground-bin counts in blue,
+        high-bin counts in orange, brightness ∝ log(1 + count).
+        """
+        ch = {name: bev[i] > 0 for i, name in enumerate(self.cfg.bev_channels)}
+        n = self.cfg.size_px
+        left = np.empty((n, n, 3), np.uint8)
+        left[:] = (28, 28, 32)
+        for name, colour in (
+            ("drivable", (92, 92, 96)),
+            ("route", (52, 120, 70)),
+            ("lane_markings", (225, 225, 225)),
+            ("actors", (235, 70, 55)),
+        ):
+            if name in ch:
+                left[ch[name]] = colour
+        if "actor_speed" in ch and "actors" not in ch:
+            left[ch["actor_speed"]] = (235, 70, 55)
+        ego = ch.get("ego", self._ego_mask.reshape(n, n))
+        left[ego] = (70, 150, 255)
+        lo = np.log1p(lidar[0].astype(np.float32)) / np.log1p(16.0)
+        hi = np.log1p(lidar[1].astype(np.float32)) / np.log1p(8.0)
+        lo, hi = np.minimum(lo, 1.0), np.minimum(hi, 1.0)
+        right = np.stack([255 * hi, 150 * hi + 110 * lo * (1 - hi), 255 * lo * (1 - hi)], -1)
+        right = right.astype(np.uint8)
+        right[ego & (lidar.sum(0) == 0)] = (70, 70, 110)
+        frame = np.concatenate([left, right], axis=1)
+        if scale > 1:
+            frame = frame.repeat(scale, axis=0).repeat(scale, axis=1)
+        return frame
+
+    # ------------------------------------------------------------------ internals
+    def _sample_map(self, map_raster: MapRaster, ego: Boxes) -> np.ndarray:
+        """Map bits at every grid cell centre, flat [H·W]."""
+        ex, ey = ego.center_xy[0]
+        c, s = np.cos(ego.heading_rad[0]), np.sin(ego.heading_rad[0])
+        res = map_raster.resolution_m
+        ox, oy = map_raster.origin_xy
+        hgt, wid = map_raster.bits.shape
+        # World position in raster cells, as float32 (one fused expression per axis).
+        fx = self._pix_fwd * np.float32(c / res) - self._pix_left * np.float32(s / res)
+        fx += np.float32((ex - ox) / res)
+        fy = self._pix_fwd * np.float32(s / res) + self._pix_left * np.float32(c / res)
+        fy += np.float32((ey - oy) / res)
+        ix = np.clip(fx, 0, wid - 1).astype(np.intp)  # trunc == floor once clipped >= 0
+        iy = np.clip(fy, 0, hgt - 1).astype(np.intp)
+        iy *= wid
+        iy += ix
+        return map_raster.bits.ravel().take(iy)
+
+    def _to_ego_frame(self, ego: Boxes, actors: Boxes) -> tuple[Boxes, np.ndarray]:
+        """Actors in the ego frame (x forward, y left) without those that cannot be seen,
+        and the indices of the kept ones."""
+        if len(actors) == 0:
+            return actors, np.zeros(0, np.intp)
+        h0 = ego.heading_rad[0]
+        c, s = np.cos(h0), np.sin(h0)
+        d = actors.center_xy - ego.center_xy[0]
+        fwd = d[:, 0] * c + d[:, 1] * s
+        left = -d[:, 0] * s + d[:, 1] * c
+        half_diag = 0.5 * np.hypot(actors.length_m, actors.width_m)
+        cfg = self.cfg
+        visible = (
+            (fwd - half_diag < self._fwd_max)
+            & (fwd + half_diag > -cfg.behind_m)
+            & (np.abs(left) - half_diag < self._left_max)
+        ) | (np.hypot(fwd, left) - half_diag < cfg.lidar_range_m)
+        idx = np.flatnonzero(visible)
+        rel = Boxes(
+            np.stack([fwd, left], axis=1)[idx],
+            (actors.heading_rad - h0)[idx],
+            actors.length_m[idx],
+            actors.width_m[idx],
+            actors.height_m[idx],
+        )
+        return rel, idx
+
+    def _box_cells(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray]:
+        """(flat cell index, box index) of every cell whose centre lies inside a box."""
+        n = self.cfg.size_px
+        res = self._res
+        m = len(rel)
+        if m == 0:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        min_half = res / np.sqrt(2.0)
+        hl = np.maximum(0.5 * rel.length_m, min_half)
+        hw = np.maximum(0.5 * rel.width_m, min_half)
+        k = int(np.ceil(np.max(np.hypot(hl, hw)) / res)) + 1
+        off = np.arange(-k, k + 1)
+        row_c, col_c = self.cfg.cell_of(rel.center_xy[:, 0], rel.center_xy[:, 1])
+        r0 = np.floor(row_c).astype(np.intp)
+        c0 = np.floor(col_c).astype(np.intp)
+        rows = r0[:, None, None] + off[None, :, None]  # [M, K, 1]
+        cols = c0[:, None, None] + off[None, None, :]  # [M, 1, K]
+        # Cell-centre offsets from the box centre in the ego frame (fwd, left).
+        dfwd = (self._fwd_max - (rows + 0.5) * res) - rel.center_xy[:, 0, None, None]
+        dleft = (self._left_max - (cols + 0.5) * res) - rel.center_xy[:, 1, None, None]
+        ch = np.cos(rel.heading_rad)[:, None, None]
+        sh = np.sin(rel.heading_rad)[:, None, None]
+        inside = np.abs(dfwd * ch + dleft * sh) <= hl[:, None, None]
+        inside &= np.abs(-dfwd * sh + dleft * ch) <= hw[:, None, None]
+        inside &= (rows >= 0) & (rows < n) & (cols >= 0) & (cols < n)
+        b, i, j = np.nonzero(inside)
+        return rows[b, i, 0] * n + cols[b, 0, j], b
+
+    def _ego_cells(self, ego: Boxes) -> np.ndarray:
+        key = (float(ego.length_m[0]), float(ego.width_m[0]))
+        if key != self._ego_mask_key:
+            rel = Boxes.make([0.0, 0.0], 0.0, key[0], key[1])
+            cells, _ = self._box_cells(rel)
+            self._ego_mask = np.zeros(self.cfg.size_px**2, dtype=bool)
+            self._ego_mask[cells] = True
+            self._ego_mask_key = key
+        return self._ego_mask
+
+    def _bev_from(
+        self,
+        bits: np.ndarray,
+        ego: Boxes,
+        rel: Boxes,
+        visible: np.ndarray,
+        actor_speed_mps: np.ndarray | None,
+    ) -> np.ndarray:
+        cfg = self.cfg
+        n = cfg.size_px
+        out = np.zeros((len(cfg.bev_channels), n * n), dtype=np.uint8)
+        ego_mask = self._ego_cells(ego)
+        cells = boxes = None
+        for ci, name in enumerate(cfg.bev_channels):
+            if name in self._luts:
+                self._luts[name].take(bits, out=out[ci])
+            elif name == "ego":
+                out[ci][ego_mask] = 255
+            else:
+                if cells is None:
+                    cells, boxes = self._box_cells(rel)
+                if name == "actors":
+                    out[ci][cells] = 255
+                else:  # actor_speed
+                    if actor_speed_mps is None:
+                        raise ValueError("the actor_speed channel needs actor_speed_mps")
+                    speed = np.asarray(actor_speed_mps, dtype=float).reshape(-1)[visible]
+                    val = np.clip(speed / cfg.speed_scale_mps, 0.0, 1.0) * 254 + 1
+                    order = np.argsort(val[boxes], kind="stable")  # faster actors on top
+                    out[ci][cells[order]] = val[boxes][order].astype(np.uint8)
+        return out.reshape(len(cfg.bev_channels), n, n)
+
+    def _returns(self, bits: np.ndarray, rel: Boxes) -> _Returns:
+        """Trace every beam: which box face it hits first, or whether it reaches the road."""
+        cfg = self.cfg
+        rays, beams = cfg.lidar_rays, len(self._tan_el)
+        claimed_rk = np.zeros((rays, beams), dtype=bool)
+        hit_t = np.zeros(0)
+        hit_ray = np.zeros(0, np.intp)
+        claimed = np.zeros((0, beams), dtype=bool)
+        if len(rel):
+            corners = boxes_corners(rel.center_xy, rel.heading_rad, rel.length_m, rel.width_m)
+            p = corners.reshape(-1, 2)
+            e = (np.roll(corners, -1, axis=1) - corners).reshape(-1, 2)
+            cpe = p[:, 0] * e[:, 1] - p[:, 1] * e[:, 0]
+            front = cpe < 0  # edges facing the sensor (boxes are counter-clockwise)
+            p, e, cpe = p[front], e[front], cpe[front]
+            box_of_edge = np.repeat(np.arange(len(rel)), 4)[front]
+            # Only the rays inside each edge's angular span can meet it: list those
+            # (ray, edge) pairs instead of testing all rays against all edges.
+            dth = 2 * np.pi / rays
+            az_p = np.arctan2(p[:, 1], p[:, 0])
+            q = p + e
+            az_q = np.arctan2(q[:, 1], q[:, 0])  # front edges run clockwise: span [az_q, az_p]
+            width = np.mod(az_p - az_q, 2 * np.pi)
+            k0 = np.ceil(az_q / dth - 1e-9).astype(np.intp)
+            k1 = np.floor((az_q + width) / dth + 1e-9).astype(np.intp)
+            n_e = np.maximum(k1 - k0 + 1, 0)
+            e_i = np.repeat(np.arange(len(p)), n_e)
+            first = np.cumsum(n_e) - n_e
+            r_i = np.mod(np.repeat(k0 - first, n_e) + np.arange(len(e_i)), rays)
+            ux, uy = self._ray_cos[r_i], self._ray_sin[r_i]
+            den = ux * e[e_i, 1] - uy * e[e_i, 0]  # cross(u, e)
+            num = p[e_i, 0] * uy - p[e_i, 1] * ux  # cross(p, u)
+            # The ray meets the face iff den < 0 and 0 <= num/den <= 1; then t = cpe/den.
+            ok = (den < 0) & (num <= 0) & (num >= den)
+            r_i, e_i, den = r_i[ok], e_i[ok], den[ok]
+            t = cpe[e_i] / den
+            keep = t <= cfg.lidar_range_m
+            r_i, e_i, t = r_i[keep], e_i[keep], t[keep]
+            if len(t):
+                order = np.lexsort((t, r_i))  # by ray, nearest face first
+                r_i, t = r_i[order], t[order]
+                height = rel.height_m[box_of_edge[e_i[order]]]
+                h = cfg.lidar_height_m
+                # Beams whose height at the face, h + t·tan(el), lies in [0, height].
+                k_lo = np.searchsorted(self._tan_el, -h / t, side="left")
+                k_hi = np.searchsorted(self._tan_el, (height - h) / t, side="right")
+                k = np.arange(beams)
+                span = (k >= k_lo[:, None]) & (k < k_hi[:, None])  # [n, K]
+                # A beam stops at the first face (in range order) on its ray that spans it.
+                cum = np.cumsum(span, axis=0, dtype=np.int32)
+                first = np.flatnonzero(np.r_[True, r_i[1:] != r_i[:-1]])
+                start = np.repeat(first, np.diff(np.r_[first, len(r_i)]))
+                base = cum[start - 1] * (start > 0)[:, None]
+                claimed = span & (cum - span == base)
+                ii, kk = np.nonzero(claimed)
+                claimed_rk[r_i[ii], kk] = True
+                hit_t, hit_ray = t, r_i
+        ground = ~claimed_rk.ravel().take(self._g_rk)
+        ground &= (bits.take(self._g_cell) & DRIVABLE) != 0
+        return _Returns(ground, hit_t, hit_ray, claimed)
+
+    def _lidar_from(self, bits: np.ndarray, rel: Boxes) -> np.ndarray:
+        cfg = self.cfg
+        n = cfg.size_px
+        hw = n * n
+        ret = self._returns(bits, rel)
+        low = np.bincount(self._g_cell[ret.ground], minlength=hw)
+        high = np.zeros(hw, np.int64)
+        if len(ret.hit_t):
+            # All beams of one (ray, face) hit land in the same cell: count them per hit.
+            h = cfg.lidar_height_m
+            k_split = np.searchsorted(self._tan_el, (cfg.lidar_split_height_m - h) / ret.hit_t)
+            below = np.arange(len(self._tan_el))[None, :] < k_split[:, None]
+            n_low = np.count_nonzero(ret.claimed & below, axis=1)
+            n_high = np.count_nonzero(ret.claimed & ~below, axis=1)
+            row, col = cfg.cell_of(
+                ret.hit_t * self._ray_cos[ret.hit_ray], ret.hit_t * self._ray_sin[ret.hit_ray]
+            )
+            row, col = np.floor(row).astype(np.intp), np.floor(col).astype(np.intp)
+            inside = (row >= 0) & (row < n) & (col >= 0) & (col < n)
+            cell = (row * n + col)[inside]
+            low += np.bincount(cell, weights=n_low[inside], minlength=hw).astype(np.int64)
+            high += np.bincount(cell, weights=n_high[inside], minlength=hw).astype(np.int64)
+        out = np.empty((2, hw), dtype=np.uint8)
+        np.minimum(low, 255, out=out[0], casting="unsafe")
+        np.minimum(high, 255, out=out[1], casting="unsafe")
+        return out.reshape(2, n, n)
+
+
+@dataclass(frozen=True)
+class _Returns:
+    ground: np.ndarray
+    """bool [G]: which precomputed ground returns exist."""
+    hit_t: np.ndarray
+    """[n] range of each (ray, face) intersection, sorted by ray then range."""
+    hit_ray: np.ndarray
+    """[n] ray index of each intersection."""
+    claimed: np.ndarray
+    """bool [n, K]: beams (sorted by elevation) that stop on that face."""
+
+
+# --------------------------------------------------------------------------- synthetic scene
+
+
+def synthetic_crossroads(
+    lane_width_m: float = 3.5, arm_length_m: float = 100.0
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """A four-way crossing of two-lane roads centred on the origin (benchmarks, docs, tests).
+
+    Returns ``(lane_polygons_xy, marking_polylines_xy, lane_centres_xy)``; lanes drive on
+    the right; ``lane_centres_xy`` are the 8 incoming/outgoing lane centre lines
+    (2-point polylines, in driving direction).
+    """
+    w, a = lane_width_m, arm_length_m
+    polys, marks, centres = [], [], []
+    for k in range(4):
+        rot = np.array(
+            [
+                [np.cos(k * np.pi / 2), -np.sin(k * np.pi / 2)],
+                [np.sin(k * np.pi / 2), np.cos(k * np.pi / 2)],
+            ]
+        )
+
+        def r(pts: list[tuple[float, float]], rot: np.ndarray = rot) -> np.ndarray:
+            return np.asarray(pts, float) @ rot.T
+
+        # Arm along +x from x = w to x = a; incoming lane (driving -x) at y > 0.
+        polys.append(r([(w, 0), (a, 0), (a, w), (w, w)]))
+        polys.append(r([(w, -w), (a, -w), (a, 0), (w, 0)]))
+        marks += [r([(w, 0), (a, 0)]), r([(w, w), (a, w)]), r([(w, -w), (a, -w)])]
+        centres += [r([(a, 0.5 * w), (w, 0.5 * w)]), r([(w, -0.5 * w), (a, -0.5 * w)])]
+    polys.append(np.array([(-w, -w), (w, -w), (w, w), (-w, w)], float))  # junction
+    return polys, marks, centres
+
+
+def benchmark_observation(
+    size_px: int = 128, n_actors: int = 30, repeats: int = 200, seed: int = 0
+) -> dict[str, float]:
+    """Time one BEV + LiDAR observation (ms) on the synthetic crossroads with ``n_actors``.
+
+    Returns ``{"size_px", "n_actors", "observe_ms_median", "observe_ms_mean", "bev_ms_median",
+    "lidar_ms_median"}``. Poses are drawn from ``np.random.default_rng(seed)``.
+    """
+    rng = np.random.default_rng(seed)
+    cfg = SensorConfig(size_px=size_px)
+    sensors = Sensors(cfg)
+    polys, marks, centres = synthetic_crossroads()
+    raster = MapRaster.from_roadmap_arrays(
+        polys, marks, resolution_m=0.2, marking_width_m=cfg.marking_width_m
+    )
+    raster = raster.with_route(np.array([[-60.0, -1.75], [60.0, -1.75]]), 3.5)
+
+    def random_boxes(m: int) -> Boxes:
+        lane = rng.integers(0, len(centres), m)
+        frac = rng.uniform(0.0, 0.6, m)
+        p0 = np.array([centres[i][0] for i in lane])
+        p1 = np.array([centres[i][1] for i in lane])
+        xy = p0 + (p1 - p0) * frac[:, None]
+        hd = np.arctan2(*(p1 - p0)[:, ::-1].T)
+        return Boxes.make(xy, hd, rng.uniform(4.0, 5.5, m), rng.uniform(1.7, 2.1, m), 1.5)
+
+    scenes = [(random_boxes(1), random_boxes(n_actors)) for _ in range(16)]
+    for ego, actors in scenes:  # warm-up
+        sensors.observe(raster, ego, actors)
+    t_obs, t_bev, t_lid = [], [], []
+    for i in range(repeats):
+        ego, actors = scenes[i % len(scenes)]
+        t0 = time.perf_counter()
+        sensors.observe(raster, ego, actors)
+        t1 = time.perf_counter()
+        sensors.bev(raster, ego, actors)
+        t2 = time.perf_counter()
+        sensors.lidar(raster, ego, actors)
+        t3 = time.perf_counter()
+        t_obs.append(t1 - t0)
+        t_bev.append(t2 - t1)
+        t_lid.append(t3 - t2)
+    return {
+        "size_px": float(size_px),
+        "n_actors": float(n_actors),
+        "observe_ms_median": 1e3 * float(np.median(t_obs)),
+        "observe_ms_mean": 1e3 * float(np.mean(t_obs)),
+        "bev_ms_median": 1e3 * float(np.median(t_bev)),
+        "lidar_ms_median": 1e3 * float(np.median(t_lid)),
+    }

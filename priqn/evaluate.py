@@ -1,0 +1,598 @@
+"""Evaluation protocol: every trained run meets the same hold-out scenes.
+
+``priqn evaluate runs/<name> [runs/<other> ...]`` (or a folder of runs) plays each
+run's greedy policy on the hold-out nets × traffic densities × ``eval_runs``
+evaluation runs, ``episodes_per_cell`` episodes per (evaluation run, net, density)
+cell, and writes one row per episode to ``runs/<name>/eval/episodes.csv``.
+
+Scenes are identical for every policy: the reset seed of episode ``e`` in cell
+(evaluation run ``r``, net ``n``, density ``d``) is drawn from
+``SeedSequence(EvalConfig.seed, spawn_key=(r, n, d, e))`` where ``n`` and ``d`` are
+indices into the sorted hold-out net ids and the configured densities. The
+training seed never enters. The policy's own randomness (Pr-IQN samples from its
+leaf subset) uses a generator seeded from the same key, so an episode's result does
+not depend on how many workers ran it or in which order.
+
+Resumable: each finished cell is written atomically to ``eval/cells/``; a second
+call skips finished cells. ``eval/meta.json`` says ``"status": "complete"`` only
+after every cell is done; it records the hold-out manifest hash, the EvalConfig
+and the seeds. A different hold-out set or EvalConfig than a half-finished
+evaluation refuses to mix (``--force`` starts over).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.config import apply_overrides, from_dict, load_toml, to_dict
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json, atomic_write_text
+from priqn.objectives import OBJECTIVES
+
+EPISODE_COLUMNS: tuple[str, ...] = (
+    "run",
+    "label",
+    "agent",
+    "comparator",
+    "train_preorder",
+    "eps",
+    "partial_order",
+    "train_seed",
+    "eval_run",
+    "net",
+    "density",
+    "density_realised",
+    "success",
+    "collision",
+    "off_road",
+    "timeout",
+    "route_progress",
+    "steps",
+    *(f"return_{name}" for name in OBJECTIVES),
+    "holdout_hash",
+    # Beyond the contract's list: the scene's identity, so "same scenes" can be checked.
+    "episode",
+    "command",
+    "reset_seed",
+)
+"""Columns of ``eval/episodes.csv``, in order (one row per episode)."""
+
+LABEL_KEYS: tuple[str, ...] = (
+    "agent",
+    "comparator",
+    "train_preorder",
+    "eps",
+    "partial_order",
+    "train_seed",
+    "label",
+)
+"""Keys of ``Policy.labels`` copied into every episode row."""
+
+EVAL_DIR = "eval"
+CELLS_DIR = "cells"
+EPISODES_FILE = "episodes.csv"
+META_FILE = "meta.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig:
+    """How a trained run is evaluated (recorded in ``eval/meta.json``)."""
+
+    family: str = "holdout"
+    """Scenario family of the evaluation nets (never a training pool)."""
+    densities: tuple[float, ...] = (0.5, 0.75, 1.0)
+    """Requested traffic densities (active actors / maximum actors)."""
+    eval_runs: int = 3
+    """Evaluation runs per trained run (the paper: 3), each with its own scenes."""
+    episodes_per_cell: int = 6
+    """Episodes per (evaluation run, net, density) cell. Small by default so a CPU
+    evaluation of one run takes minutes; raise it for publication numbers."""
+    seed: int = 2026
+    """Evaluation seed: every scene and the policy's acting randomness derive from it
+    (never from the training seed), so every policy meets the same scenes."""
+    commands: tuple[str, ...] = ()
+    """Ego route commands cycled over the episodes of a cell ("left", "straight",
+    "right"); empty = the environment draws the command from the reset seed."""
+    num_workers: int = 2
+    """Environment worker processes (the parent process never runs SUMO)."""
+    max_episode_steps: int = 0
+    """Override of the run's episode step limit; 0 keeps the run's own."""
+    device: str = "cpu"
+    """Torch device for the policy network."""
+
+    def __post_init__(self) -> None:
+        if not self.densities:
+            raise ValueError("densities: need at least one density")
+        if any(not 0.0 < d <= 1.0 for d in self.densities):
+            raise ValueError(f"densities: each must be in (0, 1], got {list(self.densities)}")
+        if len(set(self.densities)) != len(self.densities):
+            raise ValueError(f"densities: duplicates in {list(self.densities)}")
+        if self.eval_runs < 1:
+            raise ValueError(f"eval_runs: must be >= 1, got {self.eval_runs}")
+        if self.episodes_per_cell < 1:
+            raise ValueError(f"episodes_per_cell: must be >= 1, got {self.episodes_per_cell}")
+        if self.num_workers < 1:
+            raise ValueError(f"num_workers: must be >= 1, got {self.num_workers}")
+        if self.max_episode_steps < 0:
+            raise ValueError(f"max_episode_steps: must be >= 0, got {self.max_episode_steps}")
+        bad = [c for c in self.commands if c not in ("left", "straight", "right")]
+        if bad:
+            raise ValueError(f"commands: {bad[0]!r} is not one of left, straight, right")
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """One evaluation episode: what the environment is reset to and the acting seed."""
+
+    eval_run: int
+    """Evaluation-run index (0-based)."""
+    net: str
+    """Net as ``"<family>/<net_id>"``."""
+    density: float
+    """Requested traffic density."""
+    episode: int
+    """Episode index within the cell."""
+    reset_seed: int
+    """Seed passed to ``env.reset``."""
+    act_seed: int
+    """Seed of the policy's acting generator for this episode."""
+    command: str | None
+    """Route command, or None to let the environment draw it."""
+
+    @property
+    def cell(self) -> tuple[int, str, float]:
+        return (self.eval_run, self.net, self.density)
+
+    def reset_options(self) -> dict[str, Any]:
+        options: dict[str, Any] = {"net": self.net, "density": self.density}
+        if self.command is not None:
+            options["command"] = self.command
+        return options
+
+
+def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
+    """All evaluation episodes in canonical order (eval run, net, density, episode).
+
+    ``net_ids`` are the hold-out nets' ids (without family); they are sorted, so the
+    scenes depend only on the set of nets, ``cfg.seed`` and the cell's indices.
+    """
+    scenes = []
+    for r in range(cfg.eval_runs):
+        for n, net_id in enumerate(sorted(net_ids)):
+            for d, density in enumerate(cfg.densities):
+                for e in range(cfg.episodes_per_cell):
+                    ss = np.random.SeedSequence(cfg.seed, spawn_key=(r, n, d, e))
+                    reset_seed, act_seed = (int(x) for x in ss.generate_state(2, dtype=np.uint32))
+                    command = cfg.commands[e % len(cfg.commands)] if cfg.commands else None
+                    scenes.append(
+                        Scene(
+                            r,
+                            f"{cfg.family}/{net_id}",
+                            float(density),
+                            e,
+                            reset_seed,
+                            act_seed,
+                            command,
+                        )
+                    )
+    return scenes
+
+
+RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers"})
+"""EvalConfig fields that do not change any episode (may differ on resume)."""
+
+
+def config_differences(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """``"field old -> new, ..."`` for result-affecting EvalConfig fields that differ."""
+    keys = sorted((set(old) | set(new)) - RESULT_NEUTRAL_FIELDS)
+    return ", ".join(
+        f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in keys if old.get(k) != new.get(k)
+    )
+
+
+def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:
+    """File of one finished (eval run, net, density) cell."""
+    eval_run, net, density = cell
+    return eval_dir / CELLS_DIR / f"r{eval_run}__{net.replace('/', '__')}__d{density:g}.csv"
+
+
+# ----------------------------------------------------------------------------- episodes
+
+
+def _info_row(infos: dict[str, Any], i: int) -> dict[str, Any]:
+    """The terminal info of env ``i`` from a SAME_STEP vector-env info dict."""
+    final = infos.get("final_info")
+    if final is None:
+        raise RuntimeError("episode ended without 'final_info' in the vector-env infos")
+    row = {}
+    for key, value in final.items():
+        if key.startswith("_"):
+            continue
+        mask = final.get(f"_{key}")
+        if mask is not None and not bool(mask[i]):
+            continue
+        row[key] = value[i]
+    return row
+
+
+def _episode_values(info: dict[str, Any]) -> dict[str, Any]:
+    missing = [
+        k
+        for k in ("success", "collision", "off_road", "timeout", "route_progress", "returns")
+        if k not in info
+    ]
+    if missing:
+        raise RuntimeError(f"environment info lacks {missing} (see docs/ARCHITECTURE.md, info)")
+    returns = np.asarray(info["returns"], dtype=np.float64).reshape(-1)
+    if returns.shape != (len(OBJECTIVES),):
+        raise RuntimeError(
+            f"info['returns'] has shape {returns.shape}, expected ({len(OBJECTIVES)},)"
+        )
+    values = {
+        "success": bool(info["success"]),
+        "collision": bool(info["collision"]),
+        "off_road": bool(info["off_road"]),
+        "timeout": bool(info["timeout"]),
+        "route_progress": float(info["route_progress"]),
+        "density_realised": float(info.get("density_realised", np.nan)),
+        "steps": int(info.get("episode_steps", -1)),
+    }
+    values.update({f"return_{name}": float(v) for name, v in zip(OBJECTIVES, returns, strict=True)})
+    if "command" in info and info["command"] is not None:
+        values["command"] = str(info["command"])
+    return values
+
+
+def _select(obs: Any, i: int) -> Any:
+    if isinstance(obs, dict):
+        return {k: _select(v, i) for k, v in obs.items()}
+    return np.asarray(obs)[i : i + 1]
+
+
+def run_scenes(
+    policy: Any,
+    vec_env: Any,
+    scenes: Sequence[Scene],
+    on_episode: Callable[[Scene, dict[str, Any]], None],
+    progress: Any | None = None,
+) -> None:
+    """Play every scene once on ``vec_env`` (SAME_STEP autoreset) with ``policy``.
+
+    Each worker takes the next scene when its episode ends: it is reset to that
+    scene with ``options['reset_mask']`` (the autoreset's own scene is discarded).
+    (A first plain reset initialises every worker; its scenes are discarded too.)
+    The policy acts on one row at a time with the scene's generator, so results do
+    not depend on the number of workers. ``on_episode(scene, values)`` is called
+    with the episode's values as each episode finishes.
+    """
+    num_envs = int(vec_env.num_envs)
+    queue = list(scenes)
+    slot: list[Scene | None] = [None] * num_envs
+    rngs: list[np.random.Generator | None] = [None] * num_envs
+    obs: Any = None
+
+    def assign(i: int) -> None:
+        nonlocal obs
+        if not queue:
+            slot[i], rngs[i] = None, None
+            return
+        scene = queue.pop(0)
+        mask = np.zeros(num_envs, dtype=np.bool_)
+        mask[i] = True
+        seeds = [scene.reset_seed if j == i else None for j in range(num_envs)]
+        new_obs, _ = vec_env.reset(
+            seed=seeds, options={**scene.reset_options(), "reset_mask": mask}
+        )
+        obs = _merge(obs, new_obs, i)
+        slot[i] = scene
+        rngs[i] = np.random.default_rng(scene.act_seed)
+
+    # Every worker needs a first reset before a masked one; that scene is discarded.
+    obs, _ = vec_env.reset()
+    obs = _copy(obs)
+    for i in range(num_envs):
+        assign(i)
+    while any(s is not None for s in slot):
+        actions = np.zeros(num_envs, dtype=np.int64)
+        for i, scene in enumerate(slot):
+            if scene is not None:
+                actions[i] = int(np.asarray(policy.act(_select(obs, i), rngs[i])).reshape(-1)[0])
+        obs, _, terminated, truncated, infos = vec_env.step(actions)
+        for i in range(num_envs):
+            if slot[i] is None or not (terminated[i] or truncated[i]):
+                continue
+            on_episode(slot[i], _episode_values(_info_row(infos, i)))
+            if progress is not None:
+                progress.update(1)
+            assign(i)
+
+
+def _merge(obs: Any, new_obs: Any, i: int) -> Any:
+    """Copy row ``i`` of ``new_obs`` into ``obs`` (or take ``new_obs`` if none yet)."""
+    if obs is None:
+        return _copy(new_obs)
+    if isinstance(obs, dict):
+        for k in obs:
+            obs[k] = _merge(obs[k], new_obs[k], i)
+        return obs
+    obs = np.array(obs, copy=True)
+    obs[i] = np.asarray(new_obs)[i]
+    return obs
+
+
+def _copy(obs: Any) -> Any:
+    if isinstance(obs, dict):
+        return {k: _copy(v) for k, v in obs.items()}
+    return np.array(obs, copy=True)
+
+
+# ----------------------------------------------------------------------------- one run
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PriqnError(f"{path}: unreadable JSON ({exc})") from exc
+
+
+def _write_cell(path: Path, rows: list[dict[str, Any]]) -> None:
+    import pandas as pd
+
+    frame = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS)).sort_values("episode")
+    atomic_write_text(path, frame.to_csv(index=False, lineterminator="\n"))
+
+
+def _cell_complete(path: Path, expected_rows: int) -> bool:
+    if not path.is_file():
+        return False
+    import pandas as pd
+
+    try:
+        frame = pd.read_csv(path)
+    except (OSError, ValueError):
+        return False
+    return len(frame) == expected_rows and list(frame.columns) == list(EPISODE_COLUMNS)
+
+
+def evaluate_policy(
+    policy: Any,
+    eval_dir: Path,
+    cfg: EvalConfig,
+    net_ids: Sequence[str],
+    holdout_hash: str,
+    run_name: str,
+    make_env: Callable[[int], Any],
+    extra_meta: dict[str, Any] | None = None,
+    force: bool = False,
+) -> Path:
+    """Evaluate ``policy`` on every scene; write cells, ``episodes.csv`` and ``meta.json``.
+
+    ``make_env(num_envs)`` builds the vector env (SAME_STEP autoreset). Finished
+    cells already under ``eval_dir/cells`` are kept; returns ``episodes.csv``.
+    """
+    import pandas as pd
+    from tqdm.auto import tqdm
+
+    eval_dir = Path(eval_dir)
+    meta_path = eval_dir / META_FILE
+    meta = {
+        "status": "running",
+        "holdout_family": cfg.family,
+        "holdout_hash": holdout_hash,
+        "holdout_nets": sorted(net_ids),
+        "eval_config": to_dict(cfg),
+        "eval_seed": cfg.seed,
+        "scene_seed_rule": "SeedSequence(seed, spawn_key=(eval_run, net_index, density_index, episode)).generate_state(2) -> (reset_seed, act_seed)",
+        "run": run_name,
+        **(extra_meta or {}),
+    }
+    if meta_path.is_file() and not force:
+        old = _read_json(meta_path)
+        if old.get("holdout_hash") != holdout_hash:
+            raise PriqnError(
+                f"{meta_path}: this run was evaluated on a different hold-out set (holdout_hash "
+                f"{str(old.get('holdout_hash'))[:12]} vs now {holdout_hash[:12]}); use --force to start over"
+            )
+        diff = config_differences(old.get("eval_config") or {}, meta["eval_config"])
+        if diff:
+            raise PriqnError(
+                f"{meta_path}: an evaluation with a different eval_config is already here "
+                f"({diff}); use --force to start over"
+            )
+    if force and eval_dir.exists():
+        shutil.rmtree(eval_dir)
+    atomic_write_json(meta_path, meta)
+
+    labels = dict(getattr(policy, "labels", {}) or {})
+    fixed = {key: labels.get(key) for key in LABEL_KEYS}
+    fixed.update({"run": run_name, "holdout_hash": holdout_hash})
+
+    scenes = make_scenes(cfg, net_ids)
+    cells: dict[tuple[int, str, float], list[Scene]] = {}
+    for scene in scenes:
+        cells.setdefault(scene.cell, []).append(scene)
+    todo_cells = {
+        c for c, sc in cells.items() if not _cell_complete(cell_file(eval_dir, c), len(sc))
+    }
+    todo = [s for s in scenes if s.cell in todo_cells]
+    pending: dict[tuple[int, str, float], list[dict[str, Any]]] = {c: [] for c in todo_cells}
+
+    def on_episode(scene: Scene, values: dict[str, Any]) -> None:
+        row = {
+            **fixed,
+            "eval_run": scene.eval_run,
+            "net": scene.net,
+            "density": scene.density,
+            "episode": scene.episode,
+            "reset_seed": scene.reset_seed,
+            "command": scene.command or "",
+            **values,
+        }
+        pending[scene.cell].append(row)
+        if len(pending[scene.cell]) == len(cells[scene.cell]):
+            _write_cell(cell_file(eval_dir, scene.cell), pending.pop(scene.cell))
+
+    if todo:
+        num_envs = min(cfg.num_workers, len(todo))
+        vec_env = make_env(num_envs)
+        try:
+            with tqdm(total=len(todo), desc=f"evaluate {run_name}", unit="ep", disable=None) as bar:
+                run_scenes(policy, vec_env, todo, on_episode, progress=bar)
+        finally:
+            vec_env.close()
+
+    frames = [pd.read_csv(cell_file(eval_dir, c)) for c in sorted(cells)]
+    episodes = pd.concat(frames, ignore_index=True)
+    out = eval_dir / EPISODES_FILE
+    atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
+    meta["status"] = "complete"
+    meta["episodes"] = len(episodes)
+    atomic_write_json(meta_path, meta)
+    return out
+
+
+def _net_ids(manifest: Any) -> list[str]:
+    nets = manifest.get("nets") if isinstance(manifest, dict) else getattr(manifest, "nets", None)
+    if not nets:
+        raise PriqnError("hold-out manifest lists no nets; run 'priqn scenario generate'")
+    ids = [n["id"] if isinstance(n, dict) else getattr(n, "id", n) for n in nets]
+    return sorted(str(i) for i in ids)
+
+
+def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> Path:
+    """Evaluate the trained run in ``run_dir``; returns ``run_dir/eval/episodes.csv``.
+
+    The run must be complete (``meta.json`` status). A finished evaluation with the
+    same hold-out hash and EvalConfig is returned as is; a half-finished one goes on.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise PriqnError(f"{run_dir}: no such run folder")
+    run_meta_path = run_dir / "meta.json"
+    if not run_meta_path.is_file():
+        raise PriqnError(f"{run_meta_path}: missing; is {run_dir} a run made by 'priqn train'?")
+    status = _read_json(run_meta_path).get("status")
+    if status != "complete":
+        raise PriqnError(
+            f"{run_meta_path}: status is {status!r}; evaluate only complete runs "
+            f"(finish it with 'priqn train --resume')"
+        )
+
+    from priqn.sim.scenario import load_manifest, manifest_hash
+
+    net_ids = _net_ids(load_manifest(cfg.family))
+    holdout_hash = manifest_hash(cfg.family)
+    eval_dir = run_dir / EVAL_DIR
+    meta_path = eval_dir / META_FILE
+    if not force and meta_path.is_file():
+        old = _read_json(meta_path)
+        if (
+            old.get("status") == "complete"
+            and old.get("holdout_hash") == holdout_hash
+            and not config_differences(old.get("eval_config") or {}, to_dict(cfg))
+            and (eval_dir / EPISODES_FILE).is_file()
+        ):
+            return eval_dir / EPISODES_FILE
+
+    from priqn.env.vector import make_vector_env
+    from priqn.train import load_policy
+
+    policy = load_policy(run_dir, device=cfg.device)
+    env_cfg = dataclasses.replace(policy.env_config, family=cfg.family)
+    if cfg.max_episode_steps:
+        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
+
+    def make_env(num_envs: int) -> Any:
+        # The vector env's own seed only seeds autoresets, whose scenes are discarded.
+        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
+
+    return evaluate_policy(
+        policy,
+        eval_dir,
+        cfg,
+        net_ids,
+        holdout_hash,
+        run_dir.name,
+        make_env,
+        extra_meta={"env_config": to_dict(env_cfg)},
+        force=force,
+    )
+
+
+def find_runs(paths: Iterable[str | Path]) -> list[Path]:
+    """Run folders named by ``paths``: a run folder itself, or a folder of runs."""
+    runs: list[Path] = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            raise PriqnError(f"{p}: no such folder")
+        if (p / "config.toml").is_file():
+            runs.append(p)
+            continue
+        inner = sorted(c for c in p.iterdir() if (c / "config.toml").is_file())
+        if not inner:
+            raise PriqnError(f"{p}: neither a run folder (config.toml) nor a folder of runs")
+        runs.extend(inner)
+    return runs
+
+
+def evaluate(paths: Iterable[str | Path], cfg: EvalConfig, force: bool = False) -> list[Path]:
+    """Evaluate every run under ``paths`` (one after another); returns episode tables."""
+    return [evaluate_run(run, cfg, force=force) for run in find_runs(paths)]
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="+", help="run folders, or folders of runs")
+    parser.add_argument("--config", help="TOML file with EvalConfig fields")
+    parser.add_argument("--episodes", type=int, help="episodes per (eval run, net, density) cell")
+    parser.add_argument("--eval-runs", type=int, help="evaluation runs (default 3)")
+    parser.add_argument("--densities", help="comma-separated densities (default 0.5,0.75,1.0)")
+    parser.add_argument("--seed", type=int, help="evaluation seed (default 2026)")
+    parser.add_argument("--workers", type=int, help="environment worker processes")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
+    )
+    parser.add_argument("--force", action="store_true", help="discard earlier evaluations")
+
+
+def config_from_args(args: argparse.Namespace) -> EvalConfig:
+    """EvalConfig from ``--config``, the shortcut flags and ``--set`` overrides."""
+    cfg = (
+        from_dict(EvalConfig, load_toml(args.config), where=args.config)
+        if args.config
+        else EvalConfig()
+    )
+    sets = list(args.set)
+    if args.episodes is not None:
+        sets.append(f"episodes_per_cell={args.episodes}")
+    if args.eval_runs is not None:
+        sets.append(f"eval_runs={args.eval_runs}")
+    if args.seed is not None:
+        sets.append(f"seed={args.seed}")
+    if args.workers is not None:
+        sets.append(f"num_workers={args.workers}")
+    if args.densities:
+        try:
+            values = [float(x) for x in args.densities.split(",") if x.strip()]
+        except ValueError as exc:
+            raise PriqnError(f"--densities {args.densities!r}: expected e.g. 0.5,0.75,1.0") from exc
+        sets.append(f"densities=[{', '.join(repr(v) for v in values)}]")
+    return apply_overrides(cfg, sets) if sets else cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    for path in evaluate(args.runs, cfg, force=args.force):
+        print(path)
+    return 0

@@ -1,0 +1,397 @@
+"""analysis/: loading, Tables I/II, rliable statistics, report — on hand-checkable tables."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis import tables
+from analysis.load import check_seeds, load_evaluation
+from analysis.report import make_report
+from analysis.stats import aggregate_estimates, probability_of_improvement, score_matrices
+from priqn.errors import PriqnError
+from priqn.evaluate import EPISODE_COLUMNS
+from priqn.objectives import OBJECTIVES
+
+HASH = "a" * 64
+EVAL_CONFIG = {
+    "family": "holdout",
+    "densities": [0.5, 1.0],
+    "eval_runs": 2,
+    "episodes_per_cell": 2,
+    "seed": 2026,
+    "commands": [],
+    "max_episode_steps": 0,
+}
+IQN = {
+    "agent": "iqn",
+    "comparator": None,
+    "train_preorder": None,
+    "eps": None,
+    "partial_order": None,
+}
+PR = {
+    "agent": "pr-iqn",
+    "comparator": "qd",
+    "train_preorder": True,
+    "eps": 0.2,
+    "partial_order": False,
+}
+ENS = {
+    "agent": "ensemble-iqn",
+    "comparator": None,
+    "train_preorder": None,
+    "eps": None,
+    "partial_order": None,
+}
+
+
+def write_run(
+    root: Path,
+    name: str,
+    label: str,
+    config: dict,
+    seed: int,
+    value,
+    *,
+    holdout=HASH,
+    eval_config=None,
+):
+    """One evaluated run; ``value(seed, eval_run, density, net, episode) -> dict`` of episode fields."""
+    cfg = eval_config or EVAL_CONFIG
+    rows = []
+    for r in range(cfg["eval_runs"]):
+        for net in ("holdout/a", "holdout/b"):
+            for d in cfg["densities"]:
+                for e in range(cfg["episodes_per_cell"]):
+                    v = {
+                        "success": False,
+                        "collision": False,
+                        "off_road": False,
+                        "route_progress": 0.5,
+                        **{f"return_{o}": 0.0 for o in OBJECTIVES},
+                    }
+                    v.update(value(seed, r, d, net, e))
+                    rows.append(
+                        {
+                            "run": name,
+                            "label": label,
+                            **config,
+                            "train_seed": seed,
+                            "eval_run": r,
+                            "net": net,
+                            "density": d,
+                            "density_realised": d,
+                            "timeout": False,
+                            "steps": 10,
+                            "holdout_hash": holdout,
+                            "episode": e,
+                            "command": "left",
+                            "reset_seed": 1000 * r + e,
+                            **v,
+                        }
+                    )
+    eval_dir = root / name / "eval"
+    eval_dir.mkdir(parents=True)
+    (root / name / "config.toml").write_text("")
+    pd.DataFrame(rows, columns=list(EPISODE_COLUMNS)).to_csv(eval_dir / "episodes.csv", index=False)
+    (eval_dir / "meta.json").write_text(
+        json.dumps({"status": "complete", "holdout_hash": holdout, "eval_config": cfg})
+    )
+
+
+# IQN: unit (seed, eval_run) success rates at density 0.5: seed0 -> r0 0.0, r1 0.5; seed1 -> 0.5, 1.0
+# (both nets identical). Mean 0.5, sample std sqrt(((.5)^2 + 0 + 0 + (.5)^2) / 3) = 0.408.
+def iqn_value(seed, r, d, net, e):
+    rate = {(0, 0): 0.0, (0, 1): 0.5, (1, 0): 0.5, (1, 1): 1.0}[(seed, r)]
+    success = e < round(rate * 2)
+    return {
+        "success": success,
+        "collision": not success,
+        "route_progress": 1.0 if success else 0.5,
+        "return_safety": -10.0 if d == 0.5 else -4.0,
+        "return_risk": -2.0,
+        "return_lane_keeping": 1.0,
+    }
+
+
+# Pr-IQN: always succeeds except one off-road episode per unit at density 1.0.
+def pr_value(seed, r, d, net, e):
+    off = d == 1.0 and net == "holdout/a" and e == 0
+    return {
+        "success": not off,
+        "off_road": off,
+        "route_progress": 0.8 if off else 1.0,
+        "return_safety": -5.0 if d == 0.5 else -4.0,
+        "return_risk": -3.0,
+        "return_lane_keeping": 1.0 + seed,
+    }
+
+
+@pytest.fixture()
+def runs(tmp_path) -> Path:
+    root = tmp_path / "runs"
+    for seed in (0, 1):
+        write_run(root, f"iqn_s{seed}", "IQN", IQN, seed, iqn_value)
+        write_run(root, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, pr_value)
+    return root
+
+
+def test_load_sorts_and_checks(runs) -> None:
+    ev = load_evaluation(runs)
+    assert len(ev.episodes) == 4 * 2 * 2 * 2 * 2
+    assert ev.holdout_hash == HASH and [r.name for r in ev.runs] == [
+        "iqn_s0",
+        "iqn_s1",
+        "pr_s0",
+        "pr_s1",
+    ]
+    assert tables.policy_order(ev.episodes) == ["IQN", "Pr-IQN QD ✓ 0.2 ✗"]
+
+
+def test_table2_means_stds_by_hand(runs) -> None:
+    long = tables.table2(load_evaluation(runs).episodes).long.set_index(
+        ["density", "label", "metric"]
+    )
+    sr = long.loc[(0.5, "IQN", "SR")]
+    assert sr["mean"] == pytest.approx(0.5) and sr["std"] == pytest.approx(math.sqrt(1 / 6))
+    assert sr["n"] == 4
+    assert long.loc[(0.5, "IQN", "CR"), "mean"] == pytest.approx(0.5)
+    assert long.loc[(0.5, "IQN", "RP"), "mean"] == pytest.approx(0.75)
+    # Pr-IQN at 1.0: 1 off-road episode out of 4 per unit -> OR 0.25 exactly, std 0.
+    pr = long.loc[(1.0, "Pr-IQN QD ✓ 0.2 ✗", "OR")]
+    assert (pr["mean"], pr["std"]) == (pytest.approx(0.25), pytest.approx(0.0))
+    assert long.loc[(1.0, "Pr-IQN QD ✓ 0.2 ✗", "SR"), "mean"] == pytest.approx(0.75)
+
+
+def test_best_and_second_marks(runs) -> None:
+    long = tables.table2(load_evaluation(runs).episodes).long.set_index(
+        ["density", "label", "metric"]
+    )
+    assert long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "SR"), "mark"] == "best"
+    assert long.loc[(0.5, "IQN", "SR"), "mark"] == "second"
+    assert long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "CR"), "mark"] == "best"  # 0 < 0.5, lower is better
+    assert long.loc[(1.0, "IQN", "OR"), "mark"] == "best"  # IQN never off road
+    # Ties share: both have OR 0 at density 0.5 -> both best, nobody second.
+    assert (
+        long.loc[(0.5, "IQN", "OR"), "mark"]
+        == long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "OR"), "mark"]
+        == "best"
+    )
+    m = tables.MetricColumn("X", "x", False, 3)
+    assert tables.best_marks(np.array([0.3, 0.1, 0.2, 0.1, np.nan, 0.10004]), m) == [
+        "",
+        "best",
+        "second",
+        "best",
+        "",
+        "best",
+    ]
+
+
+def test_table1_delta_relative_to_iqn(runs) -> None:
+    long = tables.table1(load_evaluation(runs).episodes).long.set_index(
+        ["density", "label", "metric"]
+    )
+    # safety at 0.5: IQN -10, Pr-IQN -5 -> +50%; risk: -2 vs -3 -> -50%; lane: 1 vs mean(1, 2) -> +50%.
+    assert long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "Safety"), "delta_pct"] == pytest.approx(50.0)
+    assert long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "Risk"), "delta_pct"] == pytest.approx(-50.0)
+    assert long.loc[(1.0, "Pr-IQN QD ✓ 0.2 ✗", "Lane keeping"), "delta_pct"] == pytest.approx(50.0)
+    assert long.loc[(1.0, "Pr-IQN QD ✓ 0.2 ✗", "Safety"), "delta_pct"] == pytest.approx(0.0)
+    assert long.loc[(0.5, "IQN", "Safety"), "delta_pct"] == pytest.approx(0.0)
+    lane = long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "Lane keeping")]
+    assert lane["std"] == pytest.approx(math.sqrt(4 * 0.25 / 3))  # units 1, 1, 2, 2
+
+
+def test_renderings(runs) -> None:
+    t2 = tables.table2(load_evaluation(runs).episodes)
+    md, tex, csv = tables.to_markdown(t2), tables.to_latex(t2), tables.to_csv(t2)
+    # Two policies: the worse one is second (underlined); equal OR 0 is best for both.
+    row = (
+        "| IQN | – | – | – | – | <u>0.500 ± 0.408</u> | **0.000 ± 0.000** | <u>0.500 ± 0.408</u> |"
+    )
+    assert row in md
+    assert "| Pr-IQN | QD | ✓ | 0.2 | ✗ | **0.000 ± 0.000** |" in md
+    assert "*Traffic density 0.5*" in md and "*Traffic density 1*" in md
+    assert r"\textbf{1.000 $\pm$ 0.000}" in tex and r"\underline{0.500 $\pm$ 0.408}" in tex
+    assert r"\toprule" in tex and r"\checkmark" in tex and r"$\times$" in tex
+    frame = pd.read_csv(pd.io.common.StringIO(csv))
+    row = frame[(frame["label"] == "IQN") & (frame["density"] == 0.5)].iloc[0]
+    assert row["sr_mean"] == pytest.approx(0.5) and row["sr_std"] == pytest.approx(math.sqrt(1 / 6))
+    assert row["sr_mark"] == "second"
+
+
+def test_iqm_of_known_array() -> None:
+    scores_RT = np.arange(1.0, 9.0).reshape(4, 2)  # 1..8: middle half 3..6 -> IQM 4.5
+    agg = aggregate_estimates({"A": scores_RT / 10}, reps=50, seed=0).iloc[0]
+    assert agg["iqm"] == pytest.approx(0.45)
+    assert agg["og"] == pytest.approx(np.mean(1 - scores_RT / 10))
+    assert agg["iqm_lo"] <= agg["iqm"] <= agg["iqm_hi"]
+
+
+def test_probability_of_improvement_self_and_dominated() -> None:
+    rng = np.random.default_rng(0)
+    a_RT = rng.uniform(0.5, 1.0, size=(6, 3))
+    poi = probability_of_improvement(
+        {"A": a_RT, "A copy": a_RT.copy(), "worse": a_RT - 0.6}, reps=100, seed=1
+    )
+    p = poi.set_index(["x", "y"])["p"]
+    assert p[("A", "A copy")] == pytest.approx(0.5) and p[("A copy", "A")] == pytest.approx(0.5)
+    assert p[("A", "worse")] == pytest.approx(1.0) and p[("worse", "A")] == pytest.approx(0.0)
+    assert len(poi) == 6  # every ordered pair
+
+
+def test_score_matrices_axes(runs) -> None:
+    episodes = load_evaluation(runs).episodes
+    scores, runs_idx, tasks = score_matrices(episodes, "success", ["IQN", "Pr-IQN QD ✓ 0.2 ✗"])
+    assert scores["IQN"].shape == (4, 4)  # (2 seeds x 2 eval runs) x (2 densities x 2 nets)
+    assert tasks[0] == (0.5, "holdout/a") and runs_idx[0] == (0, 0)
+    np.testing.assert_allclose(scores["IQN"][:, 0], [0.0, 0.5, 0.5, 1.0])
+
+
+def test_report_files_and_reproducibility(runs, tmp_path) -> None:
+    out1, out2, out3 = tmp_path / "r1", tmp_path / "r2", tmp_path / "r3"
+    make_report(runs, out1, seed=3, reps=60)
+    make_report(runs, out2, seed=3, reps=60)
+    make_report(runs, out3, seed=4, reps=60)
+    names = [f"tables/{t}.{e}" for t in ("table1", "table2") for e in ("md", "tex", "csv")]
+    names += [
+        "tables/rliable_aggregates.csv",
+        "tables/probability_of_improvement.csv",
+        "tables/performance_profiles.csv",
+    ]
+    for name in names:
+        assert (out1 / name).read_bytes() == (out2 / name).read_bytes(), name
+    assert (out1 / "report.md").read_text() == (out2 / "report.md").read_text().replace(
+        str(out2), str(out1)
+    )
+    for fig in ("probability_of_improvement", "iqm_optimality_gap", "performance_profile"):
+        for ext in ("png", "pdf"):
+            assert (out1 / "figures" / f"{fig}.{ext}").stat().st_size > 1000
+    assert (out1 / "tables/rliable_aggregates.csv").read_bytes() != (
+        out3 / "tables/rliable_aggregates.csv"
+    ).read_bytes()
+    report = (out1 / "report.md").read_text()
+    assert "np.random.seed(3)" in report and HASH in report
+    assert "iqn_s0: no metrics.csv, so no learning curve" in report
+    assert "**1.000 ± 0.000**" in report
+    meta = json.loads((out1 / "meta.json").read_text())
+    assert meta["seed"] == 3 and meta["holdout_hash"] == HASH and len(meta["runs"]) == 4
+
+
+def test_learning_curves_from_metrics_csv(runs, tmp_path) -> None:
+    for i, run in enumerate(sorted(runs.iterdir())):
+        pd.DataFrame({"env_steps": [0, 100, 200], "episode_return": [0.0, 1.0 + i, 2.0]}).to_csv(
+            run / "metrics.csv", index=False
+        )
+    make_report(runs, tmp_path / "rep", seed=0, reps=20)
+    assert (tmp_path / "rep/figures/learning_curves.png").stat().st_size > 1000
+    assert "no metrics.csv" not in (tmp_path / "rep/report.md").read_text()
+
+
+def test_errors_are_one_line(tmp_path, runs) -> None:
+    with pytest.raises(PriqnError, match="no such folder"):
+        load_evaluation(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(PriqnError, match="no runs here"):
+        load_evaluation(tmp_path / "empty")
+    with pytest.raises(PriqnError, match="fewer|has 2 training seed"):
+        check_seeds(load_evaluation(runs).episodes, 3)
+
+    (runs / "trained_only").mkdir()
+    (runs / "trained_only" / "config.toml").write_text("")
+    with pytest.raises(PriqnError, match="1 of 5 runs not .fully. evaluated: trained_only"):
+        load_evaluation(runs)
+    (runs / "trained_only" / "config.toml").unlink()
+    (runs / "trained_only").rmdir()
+
+    write_run(runs, "ens_other_holdout", "Ensemble", ENS, 0, iqn_value, holdout="b" * 64)
+    with pytest.raises(PriqnError, match="different hold-out sets"):
+        load_evaluation(runs)
+
+
+def test_mixed_inputs_refused(tmp_path) -> None:
+    root = tmp_path / "dup"
+    write_run(root, "a", "IQN", IQN, 0, iqn_value)
+    write_run(root, "b", "IQN", IQN, 0, iqn_value)
+    with pytest.raises(PriqnError, match="both policy 'IQN' with training seed 0"):
+        load_evaluation(root)
+    root = tmp_path / "twocfg"
+    write_run(root, "a", "X", IQN, 0, iqn_value)
+    write_run(root, "b", "X", PR, 1, iqn_value)
+    with pytest.raises(PriqnError, match="names two configurations"):
+        load_evaluation(root)
+    root = tmp_path / "evalcfg"
+    write_run(root, "a", "IQN", IQN, 0, iqn_value)
+    write_run(root, "b", "IQN", IQN, 1, iqn_value, eval_config={**EVAL_CONFIG, "seed": 1})
+    with pytest.raises(PriqnError, match="different seed"):
+        load_evaluation(root)
+
+
+def test_cli_report(runs, tmp_path, capsys) -> None:
+    from priqn.cli import main
+
+    assert (
+        main(["report", str(runs), "--out", str(tmp_path / "cli"), "--reps", "20", "--seeds", "2"])
+        == 0
+    )
+    assert (tmp_path / "cli" / "report.md").is_file()
+    assert main(["report", str(runs), "--out", str(tmp_path / "cli2"), "--seeds", "3"]) == 2
+    assert "training seed" in capsys.readouterr().err
+
+
+def test_vectorised_improvement_equals_rliable() -> None:
+    from rliable import metrics
+
+    from analysis.stats import mann_whitney_improvement
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x_RT = rng.integers(0, 4, size=(rng.integers(1, 6), 3)) / 3  # many ties
+        y_RT = rng.integers(0, 4, size=(rng.integers(1, 6), 3)) / 3
+        assert mann_whitney_improvement(x_RT, y_RT) == pytest.approx(
+            metrics.probability_of_improvement(x_RT, y_RT)
+        )
+
+
+def test_learning_curve_from_priqn_metrics() -> None:
+    from analysis.load import EVAL_SUCCESS_CURVE, learning_curves_of
+
+    metrics = pd.DataFrame(
+        {
+            "kind": ["train", "eval", "eval", "train", "eval", "eval"],
+            "step": [5, 10, 10, 15, 20, 20],
+            "return_weighted": [1.0, 0.0, 0.0, 3.0, 0.0, 0.0],
+            "success": [False, True, False, False, True, True],
+        }
+    )
+    x_name, curves = learning_curves_of(metrics)
+    assert x_name == "step"
+    success = curves[EVAL_SUCCESS_CURVE]
+    assert success["x"].tolist() == [10, 20] and success["y"].tolist() == [0.5, 1.0]
+    (ret_name,) = [n for n in curves if n.startswith("return_weighted")]
+    assert curves[ret_name]["y"].tolist() == [1.0, 2.0]  # trailing mean
+    x_name, curves = learning_curves_of(metrics[metrics["kind"] == "train"])
+    assert list(curves) == [ret_name]
+    assert "no step column" in learning_curves_of(pd.DataFrame({"a": [1]}))
+
+
+def test_config_cells_and_order() -> None:
+    pr = ("pr-iqn", "qd", True, "[0.2, 0.4]", False)
+    assert tables.config_cells(pr) == ["Pr-IQN", "QD", "✓", "0.2/0.4", "✗"]
+    assert tables.config_cells(("iqn", None, None, None, None)) == ["IQN", "–", "–", "–", "–"]
+    keys = [
+        ("pr-iqn", "qd", True, 0.2, True),
+        ("pr-iqn", "qd", False, 0.2, False),
+        ("pr-iqn", "qd", True, 0.4, False),
+        ("pr-iqn", "mv", True, 0.4, False),
+        ("ensemble-iqn", None, None, None, None),
+        ("iqn", None, None, None, None),
+    ]
+    ordered = sorted(keys, key=tables.policy_sort_key)
+    assert ordered == [keys[5], keys[4], keys[3], keys[2], keys[1], keys[0]]
