@@ -5,25 +5,28 @@ so a :class:`SumoSession` is the one owner of it. The first episode calls
 ``libsumo.start``; later episodes call ``libsumo.load`` with the new net and seed,
 which restarts the simulation in a few milliseconds without a new process.
 
-The SUMO options are the ones measured to work for a moveToXY-driven ego
-(``docs/environment.md``): 0.1 s steps, no teleports, collisions only reported
-(we test collisions ourselves), junction collision checks on, the sublane model so
-traffic can pass static obstacles on one-lane arms. SUMO writes its reason for a
-failed start to the C-level stderr; we capture it and put it in a one-line
-:class:`~priqn.errors.PriqnError` that names the net.
+The SUMO options are :func:`priqn.sim.sumo.simulation_args`, measured to work for a
+moveToXY-driven ego (``docs/environment.md``): 0.1 s steps, no teleports, collisions
+only reported (we test collisions ourselves), junction collision checks on, the
+sublane model so traffic can pass static obstacles on one-lane arms. SUMO writes its
+reason for a failed start to the C-level stderr; we capture it and put it in a
+one-line :class:`~priqn.errors.PriqnError` that names the net. :func:`check_net` loads
+each net once with the ``sumo`` binary in a subprocess first, because libsumo crashes
+the whole process on some malformed nets.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
 from priqn.errors import PriqnError
-from priqn.sim.sumo import simulation_args
+from priqn.sim.sumo import binary, simulation_args, subprocess_env
 
 EXTRA_OPTIONS: tuple[str, ...] = ("--duration-log.disable", "true")
 """Options added to :func:`priqn.sim.sumo.simulation_args` (which holds the measured set)."""
@@ -64,12 +67,50 @@ def _sumo_message(exc: BaseException, stderr_text: str) -> str:
     return f"{text} ({exc})" if text else str(exc)
 
 
+_CHECKED: set[tuple[str, int, int]] = set()
+
+
+def check_net(net_file: str | os.PathLike) -> None:
+    """Let the ``sumo`` binary load ``net_file`` once (per process, per file version).
+
+    libsumo crashes the whole process on some malformed nets (e.g. a ``<net>`` without a
+    version); a throw-away ``sumo --end 0`` in a subprocess turns that into a one-line
+    :class:`PriqnError` naming the net and SUMO's message. ~0.1 s, once per net.
+    """
+    net = Path(net_file)
+    try:
+        st = net.stat()
+    except OSError:
+        raise PriqnError(
+            f"{net}: SUMO net not found; run 'priqn scenario generate' first"
+        ) from None
+    key = (str(net.resolve()), st.st_mtime_ns, st.st_size)
+    if key in _CHECKED:
+        return
+    cmd = [binary("sumo"), "-n", str(net), "--end", "0", "--xml-validation", "never",
+           "--no-step-log", "true", "--duration-log.disable", "true", "--no-warnings", "true"]  # fmt: skip
+    try:
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, env=subprocess_env(), timeout=120
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise PriqnError(f"{net}: could not run SUMO to check the net ({exc})") from exc
+    if proc.returncode != 0:
+        if proc.returncode < 0:
+            why = f"SUMO crashed reading it (signal {-proc.returncode}); is it a valid .net.xml?"
+        else:
+            why = _sumo_message(RuntimeError(f"exit status {proc.returncode}"), proc.stderr)
+        raise PriqnError(f"{net}: SUMO failed to start: {why}")
+    _CHECKED.add(key)
+
+
 class SumoSession:
     """The process's libsumo simulation.
 
     ``start(net, seed)`` the first time, then ``start`` again for each episode (it
-    reloads with ``libsumo.load``), ``close()`` at the end. A second session in the
-    same process while one is open raises :class:`PriqnError` (libsumo cannot run two).
+    reloads with ``libsumo.load``), ``close()`` at the end. libsumo runs one simulation
+    per process: a second session that starts takes the simulation over, and the
+    first one then reports ``is_open`` False and ``taken_over`` True.
     """
 
     def __init__(self, step_length_s: float = 0.1, lateral_resolution_m: float | None = 0.8):
@@ -82,6 +123,8 @@ class SumoSession:
         self.seed: int | None = None
         """SUMO ``--seed`` of the running simulation."""
         self._open = False
+        self.taken_over = False
+        """True when another session in this process started a simulation over this one's."""
 
     @property
     def is_open(self) -> bool:
@@ -102,12 +145,14 @@ class SumoSession:
         net = Path(net_file)
         if not net.is_file():
             raise PriqnError(f"{net}: SUMO net not found; run 'priqn scenario generate' first")
-        if _ACTIVE is not None and _ACTIVE is not self:
-            raise PriqnError(
-                "libsumo already runs a simulation in this process; use one env per process "
-                "(priqn.env.vector.make_vector_env runs each env in its own worker)"
-            )
+        check_net(net)
         ls = _libsumo()
+        if _ACTIVE is not None and _ACTIVE is not self:
+            # libsumo holds one simulation per process: take it over; the other session
+            # learns it was closed (``is_open`` False, ``taken_over`` True).
+            _ACTIVE._open = False
+            _ACTIVE.taken_over = True
+            self._open = True  # reuse the running simulation via load()
         argv = simulation_args(
             net,
             seed=int(seed),
@@ -133,6 +178,7 @@ class SumoSession:
                 f"{net}: SUMO failed to start: {_sumo_message(failure, err[0] if err else '')}"
             ) from failure
         self._open = True
+        self.taken_over = False
         self.net_file = net
         self.seed = int(seed)
         _ACTIVE = self

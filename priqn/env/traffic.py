@@ -1,0 +1,300 @@
+"""NPC traffic at a requested density, random vehicles, lateral offsets and static obstacles.
+
+Density is ``active NPCs / TrafficSpec.max_actors`` with ``active`` = NPC vehicles
+running in SUMO (inserted, not yet arrived; the ego and static obstacles do not
+count). :class:`Traffic` fills the scene to the target count at reset (vehicles
+spread along their first edge) and tops it up every step with new vehicles at the
+start of an incoming arm. SUMO inserts a vehicle only where it fits, so the
+*realised* density (mean over the episode's sim steps) can be below the requested
+one; the env reports both.
+
+Each NPC gets a random length, width and speed factor (``TrafficSpec`` ranges) and
+a random lateral offset from its lane centre that fades linearly to zero over the
+last ``lateral_offset_fade_m`` before the junction (offset traffic colliding inside
+the junction is a known SUMO artefact). Offsets need SUMO's sublane model
+(``--lateral-resolution``), which the session turns on.
+
+Static obstacles are stopped vehicles (speed 0, lane-change and speed modes 0)
+parked towards the right edge of a lane so that in-lane traffic can squeeze past
+(sublane model) while a centred car cannot pass without an offset to the left.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from types import ModuleType
+
+import numpy as np
+
+from priqn.errors import PriqnError
+from priqn.sim.scenario import TrafficSpec
+
+NPC_PREFIX = "npc."
+"""SUMO id prefix of traffic vehicles."""
+OBSTACLE_PREFIX = "obstacle."
+"""SUMO id prefix of static obstacles."""
+NPC_TYPE = "priqn_npc"
+"""SUMO vehicle type of traffic vehicles (a copy of SUMO's default car)."""
+OBSTACLE_TYPE = "priqn_obstacle"
+"""SUMO vehicle type of static obstacles."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Obstacle:
+    """One static obstacle (a parked car) as placed in SUMO."""
+
+    vehicle_id: str
+    """SUMO vehicle id."""
+    lane_id: str
+    """SUMO lane it stands on."""
+    lane_pos_m: float
+    """Position of its front along the lane [m]."""
+    lateral_offset_m: float
+    """Offset of its centre from the lane centre [m] (negative = right)."""
+    length_m: float
+    """Length [m]."""
+    width_m: float
+    """Width [m]."""
+    center_xy: tuple[float, float]
+    """Centre of its footprint [m]."""
+    heading_rad: float
+    """Heading, counter-clockwise from +x [rad]."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleSite:
+    """A lane stretch where an obstacle may stand."""
+
+    lane_id: str
+    """SUMO lane id (non-internal)."""
+    edge_id: str
+    """Its edge."""
+    lane_index: int
+    """Index of the lane on its edge."""
+    s_min_m: float
+    """First allowed lane position [m]."""
+    s_max_m: float
+    """Last allowed lane position [m]."""
+    width_m: float
+    """Lane width [m]."""
+
+
+def check_density(density: float, where: str = "density") -> float:
+    """Validate a requested density: a number in (0, 1]."""
+    try:
+        d = float(density)
+    except (TypeError, ValueError):
+        raise PriqnError(f"{where}: expected a number in (0, 1], got {density!r}") from None
+    if not 0.0 < d <= 1.0 or not np.isfinite(d):
+        raise PriqnError(
+            f"{where}: {density!r} is out of range; density = active actors / max actors "
+            "must be in (0, 1]"
+        )
+    return d
+
+
+class Traffic:
+    """The NPCs and obstacles of one episode in the running SUMO simulation.
+
+    ``routes``: NPC routes as edge-id lists (first edge = an incoming arm, whose end is
+    the junction: lateral offsets fade out before it). ``rng`` draws everything random
+    about the traffic (the env derives it from the episode seed).
+    """
+
+    def __init__(
+        self,
+        sim: ModuleType,
+        spec: TrafficSpec,
+        routes: Sequence[Sequence[str]],
+        density: float,
+        rng: np.random.Generator,
+    ) -> None:
+        if not routes:
+            raise PriqnError("traffic: the net has no NPC routes")
+        if spec.max_actors < 1:
+            raise PriqnError(f"traffic.max_actors: expected >= 1, got {spec.max_actors}")
+        self.sim = sim
+        self.spec = spec
+        self.density = check_density(density)
+        self.target_count = int(round(self.density * spec.max_actors))
+        """Number of NPCs the density asks for (round(density * max_actors); 0 for tiny densities)."""
+        self.rng = rng
+        self.routes = [tuple(r) for r in routes]
+        self._route_ids = [f"priqn_route.{i}" for i in range(len(self.routes))]
+        self._first_edge_len: dict[str, float] = {}
+        # NPC id -> (first edge, lateral offset [m], first lane length [m]) while on it
+        self._offsets: dict[str, tuple[str, float, float]] = {}
+        self._next_id = 0
+        self._density_sum = 0.0
+        self._density_steps = 0
+        self.obstacles: list[Obstacle] = []
+        self.active = 0
+        """NPCs running in SUMO now (kept by :meth:`record_step`)."""
+
+    # ------------------------------------------------------------------ setup
+
+    def setup(self) -> None:
+        """Register routes and vehicle types in the (freshly loaded) simulation."""
+        sim = self.sim
+        for rid, edges in zip(self._route_ids, self.routes, strict=True):
+            sim.route.add(rid, list(edges))
+            first = edges[0]
+            if first not in self._first_edge_len:
+                self._first_edge_len[first] = sim.lane.getLength(f"{first}_0")
+        sim.vehicletype.copy("DEFAULT_VEHTYPE", NPC_TYPE)
+        sim.vehicletype.setLateralAlignment(NPC_TYPE, "arbitrary")
+        sim.vehicletype.setMinGapLat(NPC_TYPE, 0.3)
+        sim.vehicletype.setMaxSpeedLat(NPC_TYPE, 1.0)
+        sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
+        sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
+
+    def populate(self, avoid: tuple[str, float, float] | None = None) -> None:
+        """Spread ``target_count`` NPCs along the first edges of random routes.
+
+        ``avoid = (edge_id, s_lo, s_hi)``: keep that stretch free (the ego's start).
+        """
+        for _ in range(self.target_count):
+            r = int(self.rng.integers(len(self.routes)))
+            first = self.routes[r][0]
+            length = self._first_edge_len[first]
+            pos = float(self.rng.uniform(0.0, max(0.0, length - 10.0)))
+            if avoid is not None and first == avoid[0] and avoid[1] <= pos <= avoid[2]:
+                continue
+            self._add_npc(r, pos)
+
+    def _add_npc(self, route_index: int, depart_pos_m: float | None) -> None:
+        sim, spec, rng = self.sim, self.spec, self.rng
+        vid = f"{NPC_PREFIX}{self._next_id}"
+        self._next_id += 1
+        sim.vehicle.add(
+            vid,
+            self._route_ids[route_index],
+            typeID=NPC_TYPE,
+            departLane="best",
+            departPos="base" if depart_pos_m is None else f"{depart_pos_m:.2f}",
+            departSpeed="max",
+        )
+        sim.vehicle.setLength(vid, float(rng.uniform(*spec.vehicle_length_m)))
+        sim.vehicle.setWidth(vid, float(rng.uniform(*spec.vehicle_width_m)))
+        sim.vehicle.setSpeedFactor(vid, float(rng.uniform(*spec.speed_factor)))
+        offset = float(rng.uniform(*spec.lateral_offset_m))
+        if offset != 0.0:
+            first = self.routes[route_index][0]
+            self._offsets[vid] = (first, offset, self._first_edge_len[first])
+
+    def place_obstacles(self, sites: Sequence[ObstacleSite], count: int) -> list[Obstacle]:
+        """Park ``count`` obstacles at random positions of random ``sites`` (one per site)."""
+        sim, spec, rng = self.sim, self.spec, self.rng
+        count = min(int(count), len(sites))
+        chosen = rng.choice(len(sites), size=count, replace=False) if count else []
+        max_npc_width = spec.vehicle_width_m[1]
+        for k, i in enumerate(chosen):
+            site = sites[int(i)]
+            length = float(rng.uniform(*spec.obstacle_length_m))
+            width = float(rng.uniform(*spec.obstacle_width_m))
+            pos = float(
+                rng.uniform(site.s_min_m + length, max(site.s_min_m + length, site.s_max_m))
+            )
+            # Inner edge leaves max NPC width + 0.5..1.0 m free in the lane.
+            free = max_npc_width + float(rng.uniform(0.5, 1.0))
+            inner = site.width_m / 2.0 - free
+            lat = min(inner - width / 2.0, 0.0)
+            vid = f"{OBSTACLE_PREFIX}{k}"
+            rid = f"priqn_obstacle_route.{k}"
+            sim.route.add(rid, [site.edge_id])
+            sim.vehicle.add(
+                vid,
+                rid,
+                typeID=OBSTACLE_TYPE,
+                departLane=str(site.lane_index),
+                departPos=f"{pos:.2f}",
+                departSpeed="0",
+            )
+            sim.vehicle.setLength(vid, length)
+            sim.vehicle.setWidth(vid, width)
+            sim.vehicle.setSpeedMode(vid, 0)
+            sim.vehicle.setLaneChangeMode(vid, 0)
+            x, y = sim.simulation.convert2D(site.edge_id, pos, site.lane_index)
+            heading = _lane_heading(sim, site.lane_id, pos)
+            nx, ny = -np.sin(heading), np.cos(heading)  # left normal
+            fx, fy = x + lat * nx, y + lat * ny
+            sim.vehicle.moveToXY(
+                vid, site.edge_id, site.lane_index, fx, fy, 90.0 - np.rad2deg(heading), 1
+            )
+            sim.vehicle.setSpeed(vid, 0.0)
+            cx, cy = fx - np.cos(heading) * length / 2.0, fy - np.sin(heading) * length / 2.0
+            self.obstacles.append(
+                Obstacle(
+                    vid,
+                    site.lane_id,
+                    pos,
+                    lat,
+                    length,
+                    width,
+                    (float(cx), float(cy)),
+                    float(heading),
+                )
+            )
+        return self.obstacles
+
+    # ------------------------------------------------------------------ per step
+
+    def record_step(self, departed: Sequence[str], arrived: Sequence[str]) -> None:
+        """Book one sim step: the vehicles SUMO inserted and removed in it (for the density)."""
+        for v in departed:
+            if v.startswith(NPC_PREFIX):
+                self.active += 1
+        for v in arrived:
+            if v.startswith(NPC_PREFIX):
+                self.active -= 1
+        self._density_sum += self.active / self.spec.max_actors
+        self._density_steps += 1
+
+    def top_up(self) -> int:
+        """Add NPCs at arm starts until running + waiting NPCs reach the target; returns how many."""
+        missing = self.target_count - self.active - self._pending()
+        for _ in range(max(0, missing)):
+            self._add_npc(int(self.rng.integers(len(self.routes))), None)
+        return max(0, missing)
+
+    def update_offsets(self) -> None:
+        """Steer offset NPCs towards their faded lateral offset (call once per decision)."""
+        if not self._offsets:
+            return
+        sim = self.sim
+        fade = self.spec.lateral_offset_fade_m
+        done = []
+        running = set(sim.vehicle.getIDList())
+        pending = set(sim.simulation.getPendingVehicles())
+        for vid, (first, offset, length) in self._offsets.items():
+            if vid not in running:
+                if vid not in pending:  # arrived
+                    done.append(vid)
+                continue
+            if sim.vehicle.getRoadID(vid) != first:
+                done.append(vid)
+                continue
+            to_end = length - sim.vehicle.getLanePosition(vid)
+            want = offset * float(np.clip((to_end - 2.0) / fade, 0.0, 1.0)) if fade > 0 else 0.0
+            now = sim.vehicle.getLateralLanePosition(vid)
+            if abs(want - now) > 0.05:
+                sim.vehicle.changeSublane(vid, want - now)
+        for vid in done:
+            del self._offsets[vid]
+
+    def _pending(self) -> int:
+        return sum(1 for v in self.sim.simulation.getPendingVehicles() if v.startswith(NPC_PREFIX))
+
+    @property
+    def density_realised(self) -> float:
+        """Mean of active NPCs / max_actors over the sim steps so far (0 before the first)."""
+        return self._density_sum / self._density_steps if self._density_steps else 0.0
+
+
+def _lane_heading(sim: ModuleType, lane_id: str, pos: float) -> float:
+    shape = np.asarray(sim.lane.getShape(lane_id), float)
+    seg = np.diff(shape, axis=0)
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
+    i = int(np.clip(np.searchsorted(cum, pos) - 1, 0, len(seg) - 1))
+    return float(np.arctan2(seg[i, 1], seg[i, 0]))

@@ -1,0 +1,133 @@
+"""N environments in N worker processes: libsumo allows one simulation per process.
+
+:func:`make_vector_env` builds a gymnasium ``AsyncVectorEnv`` with the ``spawn``
+start method (the parent process never imports or runs SUMO) and ``SAME_STEP``
+autoreset, so a finished episode's last observation and info come back in
+``infos["final_obs"]`` / ``infos["final_info"]`` of the same step and rewards stay a
+clean ``float32 [num_envs, 5]`` array (``NEXT_STEP`` would mix a scalar 0 reward into
+the vector rewards on the reset step).
+
+Worker ``i``'s first episode is seeded with a child of
+``numpy.random.SeedSequence(seed)``; later episodes draw their seeds from the
+worker's generator, so one integer fixes every episode of every worker.
+
+A worker that dies (e.g. SUMO crashed the process) or raises is reported as a
+one-line :class:`~priqn.errors.PriqnError` naming the worker, never waited on.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode
+
+from priqn.errors import PriqnError
+
+
+class _EnvFactory:
+    """Picklable constructor of one worker's env (spawn pickles it into the worker)."""
+
+    def __init__(self, config: Any, seed: int, render_mode: str | None) -> None:
+        self.config, self.seed, self.render_mode = config, seed, render_mode
+
+    def __call__(self):  # noqa: ANN204 - returns a gymnasium.Env
+        from priqn.env.intersection import IntersectionEnv  # imported in the worker only
+
+        return IntersectionEnv(self.config, render_mode=self.render_mode, seed=self.seed)
+
+
+class PriqnVectorEnv(AsyncVectorEnv):
+    """``AsyncVectorEnv`` whose worker deaths and errors become one-line :class:`PriqnError`s."""
+
+    def reset_async(self, *args: Any, **kwargs: Any) -> None:
+        self._guard("reset", super().reset_async, *args, **kwargs)
+
+    def reset_wait(self, *args: Any, **kwargs: Any):  # noqa: ANN201
+        return self._guard("reset", super().reset_wait, *args, **kwargs)
+
+    def step_async(self, actions: Any) -> None:
+        self._guard("step", super().step_async, actions)
+
+    def step_wait(self, *args: Any, **kwargs: Any):  # noqa: ANN201
+        obs, rewards, terminated, truncated, infos = self._guard(
+            "step", super().step_wait, *args, **kwargs
+        )
+        return obs, np.asarray(rewards, dtype=np.float32), terminated, truncated, infos
+
+    def call_wait(self, *args: Any, **kwargs: Any):  # noqa: ANN201
+        return self._guard("call", super().call_wait, *args, **kwargs)
+
+    def _guard(self, what: str, fn, *args: Any, **kwargs: Any):  # noqa: ANN001, ANN202
+        try:
+            return fn(*args, **kwargs)
+        except (EOFError, BrokenPipeError, ConnectionResetError) as exc:
+            dead = [
+                f"worker {i} (exit code {p.exitcode})"
+                for i, p in enumerate(self.processes)
+                if p.exitcode is not None
+            ]
+            who = ", ".join(dead) if dead else "a worker"
+            self._abandon()
+            raise PriqnError(
+                f"vector env {what}: {who} died (SUMO crashed or the process was killed); "
+                "the vector env is closed, make a new one"
+            ) from exc
+        except PriqnError:
+            self._abandon()
+            raise
+        except multiprocessing.TimeoutError as exc:
+            self._abandon()
+            raise PriqnError(
+                f"vector env {what}: no answer from the workers within the timeout; closed them"
+            ) from exc
+
+    def _abandon(self) -> None:
+        """Kill the remaining workers without waiting on a dead pipe."""
+        for p in self.processes:
+            if p.is_alive():
+                p.terminate()
+        for p in self.processes:
+            p.join(timeout=5)
+        self.closed = True
+
+    def close_extras(self, timeout: float | None = None, terminate: bool = False) -> None:
+        if all(not p.is_alive() for p in self.processes):
+            return
+        try:
+            super().close_extras(timeout=timeout, terminate=terminate)
+        except (EOFError, BrokenPipeError, ConnectionResetError, OSError):
+            self._abandon()
+
+
+def worker_seeds(seed: int, num_envs: int) -> list[int]:
+    """The first-episode seed of each worker: children of ``SeedSequence(seed)``."""
+    children = np.random.SeedSequence(int(seed)).spawn(int(num_envs))
+    return [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children]
+
+
+def make_vector_env(
+    config: Any = None, num_envs: int = 2, seed: int = 0, render_mode: str | None = None
+) -> PriqnVectorEnv:
+    """``num_envs`` :class:`~priqn.env.intersection.IntersectionEnv` in spawned worker processes.
+
+    ``config`` is an :class:`~priqn.env.intersection.EnvConfig` (None = defaults). Call
+    ``reset()`` without a seed to use the per-worker seeds derived from ``seed``
+    (:func:`worker_seeds`); ``reset(seed=s)`` reseeds worker i with ``s + i`` as gymnasium
+    does. Rewards come out ``float32 [num_envs, 5]``.
+    """
+    if not isinstance(num_envs, int) or num_envs < 1:
+        raise PriqnError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
+    if config is None:
+        from priqn.env.intersection import EnvConfig  # pure-python; no SUMO import
+
+        config = EnvConfig()
+    fns = [_EnvFactory(config, s, render_mode) for s in worker_seeds(seed, num_envs)]
+    return PriqnVectorEnv(
+        fns,
+        context="spawn",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+        daemon=True,
+        shared_memory=True,
+    )

@@ -1,0 +1,94 @@
+"""make_vector_env: spawned workers, vector rewards, SAME_STEP autoreset, dead workers reported."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from priqn.env.intersection import EnvConfig
+from priqn.env.vector import make_vector_env, worker_seeds
+from priqn.errors import PriqnError
+
+
+def test_worker_seeds_are_derived_and_distinct() -> None:
+    a = worker_seeds(7, 4)
+    assert a == worker_seeds(7, 4) and len(set(a)) == 4
+    assert a != worker_seeds(8, 4)
+
+
+def test_bad_worker_count() -> None:
+    with pytest.raises(PriqnError, match="num_envs"):
+        make_vector_env(EnvConfig(), 0)
+
+
+def test_vector_env_steps_resets_and_reports_dead_workers() -> None:
+    had_libsumo = "libsumo" in sys.modules
+    cfg = EnvConfig(family="tjunction", obs_size_px=32, max_episode_steps=12)
+    venv = make_vector_env(cfg, num_envs=2, seed=3)
+    try:
+        obs, infos = venv.reset()
+        assert obs["bev"].shape == (2, 4, 32, 32) and obs["kinematics"].shape == (2, 4)
+        assert infos["net"].shape == (2,)
+        finished = 0
+        for _ in range(14):  # the 12-step limit ends every episode at least once
+            obs, rewards, terminated, truncated, infos = venv.step(np.array([12, 12]))
+            assert rewards.shape == (2, 5) and rewards.dtype == np.float32
+            done = terminated | truncated
+            if done.any():
+                finished += int(done.sum())
+                assert "final_obs" in infos and "final_info" in infos
+                i = int(np.flatnonzero(done)[0])
+                assert infos["final_info"]["episode_steps"][i] >= 1
+                assert infos["episode_steps"][i] == 0  # SAME_STEP: already reset
+        assert finished >= 2
+        if not had_libsumo:
+            assert "libsumo" not in sys.modules  # the parent never runs SUMO
+        os.kill(venv.processes[1].pid, signal.SIGKILL)
+        time.sleep(0.3)
+        with pytest.raises(PriqnError, match="worker 1 .* died"):
+            venv.step(np.array([12, 12]))
+    finally:
+        venv.close()
+
+
+def _serial_rewards(seed: int, actions: list[int]) -> np.ndarray:
+    from priqn.env.intersection import IntersectionEnv
+
+    env = IntersectionEnv(EnvConfig(family="tjunction", obs_size_px=32), seed=seed)
+    try:
+        env.reset()  # the constructor seed, as a vector worker uses it
+        out = []
+        for a in actions:
+            _, r, term, trunc, _ = env.step(a)
+            out.append(r)
+            if term or trunc:
+                break
+        return np.array(out)
+    finally:
+        env.close()
+
+
+def test_a_vector_worker_replays_the_serial_episode() -> None:
+    import concurrent.futures
+    import multiprocessing
+
+    actions = [17, 12, 13, 17, 22, 17, 11, 17] * 4
+    (seed,) = worker_seeds(5, 1)
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx) as pool:
+        serial = pool.submit(_serial_rewards, seed, actions).result(timeout=120)
+    venv = make_vector_env(EnvConfig(family="tjunction", obs_size_px=32), num_envs=1, seed=5)
+    try:
+        venv.reset()
+        parallel = []
+        for a in actions[: len(serial)]:
+            _, r, _, _, _ = venv.step(np.array([a]))
+            parallel.append(r[0])
+    finally:
+        venv.close()
+    np.testing.assert_array_equal(np.array(parallel), serial)
