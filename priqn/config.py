@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import inspect
+import itertools
 import textwrap
 import tomllib
 import types
@@ -123,7 +124,7 @@ def field_docs(cls: type) -> dict[str, str]:
     body = ast.parse(source).body[0]
     docs: dict[str, str] = {}
     stmts = getattr(body, "body", [])
-    for stmt, nxt in zip(stmts, stmts[1:]):
+    for stmt, nxt in itertools.pairwise(stmts):
         if (
             isinstance(stmt, ast.AnnAssign)
             and isinstance(stmt.target, ast.Name)
@@ -212,7 +213,7 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
         elif origin is tuple and args:
             if len(args) != len(value):
                 raise PriqnError(f"{where}: expected {len(args)} values, got {len(value)}")
-            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args))]
+            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
         else:
             sub = args[0] if args else Any
             items = [_coerce(v, sub, f"{where}[{i}]") for i, v in enumerate(value)]
