@@ -199,7 +199,9 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
         raise PriqnError(f"{where}: expected {names}, got {value!r}")
     if origin is typing.Literal:
         if value not in args:
-            raise PriqnError(f"{where}: expected one of {', '.join(map(repr, args))}, got {value!r}")
+            raise PriqnError(
+                f"{where}: expected one of {', '.join(map(repr, args))}, got {value!r}"
+            )
         return value
     if dataclasses.is_dataclass(tp):
         if dataclasses.is_dataclass(value):
@@ -213,7 +215,10 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
         elif origin is tuple and args:
             if len(args) != len(value):
                 raise PriqnError(f"{where}: expected {len(args)} values, got {len(value)}")
-            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
+            items = [
+                _coerce(v, a, f"{where}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args, strict=True))
+            ]
         else:
             sub = args[0] if args else Any
             items = [_coerce(v, sub, f"{where}[{i}]") for i, v in enumerate(value)]

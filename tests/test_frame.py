@@ -90,9 +90,13 @@ def test_atomic_write_keeps_old_file_on_failure(tmp_path: Path):
 
 
 def test_cli_unknown_command_and_help():
-    out = subprocess.run([sys.executable, "-m", "priqn.cli", "--help"], capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "--help"], capture_output=True, text=True
+    )
     assert out.returncode == 0 and "scenario" in out.stdout
-    bad = subprocess.run([sys.executable, "-m", "priqn.cli", "nope"], capture_output=True, text=True)
+    bad = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "nope"], capture_output=True, text=True
+    )
     assert bad.returncode == 2 and "unknown command 'nope'" in bad.stderr
 
 
