@@ -655,7 +655,9 @@ class IntersectionEnv(gymnasium.Env):
         s_before = ep.state.s
         ep.state = traj.state_at(done_at * cfg.sim_step_s)
         j = done_at
-        kin = [traj.speed_mps[j], 0.0, traj.accel_lon_mps2[j], traj.accel_lat_mps2[j]]
+        # v_lat is the lateral speed relative to the lane centre (Frenet ḋ): the ego does
+        # not slip, so its body-frame lateral speed would always be 0.
+        kin = [traj.speed_mps[j], traj.d_dot[j], traj.accel_lon_mps2[j], traj.accel_lat_mps2[j]]
         ep.kin = np.clip(np.array(kin, np.float32), -KIN_LIMIT, KIN_LIMIT)
         if not (flags["collision"] or flags["off_road"] or flags["success"]):
             traffic.top_up()
