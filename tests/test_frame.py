@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import pytest
@@ -121,3 +122,15 @@ def test_atomic_files_get_umask_mode(tmp_path: Path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask
+
+
+@dataclasses.dataclass(frozen=True)
+class WithLiteral:
+    stat: typing.Literal["mean", "iqm"] | None = None
+    """A statistic, or none."""
+
+
+def test_optional_literal_error_lists_allowed_values():
+    assert from_dict(WithLiteral, {"stat": "iqm"}, "w").stat == "iqm"
+    with pytest.raises(PriqnError, match=r"w.stat: expected one of 'mean', 'iqm', got 'median'"):
+        from_dict(WithLiteral, {"stat": "median"}, "w")

@@ -1,0 +1,154 @@
+"""Ray back-end of ``priqn sweep``: the same cell child processes, as Ray tasks.
+
+Each cell becomes one Ray task declaring ``num_cpus`` / ``num_gpus`` from the
+experiment's ``[resources]``. The task starts the very child command the local pool
+starts (``python -m priqn.sweep --cell SPEC``) on whichever node Ray picks, so a cell
+never shares a process with libsumo from another cell, and a Ray worker that is
+reused for the next task starts clean. Results are the run folders the child writes
+under the runs folder (an absolute path: on a multi-node cluster it must be the same
+shared filesystem path on every node); completion is read from those folders.
+
+``ray`` is an optional extra (``pip install 'priqn[ray]'``) imported only here.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+from priqn.errors import PriqnError
+from priqn.sweep import _STOP_GRACE_S, ResourceSpec, run_cell_process
+
+
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ModuleNotFoundError:
+        raise PriqnError(
+            "--ray: the 'ray' package is not installed; install it with: pip install 'priqn[ray]'"
+        ) from None
+    return ray
+
+
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A ``host:port`` / ``ray://host:port`` address must accept a TCP connection.
+
+    Ray itself retries an unreachable head for minutes; this fails in seconds.
+    """
+    if address in ("auto", "local"):
+        return
+    hostport = address.removeprefix("ray://").rstrip("/")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not port.isdigit():
+        raise PriqnError(
+            f"--ray {address}: expected auto, HOST:PORT (e.g. head:6379) or ray://HOST:PORT"
+        )
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise PriqnError(
+            f"--ray {address}: cannot reach a Ray head there ({reason}); is 'ray start --head' "
+            "running and the port open?"
+        ) from None
+
+
+def ray_cell(spec: dict[str, Any], log_path: str) -> tuple[int, str, bool]:
+    """Body of one cell's Ray task: run the cell's child process on this node.
+
+    Cancelling the task (Ctrl-C in the driver) raises KeyboardInterrupt here, which
+    stops the child's process group before the task ends.
+    """
+    return run_cell_process(spec, Path(log_path))
+
+
+class RayBackend:
+    """Submits cells as Ray tasks; ``address`` None starts a new local Ray cluster."""
+
+    def __init__(self, address: str | None, resources: ResourceSpec, max_inflight: int | None):
+        ray = _import_ray()
+        self._ray = ray
+        self._owns = False
+        if ray.is_initialized():
+            pass  # a caller (a notebook, a test) already connected: use that cluster as is
+        elif address:
+            _check_reachable(address)
+            try:
+                ray.init(address=address, log_to_driver=False)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                raise PriqnError(
+                    f"--ray {address}: cannot connect to a Ray cluster: {msg}"
+                ) from None
+            self._owns = True
+        else:
+            ray.init(address="local", include_dashboard=False, log_to_driver=False)
+            self._owns = True
+        self.address = address or "local"
+        self.slots = max_inflight
+        self._resources = resources
+        self._remote = ray.remote(
+            num_cpus=resources.cpus_per_cell,
+            num_gpus=resources.gpus_per_cell,
+            max_retries=0,  # the sweep retries a failed cell itself, with its log
+        )(ray_cell)
+        total = ray.cluster_resources()
+        self.cluster_cpus = float(total.get("CPU", 0.0))
+        self.cluster_gpus = float(total.get("GPU", 0.0))
+        if self.cluster_cpus < resources.cpus_per_cell or (
+            resources.gpus_per_cell > 0 and self.cluster_gpus < resources.gpus_per_cell
+        ):
+            need = f"{resources.cpus_per_cell:g} CPU / {resources.gpus_per_cell:g} GPU"
+            have = f"{self.cluster_cpus:g} CPU / {self.cluster_gpus:g} GPU"
+            msg = (
+                f"[resources]: each cell asks for {need} but the Ray cluster has {have} in all; "
+                "lower them (--cpus-per-cell / --gpus-per-cell) or add nodes"
+            )
+            if self._owns and address is None:  # our own local cluster never grows
+                ray.shutdown()
+                raise PriqnError(msg)
+            # An existing cluster may autoscale: submit anyway, Ray holds the tasks.
+            print(f"priqn sweep: warning: {msg}; cells wait until nodes join", file=sys.stderr)
+
+    def describe(self) -> str:
+        cap = f", at most {self.slots} in flight" if self.slots else ""
+        return (
+            f"Ray cluster {self.address}: {self.cluster_cpus:g} CPU / {self.cluster_gpus:g} GPU, "
+            f"{self._resources.cpus_per_cell:g} CPU / {self._resources.gpus_per_cell:g} GPU per cell{cap}"
+        )
+
+    def submit(self, spec: dict[str, Any], log_path: Path) -> Any:
+        return self._remote.remote(spec, str(Path(log_path).absolute()))
+
+    def wait(self, handles: list[Any], timeout_s: float) -> list[tuple[Any, int, str, bool]]:
+        ray = self._ray
+        if not handles:
+            return []
+        ready, _ = ray.wait(handles, num_returns=1, timeout=timeout_s)
+        out = []
+        for ref in ready:
+            try:
+                rc, tail, complete = ray.get(ref)
+            except ray.exceptions.RayError as exc:
+                # The task itself died (node lost, worker killed): a failed attempt.
+                lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+                rc, complete = 1, False
+                tail = f"Ray task failed: {type(exc).__name__}: {lines[-1] if lines else ''}"
+            out.append((ref, rc, tail, complete))
+        return out
+
+    def cancel(self, handles: list[Any]) -> None:
+        ray = self._ray
+        for ref in handles:
+            try:
+                ray.cancel(ref)  # KeyboardInterrupt in the task: it stops its child first
+            except Exception:  # noqa: BLE001 - best effort while shutting down
+                pass
+        if handles:
+            ray.wait(handles, num_returns=len(handles), timeout=_STOP_GRACE_S + 10.0)
+
+    def close(self) -> None:
+        if self._owns and self._ray.is_initialized():
+            self._ray.shutdown()

@@ -1,0 +1,628 @@
+"""priqn sweep: grid expansion, completeness, scheduling semantics, Ctrl-C, Ray.
+
+Scheduling tests run the real sweep machinery (child processes, logs, retries,
+progress, summary) with fast cell bodies from a small module written to a temp
+folder (``--cell-fn fakecells:fake``); they write the same ``meta.json`` files a real
+training and evaluation write. The real train + evaluate + report path runs in the
+slow tests at the end (``pytest -m slow tests/test_sweep.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json
+from priqn.paths import REPO_ROOT
+from priqn.sweep import (
+    Cell,
+    _sweep_lock,
+    cell_state,
+    default_jobs,
+    describe_failure,
+    expand,
+    is_complete,
+    load_experiment,
+    run_sweep,
+)
+
+FAKE_CELLS = '''
+"""Fast cell bodies for tests; behaviour picked by the policy name."""
+import os
+import signal
+import time
+
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json, atomic_write_text
+
+
+def _meta(cell, status):
+    atomic_write_json(cell.run_dir / "meta.json", {"status": status, "seed": cell.seed})
+
+
+def fake(cell):
+    calls = cell.run_dir.parent / "calls"
+    calls.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(calls / f"{cell.policy}__seed{cell.seed}.{os.getpid()}", cell.name)
+    p = cell.policy
+    if p.startswith("boom"):
+        raise RuntimeError(f"boom in {cell.name}")
+    if p.startswith("flaky"):
+        marker = cell.run_dir.parent / f"{p}__seed{cell.seed}.tried"
+        if not marker.exists():
+            atomic_write_text(marker, "1")
+            raise RuntimeError("first attempt fails")
+    if p.startswith("bad-input"):
+        raise PriqnError("x.toml [evaluate].episodes: unknown key")
+    if p.startswith("crash"):
+        os.kill(os.getpid(), signal.SIGKILL)
+    if p.startswith("lies"):
+        return
+    if p.startswith("orphan"):
+        import subprocess
+        import sys
+
+        child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+        atomic_write_text(cell.run_dir / "orphan_pid", str(child.pid))
+    if p.startswith("sleepy"):
+        _meta(cell, "running")
+        atomic_write_text(cell.run_dir / "pid", str(os.getpid()))
+        time.sleep(120)
+    _meta(cell, "complete")
+    atomic_write_json(cell.run_dir / "eval" / "meta.json", {"status": "complete"})
+'''
+
+
+@pytest.fixture()
+def fake_cells(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Write the fake cell module and put it on the children's PYTHONPATH."""
+    mod_dir = tmp_path / "mods"
+    mod_dir.mkdir()
+    (mod_dir / "fakecells.py").write_text(FAKE_CELLS)
+    path = os.pathsep.join(p for p in [str(mod_dir), os.environ.get("PYTHONPATH", "")] if p)
+    monkeypatch.setenv("PYTHONPATH", path)
+    return "fakecells:fake"
+
+
+def write_experiment(tmp_path: Path, policies: list[str], seeds: list[int], **extra: str) -> Path:
+    body = [
+        "[experiment]",
+        'name = "fake"',
+        f"seeds = {seeds}",
+        f'runs_dir = "{(tmp_path / "runs").as_posix()}"',
+        *(f"{k} = {v}" for k, v in extra.items()),
+        "[resources]",
+        "cpus_per_cell = 1",
+    ]
+    for p in policies:
+        body += ["[[policy]]", f'name = "{p}"', 'agent = "iqn"']
+    path = tmp_path / "fake.toml"
+    path.write_text("\n".join(body) + "\n")
+    return path
+
+
+def calls(tmp_path: Path) -> list[str]:
+    d = tmp_path / "runs" / "fake" / "calls"
+    return sorted(p.name.rsplit(".", 1)[0] for p in d.iterdir()) if d.is_dir() else []
+
+
+# --------------------------------------------------------------------------- grid expansion
+
+# Table II rows: (name, agent, comparator, train_preorder, eps, preorder)
+TABLE2 = [
+    ("iqn", "iqn", None, None, None, None),
+    ("ensemble", "ensemble-iqn", None, None, None, None),
+    ("ma-iqn", "ma-iqn", None, None, None, None),
+    ("pr-iqn-mv-tp-eps0.4", "pr-iqn", "mv", True, 0.4, "total"),
+    ("pr-iqn-cvar-tp-eps0.4", "pr-iqn", "cvar", True, 0.4, "total"),
+    ("pr-iqn-qd-eps0.4", "pr-iqn", "qd", False, 0.4, "total"),
+    ("pr-iqn-qd-tp-eps0.4", "pr-iqn", "qd", True, 0.4, "total"),
+    ("pr-iqn-qd-eps0.2", "pr-iqn", "qd", False, 0.2, "total"),
+    ("pr-iqn-qd-tp-eps0.2", "pr-iqn", "qd", True, 0.2, "total"),
+    ("pr-iqn-qd-eps0.2-partial", "pr-iqn", "qd", False, 0.2, "partial"),
+    ("pr-iqn-qd-tp-eps0.2-partial", "pr-iqn", "qd", True, 0.2, "partial"),
+]
+
+
+def test_table2_expands_to_the_papers_33_cells(tmp_path: Path) -> None:
+    exp = load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path)
+    cells = expand(exp)
+    assert len(cells) == 33
+    assert len({c.name for c in cells}) == 33 and len({c.run_dir for c in cells}) == 33
+    assert [c.name for c in cells[:4]] == [
+        "table2/iqn__seed0",
+        "table2/iqn__seed1",
+        "table2/iqn__seed2",
+        "table2/ensemble__seed0",
+    ]
+    for i, (name, agent, comparator, tp, eps, preorder) in enumerate(TABLE2):
+        row = cells[3 * i : 3 * i + 3]
+        assert [c.seed for c in row] == [0, 1, 2]
+        for c in row:
+            assert c.policy == name and c.agent == agent
+            assert c.run_dir == tmp_path / "table2" / f"{name}__seed{c.seed}"
+            assert (c.net, c.preset, c.experiment) == ("all", "paper", "table2")
+            assert c.evaluate["densities"] == [0.5, 0.75, 1.0] and c.evaluate["eval_runs"] == 3
+        expected = []
+        if agent == "pr-iqn":
+            expected = [
+                f'agent.comparator="{comparator}"',
+                f"agent.train_preorder={'true' if tp else 'false'}",
+                f"agent.eps={eps}",
+                f'agent.preorder="{preorder}"',
+            ]
+        assert list(row[0].overrides) == expected, name
+
+
+PAPER_ROW_LABELS = [
+    "IQN",
+    "Ensemble",
+    "MA-IQN",
+    "Pr-IQN MV ✓ 0.4 ✗",
+    "Pr-IQN CVaR ✓ 0.4 ✗",
+    "Pr-IQN QD ✗ 0.4 ✗",
+    "Pr-IQN QD ✓ 0.4 ✗",
+    "Pr-IQN QD ✗ 0.2 ✗",
+    "Pr-IQN QD ✓ 0.2 ✗",
+    "Pr-IQN QD ✗ 0.2 ✓",
+    "Pr-IQN QD ✓ 0.2 ✓",
+]
+
+
+def test_table2_cells_train_the_papers_rows(tmp_path: Path) -> None:
+    """Each row's resolved TrainConfig renders the Table II label, in the paper's order."""
+    from priqn.sweep import build_train_config
+    from priqn.train import policy_labels
+
+    cells = expand(load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path))
+    labels = [policy_labels(build_train_config(c))["label"] for c in cells[::3]]
+    assert labels == PAPER_ROW_LABELS
+    seeds = {(c.policy, build_train_config(c).seed) for c in cells[:6]}
+    assert seeds == {
+        ("iqn", 0),
+        ("iqn", 1),
+        ("iqn", 2),
+        ("ensemble", 0),
+        ("ensemble", 1),
+        ("ensemble", 2),
+    }
+
+
+def test_cell_spec_round_trips_through_json(tmp_path: Path) -> None:
+    cell = expand(load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path))[-1]
+    spec = json.loads(json.dumps(cell.to_spec()))
+    assert spec["name"] == "table2/pr-iqn-qd-tp-eps0.2-partial__seed2"
+    assert Cell.from_spec(spec) == cell
+
+
+def test_smoke_grid_is_small(tmp_path: Path) -> None:
+    exp = load_experiment(REPO_ROOT / "experiments" / "smoke.toml", runs_dir=tmp_path)
+    cells = expand(exp)
+    assert 1 <= len(cells) <= 4
+    assert {c.agent for c in cells} >= {"iqn", "pr-iqn"}
+    assert exp.experiment.steps is not None and exp.experiment.steps <= 5000
+
+
+@pytest.mark.parametrize(
+    ("snippet", "message"),
+    [
+        ('[experiment]\nname = "x"\nseed = [0]\n', "[experiment]: unknown key 'seed'"),
+        ('[experiment]\nname = "x"\nseeds = []\n', "[experiment].seeds: empty"),
+        ('[experiment]\nname = "x"\nseeds = [1, 1]\n', "duplicate seeds"),
+        ('[experiment]\nname = "a b"\n', "not a safe folder name"),
+        ('[experiment]\nname = "x"\n[evaluat]\n', "unknown section 'evaluat'"),
+        ('[experiment]\nname = "x"\n', "expected one or more [[policy]]"),
+        ("[[policy]]\nname='a'\nagent='iqn'\n", "missing [experiment]"),
+        (
+            '[experiment]\nname = "x"\n[[policy]]\nname = "a"\nagent = "iqn"\neps = 0.2\n',
+            "[[policy]] a.eps: applies only to agent 'pr-iqn'",
+        ),
+        (
+            '[experiment]\nname = "x"\n[[policy]]\nname = "a"\nagent = "pr-iqn"\ncomparator = "median"\n',
+            "[[policy]] a.comparator: expected one of 'qd', 'mv', 'cvar'",
+        ),
+        (
+            '[experiment]\nname = "x"\n[[policy]]\nname = "a"\nagent = "iqn"\n'
+            '[[policy]]\nname = "a"\nagent = "iqn"\n',
+            "duplicate policy name 'a'",
+        ),
+        (
+            '[experiment]\nname = "x"\nset = ["lr"]\n[[policy]]\nname = "a"\nagent = "iqn"\n',
+            "[experiment].set: 'lr' is not KEY=VALUE",
+        ),
+        (
+            '[experiment]\nname = "x"\n[resources]\ncpus_per_cell = 0\n'
+            '[[policy]]\nname = "a"\nagent = "iqn"\n',
+            "cpus_per_cell must be > 0",
+        ),
+    ],
+)
+def test_experiment_file_errors_are_one_line(tmp_path: Path, snippet: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(snippet)
+    with pytest.raises(PriqnError) as info:
+        load_experiment(path)
+    text = str(info.value)
+    assert message in text and str(path) in text and "\n" not in text
+
+
+def test_unknown_experiment_name_lists_known_ones() -> None:
+    with pytest.raises(PriqnError, match="no such experiment file.*table2"):
+        load_experiment("tabel2")
+
+
+# --------------------------------------------------------------------------- completeness
+
+
+def test_cell_state_reads_only_the_run_folder(tmp_path: Path) -> None:
+    run = tmp_path / "r"
+    assert cell_state(run) == "new"
+    atomic_write_json(run / "meta.json", {"status": "running"})
+    assert cell_state(run) == "running" and not is_complete(run)
+    atomic_write_json(run / "meta.json", {"status": "failed"})
+    assert cell_state(run) == "failed"
+    atomic_write_json(run / "meta.json", {"status": "complete"})
+    assert cell_state(run) == "trained" and not is_complete(run)
+    atomic_write_json(run / "eval" / "meta.json", {"status": "running"})
+    assert cell_state(run) == "trained"
+    atomic_write_json(run / "eval" / "meta.json", {"status": "complete"})
+    assert cell_state(run) == "complete" and is_complete(run)
+    (run / "meta.json").write_text("{half a json")
+    assert cell_state(run) == "new"
+
+
+def test_cell_error_prefers_the_marked_line(tmp_path: Path) -> None:
+    from priqn.sweep import ERROR_MARK, cell_error
+
+    log = tmp_path / "x.log"
+    log.write_text(f"step 1\r step 2\n{ERROR_MARK}ValueError: bad\nsome late warning\n\n")
+    assert cell_error(log) == "ValueError: bad"
+    log.write_text("loading\nSegmentation fault\n")
+    assert cell_error(log) == "Segmentation fault"
+    assert cell_error(tmp_path / "missing.log") == ""
+
+
+def test_describe_failure() -> None:
+    assert describe_failure(1, "RuntimeError: x") == "RuntimeError: x"
+    assert describe_failure(-9, "") == "killed by SIGKILL (out of memory?)"
+    assert describe_failure(0, "").startswith("exited normally but its run is not marked complete")
+    assert describe_failure(3, "") == "exited with status 3 and no output"
+
+
+def test_default_jobs_divides_cores_by_cell_cpus() -> None:
+    from priqn.sweep import ResourceSpec
+
+    cores = len(os.sched_getaffinity(0))
+    assert default_jobs(ResourceSpec(cpus_per_cell=1)) == cores
+    assert default_jobs(ResourceSpec(cpus_per_cell=1000)) == 1
+
+
+# --------------------------------------------------------------------------- scheduling (fake cells)
+
+
+def test_failures_are_isolated_retried_once_and_reported(tmp_path: Path, fake_cells: str) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["ok", "boom", "flaky"], [0, 1]))
+    res = run_sweep(
+        exp, jobs=2, cell_fn=fake_cells, report=False, progress=False, log=lambda m: None
+    )
+    assert sorted(res.completed) == [
+        "fake/flaky__seed0",
+        "fake/flaky__seed1",
+        "fake/ok__seed0",
+        "fake/ok__seed1",
+    ]
+    assert sorted(res.failed) == ["fake/boom__seed0", "fake/boom__seed1"]
+    assert res.failed["fake/boom__seed1"] == "RuntimeError: boom in fake/boom__seed1"
+    assert sorted(res.retried) == sorted(
+        ["fake/boom__seed0", "fake/boom__seed1"] + ["fake/flaky__seed0", "fake/flaky__seed1"]
+    )
+    # boom: 2 attempts each; flaky: 2 attempts each; ok: 1 each.
+    assert calls(tmp_path).count("boom__seed0") == 2 and calls(tmp_path).count("ok__seed0") == 1
+    assert len(calls(tmp_path)) == 2 * 2 + 2 * 2 + 2
+    logs = tmp_path / "runs" / "fake" / ".sweep" / "logs"
+    log = (logs / "boom__seed0.attempt2.log").read_text()
+    assert "Traceback" in log  # the whole traceback is kept for the user
+    assert log.rstrip().endswith("priqn sweep: cell failed: RuntimeError: boom in fake/boom__seed0")
+    summary = json.loads((tmp_path / "runs" / "fake" / ".sweep" / "summary.json").read_text())
+    assert summary["cells"]["fake/boom__seed0"]["error"] == "RuntimeError: boom in fake/boom__seed0"
+    assert summary["cells"]["fake/ok__seed1"]["state"] == "complete"
+    assert not list((tmp_path / "runs").rglob("*.tmp"))
+
+    # Re-run: complete cells are skipped, only the failed ones are tried again.
+    before = calls(tmp_path)
+    res2 = run_sweep(
+        exp, jobs=2, cell_fn=fake_cells, report=False, progress=False, log=lambda m: None
+    )
+    assert sorted(res2.skipped) == sorted(res.completed) and res2.completed == []
+    assert sorted(res2.failed) == sorted(res.failed)
+    new = list(calls(tmp_path))
+    for c in before:
+        new.remove(c)
+    assert sorted(new) == ["boom__seed0"] * 2 + ["boom__seed1"] * 2
+
+
+def test_rerunning_a_finished_sweep_does_no_work(tmp_path: Path, fake_cells: str) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["a", "b"], [0, 1, 2]))
+    res = run_sweep(
+        exp, jobs=2, cell_fn=fake_cells, report=False, progress=False, log=lambda m: None
+    )
+    assert len(res.completed) == 6 and not res.failed and not res.skipped
+    n = len(calls(tmp_path))
+    assert n == 6
+    messages: list[str] = []
+    res2 = run_sweep(
+        exp, jobs=2, cell_fn=fake_cells, report=False, progress=False, log=messages.append
+    )
+    assert len(res2.skipped) == 6 and res2.completed == [] and not res2.failed
+    assert len(calls(tmp_path)) == n
+    assert messages == ["priqn sweep fake: all 6 cells already complete"]
+
+
+def test_failure_kinds_and_only_filter(tmp_path: Path, fake_cells: str) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["crash", "lies", "bad-input", "ok"], [0]))
+    res = run_sweep(
+        exp,
+        jobs=2,
+        retries=0,
+        only=["fake/crash*", "fake/lies*", "fake/bad-input*"],
+        cell_fn=fake_cells,
+        report=False,
+        progress=False,
+        log=lambda m: None,
+    )
+    assert res.retried == [] and res.completed == []
+    assert res.failed["fake/crash__seed0"].startswith("killed by SIGKILL")
+    assert res.failed["fake/lies__seed0"].startswith(
+        "exited normally but its run is not marked complete"
+    )
+    assert res.failed["fake/bad-input__seed0"] == (
+        "priqn: error: x.toml [evaluate].episodes: unknown key"
+    )
+    assert "ok__seed0" not in calls(tmp_path)
+    with pytest.raises(PriqnError, match="matches no cell"):
+        run_sweep(exp, only=["nothing*"], cell_fn=fake_cells, report=False, progress=False)
+
+
+def test_a_cells_leftover_processes_are_killed(tmp_path: Path, fake_cells: str) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["orphan"], [0]))
+    res = run_sweep(exp, cell_fn=fake_cells, report=False, progress=False, log=lambda m: None)
+    assert res.completed == ["fake/orphan__seed0"]
+    pid = int((tmp_path / "runs" / "fake" / "orphan__seed0" / "orphan_pid").read_text())
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        # killed but maybe not reaped yet by its (gone) parent: check the state
+        stat = Path(f"/proc/{pid}/stat")
+        if stat.exists() and stat.read_text().split(") ")[1].startswith("Z"):
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail(f"process {pid} started by the cell is still running")
+
+
+def test_one_sweep_per_experiment_folder(tmp_path: Path, fake_cells: str) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["ok"], [0]))
+    with _sweep_lock(exp.runs_dir), pytest.raises(PriqnError, match="another 'priqn sweep'"):
+        run_sweep(exp, cell_fn=fake_cells, report=False, progress=False)
+
+
+def _sweep_cli(exp_path: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "priqn.cli", "sweep", str(exp_path), "--no-report", *extra]
+
+
+def test_cli_exit_status_summary_and_list(tmp_path: Path, fake_cells: str) -> None:
+    exp_path = write_experiment(tmp_path, ["ok", "boom"], [0])
+    out = subprocess.run(
+        _sweep_cli(exp_path, "--cell-fn", fake_cells, "-j", "2"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 1, out.stderr
+    assert "1 complete (0 skipped, 1 run now), 1 failed" in out.stdout
+    assert "FAILED fake/boom__seed0: RuntimeError: boom in fake/boom__seed0" in out.stdout
+    listed = subprocess.run(
+        _sweep_cli(exp_path, "--list"), capture_output=True, text=True, timeout=60
+    )
+    assert listed.returncode == 0
+    states = dict(line.split()[:2] for line in listed.stdout.splitlines())
+    assert states == {"fake/ok__seed0": "complete", "fake/boom__seed0": "new"}
+    bad = subprocess.run(
+        _sweep_cli(exp_path, "--jobs", "0"), capture_output=True, text=True, timeout=60
+    )
+    assert bad.returncode == 2 and bad.stderr.strip() == (
+        "priqn: error: --jobs 0: expected a positive number of cells"
+    )
+
+
+@pytest.mark.parametrize("backend", ["local", pytest.param("ray", marks=pytest.mark.ray)])
+def test_ctrl_c_stops_running_cells_and_leaves_them_incomplete(
+    tmp_path: Path, fake_cells: str, backend: str
+) -> None:
+    if backend == "ray":
+        pytest.importorskip("ray")
+    exp_path = write_experiment(tmp_path, ["sleepy"], [0])
+    sweep = subprocess.Popen(
+        _sweep_cli(exp_path, "--cell-fn", fake_cells, *(["--ray"] if backend == "ray" else [])),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # Ctrl-C in a terminal signals the whole foreground group
+    )
+    pid_file = tmp_path / "runs" / "fake" / "sleepy__seed0" / "pid"
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert pid_file.exists(), "the cell never started"
+    cell_pid = int(pid_file.read_text())
+    os.killpg(sweep.pid, signal.SIGINT)
+    _, err = sweep.communicate(timeout=60)
+    assert sweep.returncode == 130, err
+    assert "interrupted" in err
+    with pytest.raises(ProcessLookupError):
+        os.kill(cell_pid, 0)
+    run_dir = tmp_path / "runs" / "fake" / "sleepy__seed0"
+    assert cell_state(run_dir) == "running"
+    # The cell got SIGINT (not just a kill): it could mark its run interrupted.
+    log = tmp_path / "runs" / "fake" / ".sweep" / "logs" / "sleepy__seed0.attempt1.log"
+    assert log.read_text().rstrip().endswith("priqn sweep: cell failed: interrupted")
+    summary = json.loads((tmp_path / "runs" / "fake" / ".sweep" / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert summary["cells"]["fake/sleepy__seed0"]["state"] == "running"
+
+
+def test_ray_missing_is_a_one_line_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)
+    exp = load_experiment(write_experiment(tmp_path, ["ok"], [0]))
+    with pytest.raises(PriqnError, match=r"pip install 'priqn\[ray\]'"):
+        run_sweep(exp, use_ray=True, report=False, progress=False, log=lambda m: None)
+
+
+@pytest.mark.ray
+def test_ray_local_cluster_gives_the_same_cells_as_the_local_pool(
+    tmp_path: Path, fake_cells: str
+) -> None:
+    pytest.importorskip("ray")
+    policies = ["ok", "boom", "flaky"]
+    local_dir, ray_dir = tmp_path / "local", tmp_path / "ray"
+    local_dir.mkdir()
+    ray_dir.mkdir()
+    quiet = {"report": False, "progress": False, "log": lambda m: None, "cell_fn": fake_cells}
+    local = run_sweep(load_experiment(write_experiment(local_dir, policies, [0])), jobs=2, **quiet)
+    on_ray = run_sweep(
+        load_experiment(write_experiment(ray_dir, policies, [0])), use_ray=True, **quiet
+    )
+    assert (
+        sorted(on_ray.completed)
+        == sorted(local.completed)
+        == ["fake/flaky__seed0", "fake/ok__seed0"]
+    )
+    assert (
+        on_ray.failed
+        == local.failed
+        == {"fake/boom__seed0": "RuntimeError: boom in fake/boom__seed0"}
+    )
+    assert (ray_dir / "runs" / "fake" / ".sweep" / "logs" / "ok__seed0.attempt1.log").is_file()
+
+
+def test_option_names_match_the_preorder_module() -> None:
+    from priqn import preorder, sweep
+
+    assert set(sweep.COMPARATORS) == set(preorder.COMPARATORS)
+    assert set(sweep.PREORDERS) == set(preorder.PRESETS)
+
+
+# --------------------------------------------------------------------------- the real path (slow)
+
+
+def _complete_cells(runs_dir: Path) -> list[str]:
+    return sorted(p.name for p in runs_dir.iterdir() if p.is_dir() and is_complete(p))
+
+
+@pytest.mark.slow
+def test_smoke_grid_end_to_end_locally_then_on_ray(tmp_path: Path) -> None:
+    """experiments/smoke.toml for real: train, evaluate, report; re-run does nothing; Ray agrees."""
+    smoke = REPO_ROOT / "experiments" / "smoke.toml"
+    expected = sorted(c.run_dir.name for c in expand(load_experiment(smoke, runs_dir=tmp_path)))
+    env = dict(os.environ, MPLBACKEND="Agg")
+    cmd = [sys.executable, "-m", "priqn.cli", "sweep", str(smoke)]
+
+    local = subprocess.run(
+        [*cmd, "--runs-dir", "local"], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert local.returncode == 0, local.stdout + local.stderr
+    assert _complete_cells(tmp_path / "local" / "smoke") == expected
+    assert (tmp_path / "reports" / "smoke" / "report.md").is_file()
+
+    again = subprocess.run(
+        [*cmd, "--runs-dir", "local", "--no-report"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert again.returncode == 0 and "all 2 cells already complete" in again.stderr
+
+    pytest.importorskip("ray")
+    on_ray = subprocess.run(
+        [*cmd, "--runs-dir", "ray", "--ray", "--no-report"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert on_ray.returncode == 0, on_ray.stdout + on_ray.stderr
+    assert _complete_cells(tmp_path / "ray" / "smoke") == expected
+
+
+@pytest.mark.ray
+@pytest.mark.parametrize(
+    ("address", "message"),
+    [
+        ("nonsense", "--ray nonsense: expected auto, HOST:PORT"),
+        ("127.0.0.1:1", "--ray 127.0.0.1:1: cannot reach a Ray head there"),
+        ("ray://127.0.0.1:1", "--ray ray://127.0.0.1:1: cannot reach a Ray head there"),
+    ],
+)
+def test_bad_ray_address_fails_fast(tmp_path: Path, address: str, message: str) -> None:
+    pytest.importorskip("ray")
+    exp = load_experiment(write_experiment(tmp_path, ["ok"], [0]))
+    with pytest.raises(PriqnError, match=message):
+        run_sweep(exp, use_ray=True, ray_address=address, report=False, progress=False)
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_connects_to_an_existing_ray_cluster(tmp_path: Path, fake_cells: str) -> None:
+    """`ray start --head` (token auth), then `priqn sweep --ray HOST:PORT`."""
+    import secrets
+    import socket
+
+    pytest.importorskip("ray")
+    ray_bin = Path(sys.executable).with_name("ray")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
+    head = subprocess.Popen(
+        [str(ray_bin), "start", "--head", f"--port={port}", "--num-cpus=2", "--block"]
+        + ["--include-dashboard=false", "--disable-usage-stats"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.2)
+        exp_path = write_experiment(tmp_path, ["ok", "boom"], [0])
+        out = subprocess.run(
+            _sweep_cli(exp_path, "--cell-fn", fake_cells, "--ray", f"127.0.0.1:{port}"),
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert out.returncode == 1, out.stderr
+        assert f"Ray cluster 127.0.0.1:{port}: 2 CPU / 0 GPU" in out.stderr
+        assert "FAILED fake/boom__seed0: RuntimeError: boom in fake/boom__seed0" in out.stdout
+        assert is_complete(tmp_path / "runs" / "fake" / "ok__seed0")
+    finally:
+        head.send_signal(signal.SIGTERM)  # `ray start --block` stops the processes it started
+        head.wait(timeout=120)
