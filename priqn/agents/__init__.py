@@ -1,0 +1,35 @@
+"""Agents: one IQN learner with H heads; four variants as reward/acting/target rules.
+
+Public names (imported lazily so ``import priqn.agents.config`` stays torch-free):
+``make_agent``, ``Agent``, ``AGENT_SPECS``, ``AgentConfig``, ``NetworkConfig``,
+``LearnerConfig``, ``QuantileNetwork``, ``Learner``, ``ReplayBuffer``, ``Policy``,
+``quantile_huber_loss``, ``tau_grid``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS: dict[str, str] = {
+    "make_agent": "priqn.agents.registry",
+    "Agent": "priqn.agents.registry",
+    "AGENT_SPECS": "priqn.agents.registry",
+    "AgentConfig": "priqn.agents.config",
+    "NetworkConfig": "priqn.agents.config",
+    "LearnerConfig": "priqn.agents.config",
+    "QuantileNetwork": "priqn.agents.network",
+    "tau_grid": "priqn.agents.network",
+    "Learner": "priqn.agents.learner",
+    "ReplayBuffer": "priqn.agents.replay",
+    "Policy": "priqn.agents.policy",
+    "quantile_huber_loss": "priqn.agents.loss",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'priqn.agents' has no attribute {name!r}")

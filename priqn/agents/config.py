@@ -1,0 +1,111 @@
+"""Configuration dataclasses of the agents (torch-free, so the CLI can import them fast)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentConfig:
+    """Which agent, and the options of the preordered one."""
+
+    name: str = "pr-iqn"
+    """Agent: iqn, ensemble-iqn, ma-iqn or pr-iqn."""
+    comparator: str = "qd"
+    """Pr-IQN comparator for one objective: qd (quantile dominance), mv (mean-variance) or cvar."""
+    eps: float | tuple[float, ...] = 0.2
+    """Pr-IQN tolerance ε: one number for all objectives or one per objective (OBJECTIVES order)."""
+    preorder: str = "total"
+    """Pr-IQN preorder: 'total' (chain safety>risk>lane>progress>comfort), 'partial', or a TOML file."""
+    train_preorder: bool = True
+    """Pr-IQN Eq. 6: head h bootstraps from argmax over its optimal subset S_h (off: all actions)."""
+    reward_weights: tuple[float, ...] = (1.0, 0.5, 0.25, 0.125, 0.0625)
+    """IQN / Ensemble scalar reward Σ w_i r_i, OBJECTIVES order; default halves per hierarchy level."""
+    ensemble_heads: int = 5
+    """Heads of ensemble-iqn (the paper matches the number of objectives)."""
+
+    def __post_init__(self) -> None:
+        if len(self.reward_weights) != NUM_OBJECTIVES:
+            raise ValueError(
+                f"reward_weights: expected {NUM_OBJECTIVES} numbers ({', '.join(OBJECTIVES)})"
+            )
+        if isinstance(self.eps, tuple):
+            if len(self.eps) != NUM_OBJECTIVES:
+                raise ValueError(f"eps: expected one number or {NUM_OBJECTIVES} numbers")
+            if min(self.eps) < 0:
+                raise ValueError("eps: expected non-negative tolerances")
+        elif self.eps < 0:
+            raise ValueError("eps: expected a non-negative tolerance")
+        if self.ensemble_heads < 1:
+            raise ValueError("ensemble_heads: expected a positive integer")
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes of the encoder and the IQN heads."""
+
+    conv_channels: tuple[int, ...] = (16, 32, 32)
+    """Output channels of the three conv layers of each grid CNN (BEV and LiDAR)."""
+    vector_hidden: int = 64
+    """Width of the MLP layer on the vector inputs (command one-hot + kinematics)."""
+    latent_dim: int = 256
+    """Width of the fused latent the cosine embedding multiplies (DESIGN.md §4: 256-512)."""
+    num_cosines: int = 64
+    """Cosines in the τ embedding cos(π i τ), i = 1..num_cosines."""
+    hidden_dim: int = 256
+    """Width of the hidden layer shared by all heads (after the τ product)."""
+    kinematics_scale: float = 0.1
+    """Factor on the kinematics vector (m/s, m/s²) before the MLP, so typical values are O(1)."""
+
+    def __post_init__(self) -> None:
+        if len(self.conv_channels) != 3 or min(self.conv_channels) < 1:
+            raise ValueError("conv_channels: expected three positive integers")
+        for name in ("vector_hidden", "latent_dim", "num_cosines", "hidden_dim"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected a positive integer")
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerConfig:
+    """IQN learning hyper-parameters (names follow Dabney et al. 2018)."""
+
+    gamma: float = 0.99
+    """Discount γ per decision (0.5 s)."""
+    lr: float = 1e-4
+    """Adam learning rate."""
+    adam_eps: float = 3.125e-4
+    """Adam ε (0.01 / batch 32, as Dopamine's IQN)."""
+    batch_size: int = 32
+    """Transitions per update."""
+    num_tau_samples: int = 32
+    """N: sampled τ for the online (predicted) quantiles in the loss."""
+    num_tau_prime_samples: int = 32
+    """N': sampled τ' for the target quantiles in the loss."""
+    num_quantiles: int = 32
+    """K: size of the fixed τ grid (k + 0.5)/K used for acting, targets' argmax and subsets."""
+    kappa: float = 1.0
+    """Huber threshold κ of the quantile Huber loss."""
+    n_step: int = 3
+    """n-step returns (1 = the paper's one-step TD of Eq. 7)."""
+    target_update_interval: int = 1000
+    """Updates between hard copies of the online network into the target network."""
+    grad_clip_norm: float = 10.0
+    """Clip the global gradient norm to this value (0 = no clipping)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.gamma <= 1.0:
+            raise ValueError("gamma: expected a number in [0, 1]")
+        for name in (
+            "batch_size",
+            "num_tau_samples",
+            "num_tau_prime_samples",
+            "num_quantiles",
+            "n_step",
+            "target_update_interval",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected a positive integer")
+        if self.kappa <= 0 or self.lr <= 0:
+            raise ValueError("kappa and lr: expected positive numbers")

@@ -1,0 +1,120 @@
+"""IQN learning step shared by every agent: sampled τ, target network, quantile Huber loss.
+
+The agent decides only two things here (``priqn.agents.registry.Agent``): what reward
+each head learns and which next action each head bootstraps from. Everything else —
+τ sampling, the target network, the loss, Adam — is the same for all four agents.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+
+from priqn.agents.config import LearnerConfig
+from priqn.agents.loss import quantile_huber_loss
+from priqn.agents.network import QuantileNetwork, tau_grid
+from priqn.agents.registry import Agent
+
+
+def to_tensors(obs: Mapping[str, Any], device: torch.device) -> dict[str, torch.Tensor]:
+    """Numpy observation batch → tensors on ``device`` (uint8 grids stay uint8)."""
+    return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in obs.items()}
+
+
+def make_adam(params: Any, lr: float, eps: float, device: torch.device) -> torch.optim.Adam:
+    """Adam, fused where this torch build supports it on ``device`` (faster on CPU too)."""
+    params = list(params)
+    try:
+        return torch.optim.Adam(params, lr=lr, eps=eps, fused=True)
+    except (RuntimeError, TypeError, ValueError):
+        return torch.optim.Adam(params, lr=lr, eps=eps)
+
+
+class Learner:
+    """Online + target network, Adam, and one IQN update per :meth:`update` call."""
+
+    def __init__(
+        self,
+        network: QuantileNetwork,
+        agent: Agent,
+        cfg: LearnerConfig,
+        device: torch.device,
+        tau_seed: int,
+    ) -> None:
+        self.cfg = cfg
+        self.agent = agent
+        self.device = device
+        self.online = network.to(device)
+        self.target = copy.deepcopy(self.online).requires_grad_(False)
+        self.optimizer = make_adam(self.online.parameters(), cfg.lr, cfg.adam_eps, device)
+        self.tau_generator = torch.Generator(device=device)
+        self.tau_generator.manual_seed(int(tau_seed))
+        self.grid_K = tau_grid(cfg.num_quantiles, device)
+        self.updates = 0
+
+    def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
+        """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats."""
+        cfg, dev = self.cfg, self.device
+        obs = to_tensors(batch["obs"], dev)
+        next_obs = to_tensors(batch["next_obs"], dev)
+        action_B = torch.as_tensor(batch["action"], device=dev)
+        reward_B5 = torch.as_tensor(batch["reward"], device=dev)
+        discount_B = torch.as_tensor(batch["discount"], device=dev)
+        B, H = action_B.shape[0], self.agent.num_heads
+        N, Np, K = cfg.num_tau_samples, cfg.num_tau_prime_samples, cfg.num_quantiles
+        taus_BN = torch.rand(B, N, generator=self.tau_generator, device=dev)
+        taus_prime_BNp = torch.rand(B, Np, generator=self.tau_generator, device=dev)
+
+        with torch.no_grad():
+            # One target-network pass: N' sampled τ' for the loss + the fixed K grid for
+            # the target rule (argmax / optimal subsets); the encoder runs once.
+            taus_next = torch.cat([taus_prime_BNp, self.grid_K.expand(B, K)], dim=1)
+            next_BHTA = self.target(next_obs, taus_next)
+            next_BHNpA, next_grid_BHKA = next_BHTA[:, :, :Np], next_BHTA[:, :, Np:]
+            next_action_BH = self.agent.target_actions(next_grid_BHKA)
+            index = next_action_BH[:, :, None, None].expand(B, H, Np, 1)
+            next_BHNp = next_BHNpA.gather(3, index).squeeze(3)
+            reward_BH = self.agent.head_rewards(reward_B5)
+            target_BHNp = reward_BH[:, :, None] + discount_B[:, None, None] * next_BHNp
+
+        quantiles_BHNA = self.online(obs, taus_BN)
+        pred_BHN = quantiles_BHNA.gather(3, action_B[:, None, None, None].expand(B, H, N, 1))
+        pred_BHN = pred_BHN.squeeze(3)
+        loss_BH = quantile_huber_loss(
+            pred_BHN, target_BHNp, taus_BN[:, None, :].expand(B, H, N), cfg.kappa
+        )
+        # Heads are independent learners on one encoder: sum over heads, mean over batch.
+        loss = loss_BH.mean(dim=0).sum()
+
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if cfg.grad_clip_norm > 0:
+            torch.nn.utils.clip_grad_norm_(self.online.parameters(), cfg.grad_clip_norm)
+        self.optimizer.step()
+        self.updates += 1
+        if self.updates % cfg.target_update_interval == 0:
+            self.sync_target()
+        return {"loss": float(loss.detach()), "q_mean": float(pred_BHN.detach().mean())}
+
+    def sync_target(self) -> None:
+        """Hard copy online → target."""
+        self.target.load_state_dict(self.online.state_dict())
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "online": self.online.state_dict(),
+            "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "updates": self.updates,
+            "tau_generator": self.tau_generator.get_state(),
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        self.online.load_state_dict(state["online"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.updates = int(state["updates"])
+        self.tau_generator.set_state(state["tau_generator"])

@@ -1,0 +1,151 @@
+"""Named agents: each is a choice of heads and three rules (DESIGN.md §2).
+
+| agent | heads | reward rule | acting rule | target rule |
+|---|---|---|---|---|
+| ``iqn`` | 1 | weighted-sum | argmax | own-argmax |
+| ``ensemble-iqn`` | 5 | weighted-sum | argmax-mean-of-heads | own-argmax |
+| ``ma-iqn`` | 5 (one per objective) | per-objective | argmax-sum-of-heads | own-argmax |
+| ``pr-iqn`` | 5 (one per objective) | per-objective | leaf-uniform | optimal-subset (``train_preorder``) or own-argmax |
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from priqn.agents import rules
+from priqn.agents.config import AgentConfig
+from priqn.errors import PriqnError
+from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+
+COMPARATORS: tuple[str, ...] = ("qd", "mv", "cvar")
+"""Comparators of ``priqn.preorder.optimal_subsets``."""
+
+PREORDER_PRESETS: tuple[str, ...] = ("total", "partial")
+"""Named preorders of ``priqn.preorder.Preorder.preset``; anything else is a TOML path."""
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentSpec:
+    """The heads and the three rule names of one agent."""
+
+    num_heads: int
+    reward_rule: str
+    acting_rule: str
+    target_rule: str
+
+    @property
+    def uses_preorder(self) -> bool:
+        return "leaf-uniform" == self.acting_rule or "optimal-subset" == self.target_rule
+
+
+AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
+    "iqn": lambda c: AgentSpec(1, "weighted-sum", "argmax", "own-argmax"),
+    "ensemble-iqn": lambda c: AgentSpec(
+        c.ensemble_heads, "weighted-sum", "argmax-mean-of-heads", "own-argmax"
+    ),
+    "ma-iqn": lambda c: AgentSpec(
+        NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
+    ),
+    "pr-iqn": lambda c: AgentSpec(
+        NUM_OBJECTIVES,
+        "per-objective",
+        "leaf-uniform",
+        "optimal-subset" if c.train_preorder else "own-argmax",
+    ),
+}
+"""Agent name → its :class:`AgentSpec` given the config."""
+
+
+def load_preorder(spec: str) -> Any:
+    """'total' | 'partial' | path to a preorder TOML → ``Preorder`` in OBJECTIVES order."""
+    from priqn.preorder import Preorder
+
+    try:
+        return Preorder.resolve(spec, OBJECTIVES)
+    except PriqnError as exc:
+        raise PriqnError(f"agent.preorder: {exc}") from None
+
+
+class PreorderSubsets:
+    """``quantiles_BNKA → OptimalSubsets`` with this agent's preorder, comparator and ε."""
+
+    def __init__(self, preorder: Any, comparator: str, eps: float | tuple[float, ...]) -> None:
+        from priqn.preorder import optimal_subsets
+
+        self.preorder = preorder
+        self.comparator = comparator
+        self.eps = eps if isinstance(eps, float) else list(eps)
+        self._fn = optimal_subsets
+
+    def __call__(self, quantiles_BNKA: torch.Tensor) -> Any:
+        return self._fn(quantiles_BNKA, self.preorder, comparator=self.comparator, eps=self.eps)
+
+
+class Agent:
+    """Acting and target selection of one named agent (no network, no optimiser).
+
+    ``act(quantiles_BHKA, u_B)`` → actions ``[B]``; ``target_actions(next_BHKA)`` →
+    ``[B, H]``; ``head_rewards(rewards_B5)`` → ``[B, H]``. Quantiles are on the fixed grid.
+    """
+
+    def __init__(self, name: str, cfg: AgentConfig, spec: AgentSpec, subsets: Any) -> None:
+        self.name = name
+        self.cfg = cfg
+        self.spec = spec
+        self.subsets = subsets
+        self._reward = rules.lookup(rules.REWARD_RULES, spec.reward_rule, "reward rule")
+        self._act = rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule")
+        self._target = rules.lookup(rules.TARGET_RULES, spec.target_rule, "target rule")
+        self.reward_weights_5 = torch.tensor(cfg.reward_weights, dtype=torch.float32)
+
+    @property
+    def num_heads(self) -> int:
+        return self.spec.num_heads
+
+    def head_rewards(self, rewards_B5: torch.Tensor) -> torch.Tensor:
+        w = self.reward_weights_5.to(rewards_B5.device, rewards_B5.dtype)
+        return self._reward(rewards_B5, w, self.num_heads)
+
+    def act(self, quantiles_BHKA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
+        return self._act(quantiles_BHKA, self.subsets, u_B)
+
+    def target_actions(self, next_quantiles_BHKA: torch.Tensor) -> torch.Tensor:
+        return self._target(next_quantiles_BHKA, self.subsets)
+
+    @property
+    def labels(self) -> dict[str, Any]:
+        """Table II columns: agent, comparator, train_preorder, eps, partial_order."""
+        pr = self.name == "pr-iqn"
+        return {
+            "agent": self.name,
+            "comparator": self.cfg.comparator if pr else "",
+            "train_preorder": self.cfg.train_preorder if pr else "",
+            "eps": self.cfg.eps if pr else "",
+            "partial_order": _is_partial(self.subsets.preorder) if pr else "",
+        }
+
+
+def _is_partial(preorder: Any) -> bool:
+    """True unless the preorder is a chain over all objectives (a total order)."""
+    return not preorder.is_chain()
+
+
+def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> Agent:
+    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``).
+
+    Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.
+    """
+    cfg = dataclasses.replace(cfg or AgentConfig(), name=name, **overrides)
+    spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg)
+    subsets = None
+    if name == "pr-iqn":
+        if cfg.comparator not in COMPARATORS:  # checked here: a one-line error before training
+            raise PriqnError(
+                f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATORS)})"
+            )
+        subsets = PreorderSubsets(load_preorder(cfg.preorder), cfg.comparator, cfg.eps)
+    return Agent(name, cfg, spec, subsets)

@@ -1,0 +1,219 @@
+"""Replay buffer that stores each observation once, as uint8 where the env gives uint8.
+
+Layout: one ring of rows per env worker (``[E, R, ...]``, ``R = capacity // E``). Row
+``p`` holds the observation o_p and, if it starts a transition, the action, the reward
+vector and the end flags. The next state of a transition is simply the next row of the
+same env, so a frame is stored once, not twice. When an episode ends (SAME_STEP
+autoreset), the true final observation (``infos["final_obs"]``) is written as an extra
+row that starts no transition, and the reset observation follows it.
+
+n-step returns are assembled at sampling time: Σ_{k<m} γ^k r_{p+k} over the m ≤ n
+steps before the episode ends, bootstrapped from row p+m with discount γ^m (0 when
+the episode terminated; a truncation — timeout — still bootstraps).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from priqn.objectives import NUM_OBJECTIVES
+
+
+class ReplayBuffer:
+    """Per-env rings of observations; :meth:`sample` returns n-step transitions."""
+
+    def __init__(
+        self,
+        obs_spec: Mapping[str, tuple[tuple[int, ...], Any]],
+        num_envs: int,
+        capacity: int,
+        n_step: int = 1,
+        gamma: float = 0.99,
+    ) -> None:
+        if capacity < 2 * num_envs:
+            raise ValueError(f"replay capacity {capacity} too small for {num_envs} envs")
+        if n_step < 1:
+            raise ValueError("n_step must be >= 1")
+        self.num_envs = int(num_envs)
+        self.rows = int(capacity) // self.num_envs
+        self.n_step = int(n_step)
+        self.gamma = float(gamma)
+        E, R = self.num_envs, self.rows
+        self.obs = {k: np.zeros((E, R, *shape), dtype=dt) for k, (shape, dt) in obs_spec.items()}
+        self.action = np.zeros((E, R), dtype=np.int64)
+        self.reward = np.zeros((E, R, NUM_OBJECTIVES), dtype=np.float32)
+        self.starts = np.zeros((E, R), dtype=bool)
+        """Row starts a transition (False for final-observation rows)."""
+        self.ended = np.zeros((E, R), dtype=bool)
+        """The transition starting at this row ended its episode (terminated or truncated)."""
+        self.terminated = np.zeros((E, R), dtype=bool)
+        self.written = np.zeros(E, dtype=np.int64)
+        """Rows written so far per env (absolute position of the next row)."""
+
+    # ------------------------------------------------------------------ writing
+
+    def _write_row(self, e: int, obs: Mapping[str, np.ndarray], i: int | None) -> int:
+        r = int(self.written[e] % self.rows)
+        for k, arr in self.obs.items():
+            arr[e, r] = obs[k] if i is None else obs[k][i]
+        self.starts[e, r] = False
+        self.ended[e, r] = False
+        self.terminated[e, r] = False
+        self.written[e] += 1
+        return r
+
+    def add(
+        self,
+        obs: Mapping[str, np.ndarray],
+        actions_E: np.ndarray,
+        rewards_E5: np.ndarray,
+        terminated_E: np.ndarray,
+        truncated_E: np.ndarray,
+        final_obs: Sequence[Mapping[str, np.ndarray] | None],
+    ) -> None:
+        """Store one vector-env step: batched ``obs`` (keys → ``[E, ...]``) and what followed.
+
+        ``final_obs[e]`` is the true last observation of env ``e`` when its episode ended
+        in this step (SAME_STEP autoreset puts the reset observation in the next ``obs``).
+        """
+        for e in range(self.num_envs):
+            r = self._write_row(e, obs, e)
+            end = bool(terminated_E[e] or truncated_E[e])
+            self.action[e, r] = actions_E[e]
+            self.reward[e, r] = rewards_E5[e]
+            self.starts[e, r] = True
+            self.ended[e, r] = end
+            self.terminated[e, r] = bool(terminated_E[e])
+            if end:
+                if final_obs[e] is None:
+                    raise ValueError(f"env {e} ended without a final observation")
+                self._write_row(e, final_obs[e], None)
+
+    def truncate_open_episodes(self, next_obs: Mapping[str, np.ndarray]) -> None:
+        """End every env's open episode here (a resume): its last transition is truncated
+        and bootstraps from ``next_obs[e]``, the observation that followed it."""
+        for e in range(self.num_envs):
+            if self.written[e] == 0:
+                continue
+            r = int((self.written[e] - 1) % self.rows)
+            if self.starts[e, r] and not self.ended[e, r]:
+                self.ended[e, r] = True
+                self._write_row(e, next_obs, e)
+
+    # ------------------------------------------------------------------ reading
+
+    def __len__(self) -> int:
+        """Transitions stored (rows that start one and are still in the buffer)."""
+        return int(self.starts.sum())
+
+    def bytes_per_row(self) -> int:
+        """Memory of one row (one observation + action, reward and flags), in bytes."""
+        per_obs = sum(a[0, 0].nbytes for a in self.obs.values())
+        return int(per_obs + 8 + 4 * NUM_OBJECTIVES + 3)
+
+    def nbytes(self) -> int:
+        """Memory held by the buffer's arrays, in bytes."""
+        arrays = [*self.obs.values(), self.action, self.reward, self.starts, self.ended]
+        return int(sum(a.nbytes for a in arrays) + self.terminated.nbytes)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, Any]:
+        """``batch_size`` n-step transitions, uniform over stored ones.
+
+        Returns numpy arrays: ``obs`` / ``next_obs`` (dicts of ``[B, ...]``), ``action [B]``,
+        ``reward [B, 5]`` (n-step discounted sum), ``discount [B]`` (γ^m, 0 if terminated).
+        """
+        lo = np.maximum(self.written - self.rows, 0)
+        avail = self.written - lo
+        if avail.sum() < 2:
+            raise ValueError("replay buffer is empty")
+        env_p = avail / avail.sum()
+        picks_e: list[np.ndarray] = []
+        picks_p: list[np.ndarray] = []
+        got = 0
+        for _ in range(1000):
+            m = 2 * (batch_size - got) + 8
+            e = rng.choice(self.num_envs, size=m, p=env_p)
+            p = lo[e] + (rng.random(m) * avail[e]).astype(np.int64)
+            ok = self._complete(e, p) & self.starts[e, p % self.rows]
+            picks_e.append(e[ok])
+            picks_p.append(p[ok])
+            got += int(ok.sum())
+            if got >= batch_size:
+                break
+        else:
+            raise ValueError("replay buffer holds no complete transition yet")
+        e = np.concatenate(picks_e)[:batch_size]
+        p = np.concatenate(picks_p)[:batch_size]
+        return self._gather(e, p)
+
+    def _complete(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Rows whose n-step window (up to the episode end) is fully written."""
+        ok = np.ones(len(p), dtype=bool)
+        alive = np.ones(len(p), dtype=bool)
+        for k in range(self.n_step):
+            q = p + k
+            ok &= ~alive | (q + 1 < self.written[e])
+            alive &= ~self.ended[e, q % self.rows]
+        return ok
+
+    def _gather(self, e: np.ndarray, p: np.ndarray) -> dict[str, Any]:
+        B = len(p)
+        reward = np.zeros((B, NUM_OBJECTIVES), dtype=np.float32)
+        disc = np.ones(B, dtype=np.float64)
+        alive = np.ones(B, dtype=bool)
+        done = np.zeros(B, dtype=bool)
+        nxt = p + self.n_step
+        for k in range(self.n_step):
+            r = (p + k) % self.rows
+            reward += (alive * disc)[:, None].astype(np.float32) * self.reward[e, r]
+            end = alive & self.ended[e, r]
+            done |= end & self.terminated[e, r]
+            nxt = np.where(end, p + k + 1, nxt)
+            disc = np.where(alive, disc * self.gamma, disc)
+            alive &= ~end
+        r0, r1 = p % self.rows, nxt % self.rows
+        return {
+            "obs": {k: a[e, r0] for k, a in self.obs.items()},
+            "next_obs": {k: a[e, r1] for k, a in self.obs.items()},
+            "action": self.action[e, r0],
+            "reward": reward,
+            "discount": np.where(done, 0.0, disc).astype(np.float32),
+        }
+
+    # ------------------------------------------------------------------ persistence
+
+    def save_to(self, fh: Any) -> None:
+        """Write the buffer as an uncompressed ``.npz`` into the open binary ``fh``.
+
+        Only rows written so far are saved (a young buffer makes a small file).
+        """
+        used = int(min(self.written.max(), self.rows))
+        arrays = {f"obs.{k}": a[:, :used] for k, a in self.obs.items()}
+        for name in ("action", "reward", "starts", "ended", "terminated"):
+            arrays[name] = getattr(self, name)[:, :used]
+        arrays["written"] = self.written
+        np.savez(fh, **arrays)
+
+    def load_state_file(self, path: Any) -> None:
+        """Restore from a file written by :meth:`save_to` (same env count and row shapes)."""
+        with np.load(path) as data:
+            self._copy(self.written, data["written"], "written")
+            for k in self.obs:
+                self._copy(self.obs[k], data[f"obs.{k}"], f"obs.{k}")
+            for name in ("action", "reward", "starts", "ended", "terminated"):
+                self._copy(getattr(self, name), data[name], name)
+
+    @staticmethod
+    def _copy(dst: np.ndarray, src: np.ndarray, name: str) -> None:
+        """Copy saved rows ``src`` into the front of ``dst`` (rows may be fewer)."""
+        if dst.ndim != src.ndim or dst.shape[:1] != src.shape[:1] or dst.shape[2:] != src.shape[2:]:
+            raise ValueError(f"replay {name}: saved shape {src.shape} does not fit {dst.shape}")
+        if dst.ndim == 1:
+            dst[...] = src
+        elif src.shape[1] > dst.shape[1]:
+            raise ValueError(f"replay {name}: saved {src.shape[1]} rows > capacity {dst.shape[1]}")
+        else:
+            dst[:, : src.shape[1]] = src

@@ -1,0 +1,146 @@
+"""The three rules that make the four agents of DESIGN.md §2 out of one IQN learner.
+
+Every agent is the same network with ``H`` heads. Agents differ only in
+
+- a **reward rule**: what each head learns (the weighted-sum scalar for every head, or
+  one objective per head);
+- an **acting rule**: quantiles of the current state → one action per state;
+- a **target rule**: quantiles of the next state → the bootstrap action of each head.
+
+Each rule is a named function in a registry (:data:`REWARD_RULES`, :data:`ACTING_RULES`,
+:data:`TARGET_RULES`); ``priqn.agents.registry`` combines them into agents.
+
+All quantiles given to the acting and target rules are on the FIXED grid
+τ_k = (k + 0.5)/K (``network.tau_grid``), so selection is deterministic for a network.
+The preorder rules get an ``OptimalSubsets``-like object ``subsets(quantiles_BHKA)``
+with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.preorder``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import torch
+
+from priqn.errors import PriqnError
+
+
+class SubsetFn(Protocol):
+    """quantiles ``[B, N, K, A]`` → object with ``per_objective [B,N,A]``, ``leaf [B,A]``."""
+
+    def __call__(self, quantiles_BNKA: torch.Tensor) -> Any: ...
+
+
+# ----------------------------------------------------------------------------- rewards
+
+
+def reward_weighted_sum(
+    rewards_B5: torch.Tensor, weights_5: torch.Tensor, num_heads: int
+) -> torch.Tensor:
+    """Every head learns the same scalar Σ_i w_i r_i: ``[B, 5]`` → ``[B, H]``."""
+    return (rewards_B5 @ weights_5).unsqueeze(1).expand(-1, num_heads)
+
+
+def reward_per_objective(
+    rewards_B5: torch.Tensor, weights_5: torch.Tensor, num_heads: int
+) -> torch.Tensor:
+    """Head h learns objective h (weights unused): ``[B, 5]`` → ``[B, 5]``."""
+    if num_heads != rewards_B5.shape[1]:
+        raise ValueError(f"per-objective reward needs one head per objective, got {num_heads}")
+    return rewards_B5
+
+
+REWARD_RULES: dict[str, Callable[..., torch.Tensor]] = {
+    "weighted-sum": reward_weighted_sum,
+    "per-objective": reward_per_objective,
+}
+"""Reward rule name → ``fn(rewards_B5, weights_5, num_heads) -> rewards_BH``."""
+
+
+# ----------------------------------------------------------------------------- acting
+
+
+def masked_uniform_choice(mask_BA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
+    """Pick uniformly among the True entries of each row, driven by ``u_B`` ∈ [0, 1).
+
+    The j-th True entry (j = ⌊u · count⌋) is taken, so a given ``u`` always gives the
+    same action: randomness comes only from the caller's generator. Rows must not be
+    empty (``priqn.preorder`` guarantees a non-empty leaf set).
+    """
+    count_B = mask_BA.sum(dim=1)
+    if bool((count_B == 0).any()):
+        raise ValueError("masked_uniform_choice: a row of the mask is empty")
+    j_B = torch.clamp((u_B * count_B).long(), max=count_B - 1)
+    rank_BA = torch.cumsum(mask_BA.long(), dim=1) - 1  # rank of each True entry in its row
+    hit_BA = mask_BA & (rank_BA == j_B.unsqueeze(1))
+    return hit_BA.long().argmax(dim=1)
+
+
+def act_argmax(quantiles_BHKA: torch.Tensor, subsets: SubsetFn | None, u_B: torch.Tensor):
+    """IQN: argmax over actions of the (single) head's mean."""
+    return quantiles_BHKA.mean(dim=2)[:, 0].argmax(dim=1)
+
+
+def act_argmax_mean_of_heads(quantiles_BHKA, subsets, u_B):
+    """Ensemble-IQN: argmax of the heads' mean (each head's mean over K, then over H)."""
+    return quantiles_BHKA.mean(dim=2).mean(dim=1).argmax(dim=1)
+
+
+def act_argmax_sum_of_heads(quantiles_BHKA, subsets, u_B):
+    """MA-IQN: argmax of the summed per-objective head means (unweighted)."""
+    return quantiles_BHKA.mean(dim=2).sum(dim=1).argmax(dim=1)
+
+
+def act_leaf_uniform(quantiles_BHKA, subsets, u_B):
+    """Pr-IQN: uniform sample from the leaf optimal subset (the virtual leaf if several)."""
+    if subsets is None:
+        raise ValueError("the leaf-uniform acting rule needs optimal subsets")
+    return masked_uniform_choice(subsets(quantiles_BHKA).leaf, u_B)
+
+
+ACTING_RULES: dict[str, Callable[..., torch.Tensor]] = {
+    "argmax": act_argmax,
+    "argmax-mean-of-heads": act_argmax_mean_of_heads,
+    "argmax-sum-of-heads": act_argmax_sum_of_heads,
+    "leaf-uniform": act_leaf_uniform,
+}
+"""Acting rule name → ``fn(quantiles_BHKA, subsets | None, u_B) -> actions_B`` (int64)."""
+
+
+# ----------------------------------------------------------------------------- targets
+
+
+def masked_argmax(values_BHA: torch.Tensor, mask_BHA: torch.Tensor) -> torch.Tensor:
+    """argmax over the actions where ``mask`` is True (ties → lowest index): ``[B, H]``."""
+    return values_BHA.masked_fill(~mask_BHA, float("-inf")).argmax(dim=2)
+
+
+def target_own_argmax(next_quantiles_BHKA: torch.Tensor, subsets: SubsetFn | None):
+    """Each head bootstraps from its own argmax over all actions (Eq. 6 without S)."""
+    return next_quantiles_BHKA.mean(dim=2).argmax(dim=2)
+
+
+def target_optimal_subset(next_quantiles_BHKA: torch.Tensor, subsets: SubsetFn | None):
+    """Pr-IQN Eq. 6: head h bootstraps from argmax over S_h(s') of its mean quantile."""
+    if subsets is None:
+        raise ValueError("the optimal-subset target rule needs optimal subsets")
+    mask_BHA = subsets(next_quantiles_BHKA).per_objective
+    return masked_argmax(next_quantiles_BHKA.mean(dim=2), mask_BHA)
+
+
+TARGET_RULES: dict[str, Callable[..., torch.Tensor]] = {
+    "own-argmax": target_own_argmax,
+    "optimal-subset": target_optimal_subset,
+}
+"""Target rule name → ``fn(next_quantiles_BHKA, subsets | None) -> actions_BH`` (int64)."""
+
+
+def lookup(registry: dict[str, Any], name: str, what: str) -> Any:
+    """``registry[name]`` or a one-line error listing the valid names."""
+    try:
+        return registry[name]
+    except KeyError:
+        raise PriqnError(
+            f"unknown {what} {name!r} (valid: {', '.join(sorted(registry))})"
+        ) from None

@@ -1,0 +1,219 @@
+"""``priqn bench train``: learner updates/s (IQN vs Pr-IQN) and env decisions/s with learning.
+
+Part 1 times ``Learner.update`` on synthetic batch-32 transitions with each preset's
+observation size and network, for every agent asked for, and prints each agent's cost
+per update as a ratio to IQN's (the issue's target: Pr-IQN ≤ 1.5× IQN). Part 2 runs the
+real training loop (vector env workers + learning) for a short budget in a temporary
+run folder and reports env decisions/s and updates/s end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import io
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--presets", default="default,paper", help="comma-separated training presets (default both)"
+    )
+    parser.add_argument(
+        "--agents", default="iqn,pr-iqn", help="comma-separated agents (first is the baseline)"
+    )
+    parser.add_argument("--batch-size", type=int, default=32, help="transitions per update")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=6.0,
+        help="timing per case [s], split in 3 alternating rounds",
+    )
+    parser.add_argument("--device", default="auto", help="auto | cpu | cuda")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch CPU threads (training's default is 1)"
+    )
+    parser.add_argument(
+        "--loop-steps",
+        type=int,
+        default=3000,
+        help="env decisions of the end-to-end loop (0 skips part 2)",
+    )
+    parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
+
+
+def _obs_space(cfg: Any) -> Any:
+    """The env's observation space for ``cfg.env`` (built without starting SUMO)."""
+    from priqn.env.intersection import IntersectionEnv
+
+    env = IntersectionEnv(cfg.env)
+    try:
+        return env.observation_space, int(env.action_space.n)
+    finally:
+        env.close()
+
+
+def _synthetic_batch(space: Any, batch: int, rng: np.random.Generator) -> dict[str, Any]:
+    def sample_obs() -> dict[str, np.ndarray]:
+        out = {}
+        for k in ("bev", "lidar", "command", "kinematics"):
+            sp = space[k]
+            if sp.dtype == np.uint8:
+                out[k] = rng.integers(0, 2, (batch, *sp.shape), dtype=np.uint8) * 255
+            else:
+                out[k] = rng.normal(size=(batch, *sp.shape)).astype(sp.dtype)
+        return out
+
+    return {
+        "obs": sample_obs(),
+        "next_obs": sample_obs(),
+        "reward": rng.normal(size=(batch, 5)).astype(np.float32),
+        "discount": np.full(batch, 0.99, dtype=np.float32),
+    }
+
+
+def _make_learner(preset: str, agent_name: str, batch_size: int, device: str) -> tuple[Any, Any]:
+    from priqn.agents.learner import Learner
+    from priqn.agents.registry import make_agent
+    from priqn.train import _select_device, build_network, resolve_config
+
+    cfg = resolve_config(preset=preset, agent=agent_name)
+    cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, batch_size=batch_size))
+    space, num_actions = _obs_space(cfg)
+    dev = _select_device(device)
+    net = build_network(cfg, space, num_actions, seed=0)
+    learner = Learner(net, make_agent(agent_name, cfg.agent), cfg.learner, dev, tau_seed=0)
+    rng = np.random.default_rng(0)
+    batches = []
+    for _ in range(4):
+        b = _synthetic_batch(space, batch_size, rng)
+        b["action"] = rng.integers(0, num_actions, batch_size)
+        batches.append(b)
+    for i in range(5):  # warm-up
+        learner.update(batches[i % 4])
+    return learner, (cfg, batches)
+
+
+def _time_updates(learner: Any, batches: list[Any], seconds: float) -> float:
+    import torch
+
+    cuda = learner.device.type == "cuda"
+    if cuda:
+        torch.cuda.synchronize()
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds or n < 5:
+        learner.update(batches[n % 4])
+        n += 1
+    if cuda:
+        torch.cuda.synchronize()
+    return n / (time.perf_counter() - t0)
+
+
+def updates_per_second(
+    preset: str, agents: list[str], batch_size: int, seconds: float, device: str, rounds: int = 3
+) -> list[dict[str, Any]]:
+    """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
+
+    The agents take turns for ``rounds`` rounds of ``seconds / rounds`` each and the best
+    round counts, so load from other processes hits all agents alike.
+    """
+    made = {a: _make_learner(preset, a, batch_size, device) for a in agents}
+    best = dict.fromkeys(agents, 0.0)
+    for _ in range(rounds):
+        for a in agents:
+            learner, (_, batches) = made[a]
+            best[a] = max(best[a], _time_updates(learner, batches, seconds / rounds))
+    out = []
+    for a in agents:
+        learner, (cfg, _) = made[a]
+        out.append(
+            {
+                "preset": preset,
+                "agent": a,
+                "obs_px": cfg.env.obs_size_px,
+                "device": str(learner.device),
+                "updates_per_s": best[a],
+                "ms_per_update": 1000.0 / best[a],
+            }
+        )
+    return out
+
+
+def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[str, Any]:
+    """Env decisions/s and updates/s of the real training loop (default preset)."""
+    import json
+
+    from priqn.train import resolve_config, train
+
+    cfg = resolve_config(
+        preset="default",
+        agent=agent_name,
+        net=net,
+        steps=steps,
+        device=device,
+        overrides=[
+            f"replay.learning_starts={min(500, steps // 4)}",
+            "evaluation.interval_steps=0",
+            f"checkpoint.interval_steps={10 * steps}",
+            "checkpoint.save_replay=false",
+        ],
+    )
+    with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
+        with contextlib.redirect_stdout(io.StringIO()):  # the loop's progress lines
+            run_dir = train(cfg, Path(tmp) / "run")
+        meta = json.loads((run_dir / "meta.json").read_text())
+    wall = float(meta["wall_s"])
+    return {
+        "agent": agent_name,
+        "decisions_per_s": meta["steps_done"] / wall,
+        "updates_per_s": meta["updates_done"] / wall,
+        "wall_s": wall,
+        "num_envs": cfg.num_envs,
+        "obs_px": cfg.env.obs_size_px,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    presets = [p for p in args.presets.split(",") if p]
+    agents = [a for a in args.agents.split(",") if a]
+    print(
+        f"priqn bench train: Learner.update at batch {args.batch_size}, "
+        f"{torch.get_num_threads()} torch threads, {args.seconds:g} s per case, "
+        f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start"
+    )
+    print(
+        f"{'preset':<8} {'px':>4} {'agent':<13} {'updates/s':>10} {'ms/update':>10} {'x ' + agents[0]:>10}"
+    )
+    for preset in presets:
+        results = updates_per_second(preset, agents, args.batch_size, args.seconds, args.device)
+        base = results[0]["ms_per_update"]
+        for name, r in zip(agents, results, strict=True):
+            print(
+                f"{preset:<8} {r['obs_px']:>4} {name:<13} {r['updates_per_s']:>10.1f} "
+                f"{r['ms_per_update']:>10.2f} {r['ms_per_update'] / base:>10.2f}",
+                flush=True,
+            )
+    if args.loop_steps > 0:
+        print(
+            f"\nend-to-end training loop (default preset, learning on: one update per "
+            f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}"
+        )
+        print(f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10}")
+        for name in agents:
+            r = loop_throughput(args.net, name, args.loop_steps, args.device)
+            print(
+                f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} {r['updates_per_s']:>10.1f}",
+                flush=True,
+            )
+    return 0

@@ -1,0 +1,256 @@
+"""Agents: rules (hand-built quantiles), registry, network shapes, replay, one learner step."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import pytest
+import torch
+
+from priqn.agents import rules
+from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
+from priqn.agents.learner import Learner
+from priqn.agents.network import QuantileNetwork, tau_grid
+from priqn.agents.policy import Policy
+from priqn.agents.registry import AGENT_SPECS, make_agent
+from priqn.agents.replay import ReplayBuffer
+from priqn.errors import PriqnError
+from priqn.objectives import OBJECTIVES
+
+K, A = 8, 6
+
+
+def flat(values_NA: list[list[float]]) -> torch.Tensor:
+    """Quantiles [1, N, K, A] whose K quantiles all equal the given mean (+ tiny spread)."""
+    v = torch.tensor(values_NA, dtype=torch.float32)  # [N, A]
+    spread = torch.linspace(-0.01, 0.01, K).view(1, K, 1)
+    return (v.unsqueeze(1) + spread).unsqueeze(0)
+
+
+# ------------------------------------------------------------------------------ rules
+
+
+def test_masked_uniform_choice_by_hand():
+    mask = torch.tensor([[False, True, False, True, True, False]] * 3)
+    u = torch.tensor([0.0, 0.5, 0.99])
+    # True entries: 1, 3, 4 -> j = floor(u*3) = 0, 1, 2
+    assert rules.masked_uniform_choice(mask, u).tolist() == [1, 3, 4]
+
+
+def test_masked_uniform_choice_is_uniform_over_the_mask():
+    mask = torch.tensor([[True, False, True, False, False, True]]).expand(30000, -1)
+    u = torch.rand(30000, generator=torch.Generator().manual_seed(0))
+    counts = torch.bincount(rules.masked_uniform_choice(mask, u), minlength=A)
+    assert counts[[1, 3, 4]].sum() == 0
+    assert counts[[0, 2, 5]].min() > 9500
+
+
+def test_target_rule_uses_only_actions_of_s_h_with_a_given_mask():
+    q = torch.zeros(1, 2, K, A)
+    q[0, 0, :, 5] = 10.0  # head 0's global argmax is action 5
+    q[0, 0, :, 2] = 3.0
+    q[0, 1, :, 1] = 7.0
+    mask = torch.tensor([[[True, True, True, False, False, False], [True] * A]])
+    subsets = lambda _q: types.SimpleNamespace(per_objective=mask)  # noqa: E731
+    assert rules.target_optimal_subset(q, subsets).tolist() == [[2, 1]]
+    assert rules.target_own_argmax(q, None).tolist() == [[5, 1]]
+
+
+def test_pr_iqn_target_with_the_real_preorder_avoids_the_global_argmax():
+    # Safety: actions 0-2 safe (0), 3-5 crash (-10). Progress prefers action 5 strongly.
+    safety = [0.0, 0.0, 0.0, -10.0, -10.0, -10.0]
+    mid = [0.0] * A
+    progress = [1.0, 2.0, 3.0, 4.0, 5.0, 9.0]
+    q = flat([safety, mid, mid, progress, mid])
+    agent = make_agent("pr-iqn", AgentConfig(eps=0.2))
+    s = agent.subsets(q)
+    assert s.per_objective[0, 0].tolist() == [True, True, True, False, False, False]
+    a_star = agent.target_actions(q)
+    assert a_star[0, 3].item() == 2  # progress head: best action inside S_progress
+    assert q[0, 3].mean(0).argmax().item() == 5  # ... while its global argmax is unsafe
+    assert bool(s.per_objective[0, 3, a_star[0, 3]])
+    off = make_agent("pr-iqn", AgentConfig(train_preorder=False))
+    assert off.target_actions(q)[0, 3].item() == 5
+
+
+def test_pr_iqn_acts_only_inside_the_leaf_set():
+    safety = [0.0, 0.0, 0.0, -10.0, -10.0, -10.0]
+    mid = [0.0] * A
+    progress = [1.0, 1.0, 1.0, 9.0, 9.0, 9.0]
+    comfort = [0.0, 5.0, 5.0, 0.0, 0.0, 0.0]
+    q = flat([safety, mid, mid, progress, comfort]).expand(4000, -1, -1, -1)
+    agent = make_agent("pr-iqn", AgentConfig(eps=0.2))
+    leaf = agent.subsets(q[:1]).leaf[0]
+    assert leaf.tolist() == [False, True, True, False, False, False]
+    u = torch.rand(4000, generator=torch.Generator().manual_seed(1))
+    acts = agent.act(q, u)
+    assert set(acts.tolist()) == {1, 2}
+
+
+def test_baseline_acting_rules_by_hand():
+    q = flat([[1, 0, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0] * 6, [0] * 6])
+    u = torch.zeros(1)
+    assert make_agent("ma-iqn").act(q, u).item() == 1  # sum: 1.2 > 1
+    assert make_agent("ensemble-iqn").act(q, u).item() == 1  # mean over heads
+    assert make_agent("iqn").act(q[:, :1], u).item() == 0
+
+
+def test_rewards_follow_the_rule():
+    r = torch.tensor([[1.0, 2.0, 4.0, 8.0, 16.0]])
+    iqn = make_agent("iqn", AgentConfig(reward_weights=(1.0, 0.5, 0.25, 0.125, 0.0625)))
+    assert iqn.head_rewards(r).tolist() == [[5.0]]
+    assert make_agent("ensemble-iqn").head_rewards(r).shape == (1, 5)
+    assert torch.equal(make_agent("ma-iqn").head_rewards(r), r)
+
+
+# ------------------------------------------------------------------------------ registry
+
+
+@pytest.mark.parametrize("name", sorted(AGENT_SPECS))
+def test_registry_builds_each_agent(name):
+    agent = make_agent(name)
+    assert agent.num_heads == (1 if name == "iqn" else 5)
+    assert agent.labels["agent"] == name
+    q = torch.randn(3, agent.num_heads, K, A)
+    assert agent.act(q, torch.rand(3)).shape == (3,)
+    assert agent.target_actions(q).shape == (3, agent.num_heads)
+
+
+def test_registry_errors_are_one_line():
+    with pytest.raises(
+        PriqnError, match=r"unknown agent 'dqn' \(valid: ensemble-iqn, iqn, ma-iqn, pr-iqn\)"
+    ):
+        make_agent("dqn")
+    with pytest.raises(PriqnError, match=r"agent.comparator: unknown comparator 'wd'"):
+        make_agent("pr-iqn", comparator="wd")
+    with pytest.raises(PriqnError, match=r"agent.preorder: .*'lexi'"):
+        make_agent("pr-iqn", preorder="lexi")
+
+
+def test_partial_order_label_and_per_objective_eps():
+    agent = make_agent("pr-iqn", AgentConfig(preorder="partial", eps=(0.1, 0.2, 0.2, 0.3, 0.4)))
+    assert agent.labels["partial_order"] is True
+    assert make_agent("pr-iqn").labels["partial_order"] is False
+    assert agent.subsets(torch.randn(2, 5, K, A)).leaf.shape == (2, A)
+
+
+# ------------------------------------------------------------------------------ network
+
+
+def small_net(heads: int, size: int = 32) -> QuantileNetwork:
+    shapes = {"bev": (4, size, size), "lidar": (2, size, size), "command": (3,), "kinematics": (4,)}
+    cfg = NetworkConfig(conv_channels=(8, 8, 8), latent_dim=32, hidden_dim=32, num_cosines=16)
+    torch.manual_seed(0)
+    return QuantileNetwork(shapes, {"bev": 1 / 255, "lidar": 1 / 255}, A, heads, cfg)
+
+
+def random_obs(rng: np.random.Generator, b: int, size: int = 32) -> dict[str, np.ndarray]:
+    return {
+        "bev": rng.integers(0, 256, (b, 4, size, size), dtype=np.uint8),
+        "lidar": rng.integers(0, 4, (b, 2, size, size), dtype=np.uint8),
+        "command": np.eye(3, dtype=np.float32)[rng.integers(0, 3, b)],
+        "kinematics": rng.normal(size=(b, 4)).astype(np.float32),
+    }
+
+
+def test_network_shapes_and_grid():
+    net = small_net(5)
+    obs = {k: torch.as_tensor(v) for k, v in random_obs(np.random.default_rng(0), 3).items()}
+    out = net(obs, torch.rand(3, 7))
+    assert out.shape == (3, 5, 7, A)
+    assert tau_grid(4).tolist() == [0.125, 0.375, 0.625, 0.875]
+    # the same τ gives the same quantile whatever else is in the batch of τ
+    taus = torch.rand(3, 7)
+    taus2 = taus.clone()
+    taus2[:, 1:] = 0.5
+    assert torch.allclose(net(obs, taus)[:, :, 0], net(obs, taus2)[:, :, 0], atol=1e-6)
+
+
+# ------------------------------------------------------------------------------ replay
+
+
+def tiny_obs(v: float, e: int = 1) -> dict[str, np.ndarray]:
+    return {"x": np.full((e, 1), v, dtype=np.float32)}
+
+
+def test_replay_n_step_final_obs_and_discounts():
+    rb = ReplayBuffer({"x": ((1,), np.float32)}, num_envs=1, capacity=64, n_step=2, gamma=0.5)
+    r = lambda v: np.array([[v, 0, 0, 0, 0]], dtype=np.float32)  # noqa: E731
+    f, t = np.array([False]), np.array([True])
+    rb.add(tiny_obs(0), np.array([0]), r(1), f, f, [None])
+    rb.add(tiny_obs(1), np.array([1]), r(2), f, t, [{"x": np.array([99.0], np.float32)}])  # timeout
+    rb.add(tiny_obs(10), np.array([2]), r(4), t, f, [{"x": np.array([98.0], np.float32)}])  # crash
+    rb.add(tiny_obs(20), np.array([3]), r(8), f, f, [None])
+    batch = rb._gather(np.zeros(3, dtype=np.int64), np.array([0, 1, 3]))
+    # row 0: 1 + 0.5*2, then the timeout ends the episode: bootstrap from 99 with 0.5^2
+    assert batch["reward"][:, 0].tolist() == [2.0, 2.0, 4.0]
+    assert batch["next_obs"]["x"][:, 0].tolist() == [99.0, 99.0, 98.0]
+    assert batch["discount"].tolist() == [0.25, 0.5, 0.0]
+    # row 5 (obs 20) has no complete 2-step window yet; final rows never start transitions
+    rng = np.random.default_rng(0)
+    s = rb.sample(64, rng)
+    assert set(s["obs"]["x"][:, 0].tolist()) == {0.0, 1.0, 10.0}
+    assert len(rb) == 4 and rb.bytes_per_row() == 4 + 8 + 20 + 3
+
+
+def test_replay_truncate_open_episodes_and_save_load(tmp_path):
+    rb = ReplayBuffer({"x": ((1,), np.float32)}, num_envs=2, capacity=32, n_step=1, gamma=0.9)
+    f = np.array([False, False])
+    rb.add(tiny_obs(1, 2), np.array([0, 1]), np.zeros((2, 5), np.float32), f, f, [None, None])
+    rb.truncate_open_episodes(tiny_obs(7, 2))
+    s = rb.sample(8, np.random.default_rng(0))
+    assert s["next_obs"]["x"][:, 0].tolist() == [7.0] * 8
+    assert np.allclose(s["discount"], 0.9)
+    with open(tmp_path / "r.npz", "wb") as fh:
+        rb.save_to(fh)
+    rb2 = ReplayBuffer({"x": ((1,), np.float32)}, num_envs=2, capacity=32, n_step=1, gamma=0.9)
+    rb2.load_state_file(tmp_path / "r.npz")
+    assert np.array_equal(rb2.written, rb.written) and np.array_equal(rb2.obs["x"], rb.obs["x"])
+
+
+# ------------------------------------------------------------------------------ learner
+
+
+@pytest.mark.parametrize("name", ["iqn", "pr-iqn"])
+def test_learner_fits_a_fixed_batch(name):
+    torch.manual_seed(0)
+    agent = make_agent(name)
+    net = small_net(agent.num_heads)
+    cfg = LearnerConfig(lr=1e-3, num_tau_samples=8, num_tau_prime_samples=8, num_quantiles=8)
+    learner = Learner(net, agent, cfg, torch.device("cpu"), tau_seed=0)
+    rng = np.random.default_rng(0)
+    batch = {
+        "obs": random_obs(rng, 16),
+        "next_obs": random_obs(rng, 16),
+        "action": rng.integers(0, A, 16),
+        "reward": rng.normal(size=(16, 5)).astype(np.float32),
+        "discount": np.zeros(16, dtype=np.float32),  # terminal: targets are the rewards
+    }
+    first = [learner.update(batch)["loss"] for _ in range(5)]
+    for _ in range(150):
+        last = learner.update(batch)["loss"]
+    assert np.isfinite(first).all() and last < 0.5 * first[0]
+    policy = Policy(learner.online, agent, 8)
+    acts = policy.act(random_obs(rng, 5), np.random.default_rng(0))
+    assert acts.dtype == np.int64 and acts.shape == (5,) and acts.max() < A
+
+
+def test_learner_state_roundtrip_continues_identically():
+    agent = make_agent("ma-iqn")
+    cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
+    rng = np.random.default_rng(0)
+    batch = {
+        "obs": random_obs(rng, 4),
+        "next_obs": random_obs(rng, 4),
+        "action": rng.integers(0, A, 4),
+        "reward": rng.normal(size=(4, 5)).astype(np.float32),
+        "discount": np.full(4, 0.9, dtype=np.float32),
+    }
+    a = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=3)
+    a.update(batch)
+    state = a.state_dict()
+    b = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=99)
+    b.load_state_dict({k: (v if k != "tau_generator" else v.clone()) for k, v in state.items()})
+    assert a.update(batch)["loss"] == b.update(batch)["loss"]
+    assert OBJECTIVES[0] == "safety"

@@ -1,0 +1,284 @@
+"""Training: config resolution and errors (fast), CLI smoke runs with the real env (subprocess)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from priqn.errors import PriqnError
+from priqn.train import (
+    METRIC_COLUMNS,
+    ExplorationConfig,
+    TrainConfig,
+    default_run_name,
+    derive_seeds,
+    linear_epsilon,
+    load_policy,
+    policy_labels,
+    resolve_config,
+    train,
+)
+
+TINY = [
+    "--set", "env.obs_size_px=32",
+    "--set", "env.max_episode_steps=25",
+    "--set", "replay.learning_starts=64",
+    "--set", "replay.capacity=4000",
+    "--set", "network.latent_dim=64",
+    "--set", "network.hidden_dim=64",
+    "--set", "learner.num_tau_samples=8",
+    "--set", "learner.num_tau_prime_samples=8",
+    "--set", "learner.num_quantiles=8",
+    "--set", "log_interval_steps=50",
+]  # fmt: skip
+
+
+def cli(*args: str, **kw) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", MPLBACKEND="Agg")
+    return subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "train", *args],
+        capture_output=True, text=True, env=env, timeout=300, **kw,
+    )  # fmt: skip
+
+
+def read_metrics(run: Path) -> list[dict[str, str]]:
+    with (run / "metrics.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+def assert_complete_run_folder(run: Path, steps: int) -> dict:
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["status"] == "complete", meta.get("error")
+    assert meta["steps_done"] >= steps
+    for key in ("git_sha", "versions", "manifest_hashes", "seeds", "labels"):
+        assert meta[key], key
+    assert set(meta["seeds"]) == {"env", "eval_env", "torch_init", "tau", "replay", "explore"}
+    assert meta["versions"]["sumo"] and meta["replay_bytes_per_transition"] > 0
+    for name in ("config.toml", "metrics.csv", "learning_curve.png", "checkpoints/latest.pt"):
+        assert (run / name).is_file(), name
+    assert any((run / "tb").iterdir())
+    rows = read_metrics(run)
+    assert rows and tuple(rows[0]) == METRIC_COLUMNS
+    assert not list(run.rglob("*.tmp"))
+    return meta
+
+
+# ---------------------------------------------------------------------------- fast, no SUMO
+
+
+def test_presets_resolve_and_flags_win():
+    cfg = resolve_config(preset="paper", agent="ma-iqn", seed=3, net="fourway", steps=500)
+    assert (cfg.env.obs_size_px, cfg.env.family, cfg.seed, cfg.total_steps) == (
+        128,
+        "fourway",
+        3,
+        500,
+    )
+    assert cfg.agent.name == "ma-iqn" and cfg.learner.num_tau_samples == 64
+    default = resolve_config()
+    assert default.env.obs_size_px == 64 and default.agent.name == "pr-iqn"
+
+
+def test_config_errors_are_one_line(tmp_path):
+    with pytest.raises(PriqnError, match=r"unknown agent 'dqn'"):
+        resolve_config(agent="dqn")
+    with pytest.raises(PriqnError, match=r"agent.comparator: unknown comparator 'w1'"):
+        resolve_config(overrides=["agent.comparator=w1"])
+    with pytest.raises(PriqnError, match=r"agent.preorder: unknown preorder 'lexi'"):
+        resolve_config(overrides=["agent.preorder=lexi"])
+    with pytest.raises(PriqnError, match=r"unknown key 'learner.lrr'"):
+        resolve_config(overrides=["learner.lrr=1e-3"])
+    with pytest.raises(
+        PriqnError, match=r"--preset: unknown preset 'huge' \(valid: default, paper\)"
+    ):
+        resolve_config(preset="huge")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[learner]\nkappa_x = 1\n")
+    with pytest.raises(PriqnError, match=r"bad.toml.learner: unknown key 'kappa_x'"):
+        resolve_config(config_file=bad)
+
+
+def test_existing_run_folder_is_refused_without_resume_or_force(tmp_path):
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "x").write_text("keep")
+    with pytest.raises(PriqnError, match="already exists; use --resume .* or --force"):
+        train(TrainConfig(), run)
+    with pytest.raises(PriqnError, match="nothing to resume"):
+        train(TrainConfig(), run, resume=True)
+    assert (run / "x").read_text() == "keep"
+    missing = resolve_config(overrides=[f'env.nets_dir="{tmp_path / "no_nets"}"'])
+    with pytest.raises(PriqnError, match="no manifest for family"):
+        train(missing, tmp_path / "r2")
+    assert not (tmp_path / "r2").exists()
+
+
+def test_resume_refuses_a_different_config(tmp_path):
+    from priqn.config import dumps_toml, to_dict
+
+    run = tmp_path / "r"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "latest.pt").write_bytes(b"")
+    (run / "config.toml").write_text(dumps_toml(to_dict(resolve_config(agent="iqn"))))
+    with pytest.raises(PriqnError, match=r"different config \(agent.name = 'iqn' in the run"):
+        train(resolve_config(agent="pr-iqn"), run, resume=True)
+    out = cli("--resume", str(run), "--agent", "ma-iqn")
+    assert out.returncode == 2 and "only --steps and --device may change" in out.stderr
+
+
+def test_seeds_epsilon_labels_names():
+    a, b = derive_seeds(3), derive_seeds(4)
+    assert a == derive_seeds(3) and a != b and len(set(a.values())) == len(a)
+    ex = ExplorationConfig(eps_start=1.0, eps_end=0.1, decay_fraction=0.5)
+    assert linear_epsilon(ex, 0, 100) == 1.0
+    assert linear_epsilon(ex, 25, 100) == pytest.approx(0.55)
+    assert linear_epsilon(ex, 90, 100) == pytest.approx(0.1)
+    cfg = resolve_config(seed=2, overrides=["agent.preorder=partial", "agent.train_preorder=false"])
+    labels = policy_labels(cfg)
+    assert labels["label"] == "Pr-IQN QD ✗ 0.2 ✓" and labels["train_seed"] == 2
+    assert default_run_name(cfg) == "tjunction_pr-iqn_qd_eps0.2_notrain_partial_s2"
+    assert policy_labels(resolve_config(agent="iqn"))["label"] == "IQN"
+
+
+def test_list_options_prints_every_key():
+    out = cli("--list-options")
+    assert out.returncode == 0, out.stderr
+    for key in ("agent.comparator", "learner.kappa", "replay.capacity", "env.obs_size_px"):
+        assert f"\n{key} = " in out.stdout
+
+
+# ---------------------------------------------------------------------------- real env (subprocess)
+
+
+def test_smoke_pr_iqn_kill9_then_resume(tmp_path):
+    """A run killed with SIGKILL after a checkpoint resumes: steps, updates, metrics continue."""
+    args = ["--agent", "pr-iqn", "--steps", "320", "--num-envs", "2", "--runs-dir", str(tmp_path),
+            "--name", "run", "--set", "checkpoint.interval_steps=80",
+            "--set", "evaluation.interval_steps=160", "--set", "evaluation.episodes=1", *TINY]  # fmt: skip
+    run = tmp_path / "run"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", MPLBACKEND="Agg")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "priqn.cli", "train", *args],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True,
+    )  # fmt: skip
+    deadline = time.time() + 240
+    try:
+        while time.time() < deadline and proc.poll() is None:
+            meta = run / "meta.json"
+            if meta.is_file() and json.loads(meta.read_text()).get("steps_done", 0) >= 160:
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None, proc.stderr.read()
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(30)
+    meta = json.loads((run / "meta.json").read_text())
+    assert meta["status"] == "running"
+    killed_at = meta["steps_done"]
+    assert 160 <= killed_at < 320
+    assert (
+        cli("--agent", "pr-iqn", "--runs-dir", str(tmp_path), "--name", "run", *TINY).returncode
+        == 2
+    )
+
+    out = cli("--resume", str(run))
+    assert out.returncode == 0, out.stderr
+    meta = assert_complete_run_folder(run, 320)
+    assert meta["steps_done"] == 320 and len(meta["sessions"]) == 2
+    assert meta["updates_done"] == (320 - 64) // 4 + 1
+    rows = read_metrics(run)
+    train_rows = [r for r in rows if r["kind"] == "train"]
+    steps = [int(r["step"]) for r in train_rows]
+    assert steps == sorted(steps) and max(steps) > killed_at
+    assert [int(r["episode"]) for r in train_rows] == list(range(1, len(train_rows) + 1))
+    assert any(r["kind"] == "eval" for r in rows)
+    assert len(list((run / "checkpoints").glob("replay-*.npz"))) == 1
+
+    policy = load_policy(run)
+    assert policy.labels["agent"] == "pr-iqn" and policy.labels["train_seed"] == 0
+    assert policy.env_config.obs_size_px == 32
+    s = policy.env_config.obs_size_px
+    obs = {
+        "bev": np.zeros((3, 4, s, s), np.uint8),
+        "lidar": np.zeros((3, 2, s, s), np.uint8),
+        "command": np.eye(3, dtype=np.float32),
+        "kinematics": np.zeros((3, 4), np.float32),
+    }
+    acts = policy.act(obs, np.random.default_rng(0))
+    assert acts.dtype == np.int64 and acts.shape == (3,)
+
+
+@pytest.mark.parametrize("agent", ["iqn", "ensemble-iqn", "ma-iqn"])
+def test_smoke_baselines_write_a_complete_run_folder(tmp_path, agent):
+    out = cli("--agent", agent, "--steps", "120", "--num-envs", "1", "--runs-dir", str(tmp_path),
+              "--name", agent, "--set", "evaluation.interval_steps=0", *TINY)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    meta = assert_complete_run_folder(tmp_path / agent, 120)
+    assert meta["labels"]["agent"] == agent
+
+
+@pytest.mark.slow
+def test_same_seed_same_training(tmp_path):
+    """Determinism: two runs with one seed give the same episodes and the same weights."""
+    import torch
+
+    common = ["--agent", "pr-iqn", "--steps", "200", "--num-envs", "2", "--runs-dir", str(tmp_path),
+              "--set", "evaluation.interval_steps=0", "--device", "cpu", *TINY]  # fmt: skip
+    for name in ("a", "b"):
+        out = cli(*common, "--name", name)
+        assert out.returncode == 0, out.stderr
+    drop = ("wall_s",)
+    rows = [
+        [{k: v for k, v in r.items() if k not in drop} for r in read_metrics(tmp_path / n)]
+        for n in "ab"
+    ]
+    assert rows[0] == rows[1]
+    sa, sb = (torch.load(tmp_path / n / "checkpoints/latest.pt", weights_only=False) for n in "ab")
+    for k, v in sa["learner"]["online"].items():
+        assert torch.equal(v, sb["learner"]["online"][k]), k
+
+
+def success_rate(env_cfg, act, episodes: int, seed: int) -> float:
+    """Fraction of ``episodes`` that end in success at density 0.5 (one worker process)."""
+    from priqn.env.vector import make_vector_env
+
+    envs = make_vector_env(env_cfg, 1, seed=seed)
+    try:
+        obs, _ = envs.reset()
+        rng = np.random.default_rng(seed)
+        wins: list[bool] = []
+        while len(wins) < episodes:
+            obs, _, term, trunc, info = envs.step(act(obs, rng))
+            if term[0] or trunc[0]:
+                wins.append(bool(info["final_info"]["success"][0]))
+        return float(np.mean(wins))
+    finally:
+        envs.close()
+
+
+@pytest.mark.slow
+def test_default_pr_iqn_learns_tjunction_density_05(tmp_path):
+    """Learning check (~1 h on 2 cores): default Pr-IQN beats a random policy clearly."""
+    import dataclasses
+
+    out = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "train", "--net", "tjunction", "--agent", "pr-iqn",
+         "--seed", "0", "--set", "env.densities=[0.5]", "--runs-dir", str(tmp_path), "--name", "learn"],
+        capture_output=True, text=True, timeout=3 * 3600,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    policy = load_policy(tmp_path / "learn")
+    env_cfg = dataclasses.replace(policy.env_config, densities=(0.5,))
+    n = policy.env_config.n_speeds * policy.env_config.n_offsets
+    learned = success_rate(env_cfg, policy.act, 60, seed=1234)
+    random = success_rate(env_cfg, lambda obs, rng: rng.integers(0, n, 1), 60, seed=1234)
+    assert learned >= random + 0.2, (learned, random)
