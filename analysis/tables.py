@@ -296,6 +296,12 @@ def _headers(table: Table) -> list[str]:
     return heads
 
 
+def _density_label(density: float) -> str:
+    """0.5 → "0.5", 1 → "1.0": at least one decimal, as in the paper's tables."""
+    text = f"{density:g}"
+    return text if "." in text or "e" in text else f"{text}.0"
+
+
 def to_markdown(table: Table) -> str:
     """GitHub Markdown: best **bold**, second <u>underlined</u>, densities as row groups."""
     heads = _headers(table)
@@ -308,7 +314,7 @@ def to_markdown(table: Table) -> str:
         + "|",
     ]
     for density in sorted(table.long["density"].unique()):
-        lines.append(f"| *Traffic density {density:g}* |" + " |" * (len(heads) - 1))
+        lines.append(f"| *Traffic density {_density_label(density)}* |" + " |" * (len(heads) - 1))
         for label, key in table.configs.items():
             if not ((table.long["density"] == density) & (table.long["label"] == label)).any():
                 continue
@@ -363,7 +369,7 @@ def to_latex(table: Table) -> str:
     for density in sorted(table.long["density"].unique()):
         lines.append("\\midrule")
         lines.append(
-            f"\\multicolumn{{{len(heads)}}}{{l}}{{\\textit{{Traffic density {density:g}}}}} \\\\"
+            f"\\multicolumn{{{len(heads)}}}{{l}}{{\\textit{{Traffic density {_density_label(density)}}}}} \\\\"
         )
         lines.append("\\midrule")
         for label, key in table.configs.items():

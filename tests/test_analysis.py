@@ -217,7 +217,7 @@ def test_renderings(runs) -> None:
     )
     assert row in md
     assert "| Pr-IQN | QD | ✓ | 0.2 | ✗ | **0.000 ± 0.000** |" in md
-    assert "*Traffic density 0.5*" in md and "*Traffic density 1*" in md
+    assert "*Traffic density 0.5*" in md and "*Traffic density 1.0*" in md
     assert r"\textbf{1.000 $\pm$ 0.000}" in tex and r"\underline{0.500 $\pm$ 0.408}" in tex
     assert r"\toprule" in tex and r"\checkmark" in tex and r"$\times$" in tex
     frame = pd.read_csv(pd.io.common.StringIO(csv))
