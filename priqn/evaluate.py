@@ -37,15 +37,21 @@ from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.objectives import OBJECTIVES
 
-EPISODE_COLUMNS: tuple[str, ...] = (
-    "run",
-    "label",
+LABEL_KEYS: tuple[str, ...] = (
     "agent",
     "comparator",
     "train_preorder",
     "eps",
     "partial_order",
     "train_seed",
+    "label",
+)
+"""Keys of ``Policy.labels`` copied into every episode row."""
+
+EPISODE_COLUMNS: tuple[str, ...] = (
+    "run",
+    "label",
+    *(key for key in LABEL_KEYS if key != "label"),
     "eval_run",
     "net",
     "density",
@@ -64,17 +70,6 @@ EPISODE_COLUMNS: tuple[str, ...] = (
     "reset_seed",
 )
 """Columns of ``eval/episodes.csv``, in order (one row per episode)."""
-
-LABEL_KEYS: tuple[str, ...] = (
-    "agent",
-    "comparator",
-    "train_preorder",
-    "eps",
-    "partial_order",
-    "train_seed",
-    "label",
-)
-"""Keys of ``Policy.labels`` copied into every episode row."""
 
 EVAL_DIR = "eval"
 CELLS_DIR = "cells"
