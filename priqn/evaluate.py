@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import shutil
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -34,7 +33,7 @@ import numpy as np
 
 from priqn.config import apply_overrides, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
-from priqn.io import atomic_write_json, atomic_write_text
+from priqn.io import atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES
 
 LABEL_KEYS: tuple[str, ...] = (
@@ -332,13 +331,6 @@ def _copy(obs: Any) -> Any:
 # ----------------------------------------------------------------------------- one run
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise PriqnError(f"{path}: unreadable JSON ({exc})") from exc
-
-
 def _write_cell(path: Path, rows: list[dict[str, Any]]) -> None:
     import pandas as pd
 
@@ -391,7 +383,7 @@ def evaluate_policy(
         **(extra_meta or {}),
     }
     if meta_path.is_file() and not force:
-        old = _read_json(meta_path)
+        old = read_json(meta_path)
         if old.get("holdout_hash") != holdout_hash:
             raise PriqnError(
                 f"{meta_path}: this run was evaluated on a different hold-out set (holdout_hash "
@@ -475,7 +467,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     run_meta_path = run_dir / "meta.json"
     if not run_meta_path.is_file():
         raise PriqnError(f"{run_meta_path}: missing; is {run_dir} a run made by 'priqn train'?")
-    status = _read_json(run_meta_path).get("status")
+    status = read_json(run_meta_path).get("status")
     if status != "complete":
         raise PriqnError(
             f"{run_meta_path}: status is {status!r}; evaluate only complete runs "
@@ -489,7 +481,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     eval_dir = run_dir / EVAL_DIR
     meta_path = eval_dir / META_FILE
     if not force and meta_path.is_file():
-        old = _read_json(meta_path)
+        old = read_json(meta_path)
         if (
             old.get("status") == "complete"
             and old.get("holdout_hash") == holdout_hash

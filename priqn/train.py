@@ -19,7 +19,6 @@ import argparse
 import csv
 import dataclasses
 import io
-import json
 import math
 import os
 import platform
@@ -40,7 +39,7 @@ from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
 from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
-from priqn.io import atomic_open, atomic_write_json, atomic_write_text
+from priqn.io import atomic_open, atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
@@ -326,13 +325,6 @@ def default_run_name(cfg: TrainConfig) -> str:
     return "_".join(parts)
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise PriqnError(f"{path}: cannot read ({exc})") from exc
-
-
 def load_run_config(run_dir: str | Path) -> TrainConfig:
     """The resolved config of a run folder (``config.toml``)."""
     path = Path(run_dir) / "config.toml"
@@ -374,7 +366,7 @@ def _prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool, force: bool)
         diff = _config_diff(stored, cfg, ignore=("total_steps", "device"))
         if diff:
             raise PriqnError(f"{run_dir}: --resume with a different config ({diff})")
-        meta = _read_json(run_dir / "meta.json")
+        meta = read_json(run_dir / "meta.json")
     else:
         if run_dir.exists() and any(run_dir.iterdir()):
             if not force:
@@ -638,7 +630,7 @@ def _save_checkpoint(run_dir: Path, state: dict[str, Any], replay: Any, save_rep
 
 def _update_meta(run_dir: Path, **fields: Any) -> None:
     path = run_dir / "meta.json"
-    meta = _read_json(path)
+    meta = read_json(path)
     meta.update(fields)
     atomic_write_json(path, meta)
 
@@ -679,7 +671,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
     from priqn.agents.replay import ReplayBuffer
     from priqn.env.vector import make_vector_env
 
-    meta = _read_json(run_dir / "meta.json")
+    meta = read_json(run_dir / "meta.json")
     seeds: dict[str, int] = meta["seeds"]
     session = len(meta["sessions"]) - 1
     if cfg.torch_threads > 0:
