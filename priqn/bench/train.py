@@ -148,8 +148,7 @@ def updates_per_second(
 
 def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[str, Any]:
     """Env decisions/s and updates/s of the real training loop (default preset)."""
-    import json
-
+    from priqn.io import read_json
     from priqn.train import resolve_config, train
 
     cfg = resolve_config(
@@ -168,7 +167,7 @@ def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
         with contextlib.redirect_stdout(io.StringIO()):  # the loop's progress lines
             run_dir = train(cfg, Path(tmp) / "run")
-        meta = json.loads((run_dir / "meta.json").read_text())
+        meta = read_json(run_dir / "meta.json")
     wall = float(meta["wall_s"])
     return {
         "agent": agent_name,
