@@ -420,15 +420,29 @@ def cvar_count(num_quantiles: int, alpha: float) -> int:
 
 ComparatorFn = Callable[[torch.Tensor, torch.Tensor, ComparatorOptions], torch.Tensor]
 
+
+def _score_mean(
+    c_BNAK: torch.Tensor, s_BN1: torch.Tensor, options: ComparatorOptions
+) -> torch.Tensor:
+    """FSD's score (for display and ties only): mean_k Z̃[k, a]. Its relations are pairwise."""
+    return c_BNAK.mean(dim=-1) / s_BN1
+
+
 COMPARATORS: dict[str, ComparatorFn] = {
     "qd": _score_qd,
     "mv": _score_mv,
     "cvar": _score_cvar,
+    "fsd": _score_mean,
 }
 """Comparator name → ``fn(Z − mean as [B, N, A, K], std [B, N, 1], options) -> [B, N, A]``.
 
-Scores are of the z-scored quantiles Z̃ = (Z − mean) / std; higher is better.
+Scores are of the z-scored quantiles Z̃ = (Z − mean) / std; higher is better. Score
+comparators relate a and b by ``score(a) − score(b) > ε``; the comparators in
+:data:`PAIRWISE` relate them by their own rule instead (their score is only shown).
 """
+
+PAIRWISE: frozenset[str] = frozenset({"fsd"})
+"""Comparators whose relation is not an ε-difference of scores (see :func:`fsd_relations`)."""
 
 
 def _comparator(name: str) -> ComparatorFn:
@@ -438,20 +452,35 @@ def _comparator(name: str) -> ComparatorFn:
         raise PriqnError(f"unknown comparator {name!r} (valid: {', '.join(COMPARATORS)})") from None
 
 
-def comparator_scores(
-    quantiles_BNKA: torch.Tensor,
-    comparator: str = "qd",
-    *,
-    mv_lambda: float = 0.5,
-    cvar_alpha: float = 0.25,
-) -> torch.Tensor:
-    """Scores ``[..., N, A]`` (higher is better) of every action for every objective.
+def _spread_floor_N1(
+    spread_floor: torch.Tensor | Sequence[float] | None, n: int, like: torch.Tensor
+) -> torch.Tensor | None:
+    """The per-objective spread floor as ``[N, 1]`` on ``like``'s device (None = none)."""
+    if spread_floor is None:
+        return None
+    floor_N = torch.as_tensor(spread_floor, dtype=like.dtype, device=like.device).reshape(-1)
+    if floor_N.numel() != n:
+        raise PriqnError(
+            f"spread_floor: expected one value per objective ({n}), got {floor_N.numel()}"
+        )
+    if not bool(torch.isfinite(floor_N).all()) or bool((floor_N < 0).any()):
+        raise PriqnError("spread_floor: expected finite values >= 0")
+    return floor_N.view(n, 1)
 
-    ``quantiles_BNKA`` is ``[..., N, K, A]``. Inputs below float32 precision
-    (float16, bfloat16) are scored in float32.
+
+def normalised(
+    quantiles_BNKA: torch.Tensor,
+    spread_floor: torch.Tensor | Sequence[float] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Centred quantiles ``Z − mean`` as ``[..., N, A, K]`` and the spread ``s`` ``[..., N, 1]``.
+
+    ``Z̃ = (Z − mean) / s``. Paper-literal (``spread_floor=None``): ``s = max(std, 1e-6)``
+    per state and objective (population std over all K·A entries). Scale-aware: ``s =
+    max(std, 1e-6, spread_floor[i])`` with a per-objective floor (e.g. from
+    :class:`RunningScale`), so differences that are tiny against the objective's typical
+    spread stay inside ε instead of being blown up by a tiny per-state std.
+    Inputs below float32 precision (float16, bfloat16) are normalised in float32.
     """
-    fn = _comparator(comparator)
-    options = ComparatorOptions(mv_lambda=float(mv_lambda), cvar_alpha=float(cvar_alpha))
     q = quantiles_BNKA
     if q.dtype not in (torch.float32, torch.float64):
         q = q.float()
@@ -464,7 +493,101 @@ def comparator_scores(
     # Two-pass population std: the norm of the centred values.
     s_BN1 = torch.linalg.vector_norm(c_BNAK.flatten(-2), dim=-1, keepdim=True)
     s_BN1 = (s_BN1 / math.sqrt(k * a)).clamp(min=MIN_STD)
+    floor_N1 = _spread_floor_N1(spread_floor, q.shape[-3] if q.ndim >= 3 else 1, q)
+    if floor_N1 is not None:
+        s_BN1 = torch.maximum(s_BN1, floor_N1)
+    return c_BNAK, s_BN1
+
+
+def comparator_scores(
+    quantiles_BNKA: torch.Tensor,
+    comparator: str = "qd",
+    *,
+    mv_lambda: float = 0.5,
+    cvar_alpha: float = 0.25,
+    spread_floor: torch.Tensor | Sequence[float] | None = None,
+) -> torch.Tensor:
+    """Scores ``[..., N, A]`` (higher is better) of every action for every objective.
+
+    ``quantiles_BNKA`` is ``[..., N, K, A]``; ``spread_floor`` selects the scale-aware
+    normalisation (see :func:`normalised`).
+    """
+    fn = _comparator(comparator)
+    options = ComparatorOptions(mv_lambda=float(mv_lambda), cvar_alpha=float(cvar_alpha))
+    c_BNAK, s_BN1 = normalised(quantiles_BNKA, spread_floor)
     return fn(c_BNAK, s_BN1, options)
+
+
+def fsd_relations(
+    c_BAK: torch.Tensor, s_B1: torch.Tensor, eps: torch.Tensor | float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """ε-first-order stochastic dominance between every pair of actions of one objective.
+
+    ``c_BAK`` are centred quantiles on the fixed grid, ``s_B1`` the spread (see
+    :func:`normalised`), so ``Z̃ = c / s``. With ``d_k = Z̃[k, a] − Z̃[k, b]``:
+
+        dom[a, b]  ⇔  min_k d_k ≥ −ε   and   mean_k d_k > ε
+
+    "no quantile of a is worse than b's by more than ε, and a is better by more than ε
+    on average". ``domby`` is ``domᵀ``. ``dom[a, b]`` implies mean Z̃(a) > mean Z̃(b) + ε,
+    so the relation is a sub-relation of the strict ε-order of the means (acyclic, and
+    never both ways). Pairs whose quantile functions cross by more than ε are left
+    incomparable — the distributional information QD throws away (docs/preorder.md).
+    """
+    z_BAK = c_BAK / s_B1.unsqueeze(-1)
+    d_BAAK = z_BAK.unsqueeze(2) - z_BAK.unsqueeze(1)  # [B, a, b, K]
+    mean_BAA = d_BAAK.mean(dim=-1)
+    worst_BAA = d_BAAK.amin(dim=-1)
+    dom_BAA = (mean_BAA > eps) & (worst_BAA >= -eps)
+    return dom_BAA, dom_BAA.transpose(-1, -2)
+
+
+class RunningScale:
+    """Per-objective running scale of the return spread, for the scale-aware normalisation.
+
+    ``update(quantiles_BNKA)`` folds in a batch: the per-state population std over the
+    K·A entries, averaged over the batch, enters an exponential moving average with
+    weight ``momentum`` (the first batch sets it). ``floor()`` is ``fraction × scale``
+    ``[N]``, the spread floor :func:`optimal_subsets` takes as ``spread_floor``. Until
+    the first update the floor is 0 (= the paper-literal normalisation). Deterministic;
+    ``state_dict`` / ``load_state_dict`` let checkpoints carry it.
+    """
+
+    def __init__(self, num_objectives: int, momentum: float = 0.01, fraction: float = 1.0) -> None:
+        if not 0.0 < momentum <= 1.0:
+            raise PriqnError(f"scale momentum: expected a number in (0, 1], got {momentum!r}")
+        if not fraction >= 0.0:
+            raise PriqnError(f"scale fraction: expected a number >= 0, got {fraction!r}")
+        self.momentum = float(momentum)
+        self.fraction = float(fraction)
+        self.scale_N = torch.zeros(int(num_objectives), dtype=torch.float64)
+        self.count = 0
+
+    @torch.no_grad()
+    def update(self, quantiles_BNKA: torch.Tensor) -> None:
+        q = quantiles_BNKA.detach().to(torch.float64)
+        std_BN = torch.std(q.flatten(-2), dim=-1, correction=0)
+        batch_N = std_BN.reshape(-1, std_BN.shape[-1]).mean(dim=0).cpu()
+        if batch_N.numel() != self.scale_N.numel():
+            raise PriqnError(
+                f"running scale: expected {self.scale_N.numel()} objectives, got {batch_N.numel()}"
+            )
+        if self.count == 0:
+            self.scale_N = batch_N
+        else:
+            self.scale_N = (1.0 - self.momentum) * self.scale_N + self.momentum * batch_N
+        self.count += 1
+
+    def floor(self) -> torch.Tensor:
+        """``fraction × running scale`` ``[N]`` (float64, CPU)."""
+        return self.fraction * self.scale_N
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"scale": self.scale_N.tolist(), "count": self.count}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        self.scale_N = torch.tensor(state["scale"], dtype=torch.float64)
+        self.count = int(state["count"])
 
 
 # ============================================================================ Algorithm 1
@@ -490,6 +613,13 @@ class OptimalSubsets:
                 f"unknown objective {objective!r} (valid: {', '.join(self.objectives)})"
             )
         return self.per_objective[..., self.objectives.index(objective), :]
+
+    def sizes(self) -> dict[str, float]:
+        """Mean optimal-subset size |S_r| over the batch per objective, and of the leaf."""
+        per_N = self.per_objective.float().sum(dim=-1).reshape(-1, len(self.objectives))
+        out = dict(zip(self.objectives, per_N.mean(dim=0).tolist(), strict=True))
+        out["leaf"] = float(self.leaf.float().sum(dim=-1).mean())
+        return out
 
 
 def _eps_tensor(
@@ -615,6 +745,7 @@ def optimal_subsets(
     cvar_alpha: float = 0.25,
     select_rule: str = "top-scc",
     check_finite: bool = True,
+    spread_floor: torch.Tensor | Sequence[float] | None = None,
 ) -> OptimalSubsets:
     """Algorithm 1 for a batch: quantiles ``[B, N, K, A]`` → optimal subsets.
 
@@ -624,7 +755,10 @@ def optimal_subsets(
     ``mv_lambda`` / ``cvar_alpha`` are read by the ``mv`` / ``cvar`` comparators only.
     ``select_rule`` is ``"top-scc"`` (DESIGN.md §3, never empty) or ``"plain"``
     (Alg. 1 line 23 literally; can be empty in deep DAGs). ``check_finite`` rejects
-    NaN/inf quantiles (one device sync).
+    NaN/inf quantiles (one device sync). ``spread_floor`` (``[N]``, e.g.
+    :meth:`RunningScale.floor`) selects the scale-aware normalisation; None is the
+    paper's per-state z-score. ``comparator="fsd"`` relates actions by ε-first-order
+    stochastic dominance (:func:`fsd_relations`) instead of a score difference.
 
     Python loops run only over the N objectives (and the log2 A closure squarings).
     """
@@ -638,6 +772,7 @@ def optimal_subsets(
         select_rule=select_rule,
         check_finite=check_finite,
         dense_only=False,
+        spread_floor=spread_floor,
     )
 
 
@@ -725,6 +860,7 @@ def _optimal_subsets(
     select_rule: str,
     check_finite: bool,
     dense_only: bool,
+    spread_floor: torch.Tensor | Sequence[float] | None = None,
 ) -> OptimalSubsets:
     if not isinstance(po, Preorder):
         po = Preorder.resolve(po)
@@ -735,7 +871,14 @@ def _optimal_subsets(
     q_BNKA = quantiles.unsqueeze(0) if single else quantiles
     device = q_BNKA.device
 
-    scores_BNA = comparator_scores(q_BNKA, comparator, mv_lambda=mv_lambda, cvar_alpha=cvar_alpha)
+    fn = _comparator(comparator)
+    options = ComparatorOptions(mv_lambda=float(mv_lambda), cvar_alpha=float(cvar_alpha))
+    c_BNAK, s_BN1 = normalised(q_BNKA, spread_floor)
+    scores_BNA = fn(c_BNAK, s_BN1, options)
+    pairwise = comparator in PAIRWISE
+    # The shortcuts of _plan assume ε-score relations; pairwise comparators take the
+    # dense path (relation matrices everywhere, top-SCC select).
+    dense_only = dense_only or pairwise
     # NaN/inf anywhere in a (state, objective) block makes its mean, std and so every
     # score of the block non-finite: checking the small score tensor suffices.
     if check_finite and not bool(torch.isfinite(scores_BNA).all()):
@@ -754,7 +897,10 @@ def _optimal_subsets(
     # Local relations of the comparator (Eq. 5 with ε), only where matrices are needed.
     local: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
     rel_idx = [r for r in range(n) if needs[r]]
-    if rel_idx:
+    if rel_idx and pairwise:
+        for r in rel_idx:
+            local[r] = fsd_relations(c_BNAK[:, r], s_BN1[:, r], eps_N[r])
+    elif rel_idx:
         s_BRA = scores_BNA[:, rel_idx]
         diff_BRAA = s_BRA.unsqueeze(-1) - s_BRA.unsqueeze(-2)  # score(a) − score(b)
         eps_R11 = eps_N[rel_idx].view(-1, 1, 1)

@@ -17,8 +17,10 @@ from priqn.objectives import OBJECTIVES
 from priqn.preorder import (
     COMPARATORS,
     Preorder,
+    RunningScale,
     _optimal_subsets,
     comparator_scores,
+    fsd_relations,
     optimal_subsets,
     quantile_grid,
     select,
@@ -162,6 +164,8 @@ def test_scores_match_literal_definitions(comparator):
         expected = -(z - ideal).abs().mean(dim=-2)
     elif comparator == "mv":
         expected = z.mean(dim=-2) - 0.7 * z.std(dim=-2, correction=0)
+    elif comparator == "fsd":  # shown score only: the mean (relations are pairwise)
+        expected = z.mean(dim=-2)
     else:  # K = 8, alpha = 0.3: tau = 0.0625, 0.1875 (<= 0.3), 0.3125 (> 0.3) -> 2 quantiles
         expected = z[..., :2, :].mean(dim=-2)
     got = comparator_scores(q, comparator, mv_lambda=0.7, cvar_alpha=0.3)
@@ -351,7 +355,7 @@ def test_input_errors():
         optimal_subsets(torch.zeros(5, 4), po)
     with pytest.raises(PriqnError, match=r"float tensor"):
         optimal_subsets(torch.zeros(2, 5, 4, 3, dtype=torch.int64), po)
-    with pytest.raises(PriqnError, match=r"unknown comparator 'wd' \(valid: qd, mv, cvar\)"):
+    with pytest.raises(PriqnError, match=r"unknown comparator 'wd' \(valid: qd, mv, cvar, fsd\)"):
         optimal_subsets(q, po, comparator="wd")
     with pytest.raises(PriqnError, match=r"eps\[risk\]: expected a number >= 0"):
         optimal_subsets(q, po, eps=[0.2, -0.1, 0.2, 0.2, 0.2])
@@ -396,11 +400,112 @@ def test_cuda_matches_cpu():
     assert torch.equal(cpu.leaf, gpu.leaf.cpu())
 
 
+# ============================================================================ fsd, scale-aware normalisation
+
+
+def _one_objective(values_AK):
+    """Quantiles [N=1, K, A] from per-action quantile lists."""
+    return torch.tensor(values_AK, dtype=torch.float64).T.unsqueeze(0)
+
+
+def test_fsd_keeps_a_better_tail_that_qd_prunes():
+    po = Preorder(["progress"])
+    # a: mean 2.00, lower tail -1; b: mean 1.75 (slightly lower), lower tail +1 (much better).
+    # All 8 entries: mean 1.875, population std sqrt(21.375 / 8) = 1.6346.
+    # QD/mean difference a - b = 0.25 / 1.6346 = 0.153 > eps = 0.1: qd prunes b.
+    # FSD: d_k = (a_k - b_k) / 1.6346 = [-1.22, -0.31, 0.61, 1.53]; min -1.22 < -0.1, so a
+    # does not dominate b (and mean(b - a) = -0.153 < 0.1): incomparable, both survive.
+    q = _one_objective([[-1.0, 1.0, 3.0, 5.0], [1.0, 1.5, 2.0, 2.5]])
+    assert members(optimal_subsets(q, po, "qd", 0.1).leaf) == {0}
+    assert members(optimal_subsets(q, po, "fsd", 0.1).leaf) == {0, 1}
+
+
+def test_worse_at_every_quantile_by_a_margin_is_pruned_by_both():
+    po = Preorder(["progress"])
+    # c = a - 1 everywhere. Entries [0,1,2,3,-1,0,1,2]: mean 1, std sqrt(12/8) = 1.2247, so
+    # d_k = 1 / 1.2247 = 0.8165 at every k: min 0.8165 >= -0.2 and mean 0.8165 > 0.2.
+    q = _one_objective([[0.0, 1.0, 2.0, 3.0], [-1.0, 0.0, 1.0, 2.0]])
+    for comparator in ("qd", "fsd"):
+        assert members(optimal_subsets(q, po, comparator, 0.2).leaf) == {0}
+
+
+def test_fsd_relations_hand_values():
+    c = torch.tensor([[[-2.875, -0.875, 1.125, 3.125], [-0.875, -0.375, 0.125, 0.625]]])
+    dom, domby = fsd_relations(c, torch.tensor([[1.0]]), 0.2)
+    # a vs b: d = [-2, -0.5, 1, 2.5]: mean 0.25 > 0.2 but min -2 < -0.2 -> no dominance.
+    assert not dom.any() and not domby.any()
+    dom, _ = fsd_relations(c, torch.tensor([[1.0]]), 2.0)  # min -2 >= -2, mean 0.25 <= 2
+    assert not dom.any()
+    c2 = torch.tensor([[[1.0, 2.0], [0.0, 0.5]]])  # d = [1, 1.5]: min 1, mean 1.25
+    dom, domby = fsd_relations(c2, torch.tensor([[1.0]]), 1.0)
+    assert dom.tolist() == [[[False, True], [False, False]]] and torch.equal(domby, dom.mT)
+
+
+def test_scale_aware_normalisation_lets_tiny_safety_noise_pass():
+    po = Preorder.chain(["safety", "progress"])
+    a = 25
+    q = torch.zeros(2, 4, a, dtype=torch.float64)
+    q[0, :, 2:] = -1e-4  # safety: two actions 1e-4 better than the other 23 (on a -10 scale)
+    q[1, :, :] = torch.arange(a, dtype=torch.float64) * 0.01
+    q[1, :, a - 1] = 5.0  # progress: the last action is better by 5
+    literal = optimal_subsets(q, po, "qd", 0.2)
+    assert members(literal.subset("safety")) == {0, 1}  # the per-state z-score blows 1e-4 up
+    assert members(literal.leaf) == {0, 1}  # the action better by 5 on progress is gone
+    floor = torch.tensor([2.0, 1.0])  # typical spreads of the two objectives
+    for comparator in COMPARATORS:
+        scaled = optimal_subsets(q, po, comparator, 0.2, spread_floor=floor)
+        assert scaled.subset("safety").all(), comparator  # 1e-4 / 2 is inside eps
+        assert members(scaled.leaf) == {a - 1}, comparator
+    with pytest.raises(PriqnError, match=r"spread_floor: expected one value per objective"):
+        optimal_subsets(q, po, "qd", 0.2, spread_floor=[1.0])
+
+
+def test_running_scale_is_an_ema_of_the_per_state_spread():
+    scale = RunningScale(2, momentum=0.25, fraction=0.5)
+    assert scale.floor().tolist() == [0.0, 0.0]  # no data yet: the paper-literal setting
+    q = torch.zeros(2, 2, 1, 2, dtype=torch.float64)  # [B, N, K, A]
+    q[0, 0, 0] = torch.tensor([-1.0, 1.0])  # std 1
+    q[1, 0, 0] = torch.tensor([-3.0, 3.0])  # std 3 -> batch mean 2
+    q[:, 1, 0] = torch.tensor([0.0, 8.0])  # std 4
+    scale.update(q)
+    assert scale.scale_N.tolist() == [2.0, 4.0] and scale.floor().tolist() == [1.0, 2.0]
+    scale.update(q * 3)  # batch spreads 6 and 12: 0.75 * old + 0.25 * new
+    assert scale.scale_N.tolist() == [3.0, 6.0]
+    restored = RunningScale(2, momentum=0.25, fraction=0.5)
+    restored.load_state_dict(scale.state_dict())
+    assert restored.scale_N.tolist() == [3.0, 6.0] and restored.count == 2
+
+
+def test_subset_sizes():
+    po = Preorder.chain(["safety", "progress"])
+    q = torch.zeros(2, 2, 1, 3)
+    q[0, 0, 0] = torch.tensor([1.0, 1.0, 0.0])  # state 0: safety keeps {0, 1}
+    q[0, 1, 0] = torch.tensor([0.0, 1.0, 0.0])  # then progress keeps {1}
+    sizes = optimal_subsets(q, po, "qd", 0.1).sizes()
+    # state 1 is all-equal: 3 and 3 -> means (2 + 3) / 2 and (1 + 3) / 2
+    assert sizes == {"safety": 2.5, "progress": 2.0, "leaf": 2.0}
+
+
 # ============================================================================ properties
 
 
-def reference(scores_NA: list[list[float]], po: Preorder, eps: list[float]):
-    """Algorithm 1 on Python sets for one state: (subsets per objective, leaf)."""
+def fsd_pairs(z_KA: list[list[float]], eps: float) -> set[tuple[int, int]]:
+    """ε-FSD on Python lists: a dominates b iff min_k d_k >= -ε and mean_k d_k > ε."""
+    k_count, a_count = len(z_KA), len(z_KA[0])
+    pairs = set()
+    for a in range(a_count):
+        for b in range(a_count):
+            d = [z_KA[k][a] - z_KA[k][b] for k in range(k_count)]
+            if min(d) >= -eps and sum(d) / k_count > eps:
+                pairs.add((a, b))
+    return pairs
+
+
+def reference(scores_NA: list[list[float]], po: Preorder, eps: list[float], local_pairs=None):
+    """Algorithm 1 on Python sets for one state: (subsets per objective, leaf).
+
+    ``local_pairs[i]`` (optional) replaces objective i's ε-score relation (pairwise
+    comparators such as fsd)."""
     a_count = len(scores_NA[0])
     actions = range(a_count)
 
@@ -425,7 +530,10 @@ def reference(scores_NA: list[list[float]], po: Preorder, eps: list[float]):
     for r in po.topological_order():
         i = po.index(r)
         s = scores_NA[i]
-        local = {(a, b) for a in actions for b in actions if s[a] - s[b] > eps[i]}
+        if local_pairs is not None:
+            local = local_pairs[i]
+        else:
+            local = {(a, b) for a in actions for b in actions if s[a] - s[b] > eps[i]}
         parents = po.parents(r)
         up: set[tuple[int, int]] = set().union(*(dom[p] for p in parents)) if parents else set()
         if not parents:
@@ -468,7 +576,7 @@ def problems(draw, preorders=None):
         values = rng.normal(size=(b, len(po), k, a)) * rng.uniform(0.1, 5)
     eps_value = st.one_of(st.sampled_from([0.0, math.inf]), st.floats(0.0, 3.0))
     eps = draw(st.one_of(eps_value, st.lists(eps_value, min_size=len(po), max_size=len(po))))
-    comparator = draw(st.sampled_from(["qd", "mv", "cvar"]))
+    comparator = draw(st.sampled_from(["qd", "mv", "cvar", "fsd"]))
     return po, torch.from_numpy(values), eps, comparator
 
 
@@ -487,7 +595,11 @@ def test_property_nonempty_and_matches_set_reference(problem):
     assert out.per_objective.any(-1).all() and out.leaf.any(-1).all()
     eps_list = [eps] * len(po) if isinstance(eps, float) else eps
     for b in range(q.shape[0]):
-        subsets, leaf = reference(out.scores[b].tolist(), po, eps_list)
+        local = None
+        if comparator == "fsd":
+            z = zscore(q[b : b + 1])[0]  # [N, K, A]
+            local = [fsd_pairs(z[i].tolist(), eps_list[i]) for i in range(len(po))]
+        subsets, leaf = reference(out.scores[b].tolist(), po, eps_list, local)
         assert [members(s) for s in out.per_objective[b]] == subsets
         assert members(out.leaf[b]) == leaf
     # The O(A) threshold shortcut for tree objectives changes nothing.
