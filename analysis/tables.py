@@ -36,8 +36,14 @@ AGENT_DISPLAY: dict[str, str] = {
     "ma-iqn": "MA-IQN",
     "pr-iqn": "Pr-IQN",
 }
-COMPARATOR_ORDER: tuple[str, ...] = ("mv", "cvar", "qd")
-COMPARATOR_DISPLAY: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "mean": "Mean"}
+COMPARATOR_ORDER: tuple[str, ...] = ("mv", "cvar", "qd", "fsd")
+COMPARATOR_DISPLAY: dict[str, str] = {
+    "qd": "QD",
+    "mv": "MV",
+    "cvar": "CVaR",
+    "fsd": "FSD",
+    "mean": "Mean",
+}
 PREORDER_AGENTS: frozenset[str] = frozenset({"pr-iqn"})
 """Agents for which comparator / training preorder / eps / partial order apply."""
 

@@ -34,7 +34,7 @@ import numpy as np
 from priqn.config import apply_overrides, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text, read_json
-from priqn.objectives import OBJECTIVES
+from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 
 LABEL_KEYS: tuple[str, ...] = (
     "agent",
@@ -62,6 +62,7 @@ EPISODE_COLUMNS: tuple[str, ...] = (
     "route_progress",
     "steps",
     *(f"return_{name}" for name in OBJECTIVES),
+    *SUBSET_COLUMNS,
     "holdout_hash",
     # Beyond the contract's list: the scene's identity, so "same scenes" can be checked.
     "episode",
@@ -267,7 +268,10 @@ def run_scenes(
     not depend on the number of workers. ``on_episode(scene, values)`` is called
     with the episode's values as each episode finishes.
     """
+    from priqn.agents.policy import SubsetSizeMeans
+
     num_envs = int(vec_env.num_envs)
+    sizes = SubsetSizeMeans(num_envs, getattr(policy, "subset_size_names", ()))
     queue = list(scenes)
     slot: list[Scene | None] = [None] * num_envs
     rngs: list[np.random.Generator | None] = [None] * num_envs
@@ -299,11 +303,14 @@ def run_scenes(
         for i, scene in enumerate(slot):
             if scene is not None:
                 actions[i] = int(np.asarray(policy.act(_select(obs, i), rngs[i])).reshape(-1)[0])
+                sizes.add(getattr(policy, "last_subset_sizes", None), rows=i)
         obs, _, terminated, truncated, infos = vec_env.step(actions)
         for i in range(num_envs):
             if slot[i] is None or not (terminated[i] or truncated[i]):
                 continue
-            on_episode(slot[i], _episode_values(_info_row(infos, i)))
+            values = _episode_values(_info_row(infos, i))
+            values.update(sizes.pop(i))
+            on_episode(slot[i], values)
             if progress is not None:
                 progress.update(1)
             assign(i)

@@ -107,13 +107,17 @@ class PolicySpec:
     """Pr-IQN: comparison threshold epsilon."""
     preorder: str | None = None
     """Pr-IQN: objective preorder, ``total`` | ``partial`` or a preorder TOML file."""
+    normalisation: str | None = None
+    """Pr-IQN: quantile normalisation, ``zscore`` (the paper) | ``scaled`` (docs/preorder.md)."""
     set: tuple[str, ...] = ()
     """Further TrainConfig overrides ``KEY=VALUE`` for this row (after the experiment's)."""
 
 
-_PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder")
-COMPARATORS = ("qd", "mv", "cvar")
+_PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
+COMPARATORS = ("qd", "mv", "cvar", "fsd")
 """Comparison metrics of Table II (``priqn.preorder.COMPARATORS``; a test keeps them equal)."""
+NORMALISATIONS = ("zscore", "scaled")
+"""Quantile normalisations (``priqn.agents.config.NORMALISATIONS``)."""
 PREORDERS = ("total", "partial")
 """Preorder presets (``priqn.preorder.PRESETS``; a test keeps them equal)."""
 
@@ -124,6 +128,7 @@ _TRAIN_KEYS = {
     "train_preorder": "agent.train_preorder",
     "eps": "agent.eps",
     "preorder": "agent.preorder",
+    "normalisation": "agent.normalisation",
 }
 
 
@@ -222,7 +227,11 @@ def load_experiment(
                     raise PriqnError(
                         f"{where}.{opt}: applies only to agent 'pr-iqn', not {pol.agent!r}"
                     )
-        for opt, valid in (("comparator", COMPARATORS), ("preorder", PREORDERS)):
+        for opt, valid in (
+            ("comparator", COMPARATORS),
+            ("preorder", PREORDERS),
+            ("normalisation", NORMALISATIONS),
+        ):
             value = getattr(pol, opt)
             custom_preorder = opt == "preorder" and str(value).endswith(".toml")
             if value is not None and value not in valid and not custom_preorder:

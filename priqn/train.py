@@ -36,11 +36,12 @@ from typing import Any
 import numpy as np
 
 from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
+from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json, atomic_write_text, read_json
-from priqn.objectives import OBJECTIVES
+from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 PRESETS: tuple[str, ...] = ("default", "paper")
@@ -146,6 +147,31 @@ class TrainConfig:
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
+        if self.agent.reward_weights is None:  # the scheme, for this run's episodes
+            weights = scheme_weights(
+                self.agent.reward_scheme,
+                self.safety_penalty,
+                self.env.max_episode_steps,
+                self.learner.gamma,
+            )
+            object.__setattr__(
+                self, "agent", dataclasses.replace(self.agent, reward_weights=weights)
+            )
+
+    @property
+    def safety_penalty(self) -> float:
+        """The smaller one-off safety penalty (collision or off-road) [-]."""
+        return min(self.env.reward.collision_penalty, self.env.reward.off_road_penalty)
+
+    @property
+    def crash_margin(self) -> float:
+        """Safety event cost over the worst accumulable lower-level penalty (> 1: crashing never pays)."""
+        return crash_margin(
+            self.agent.reward_weights,
+            self.safety_penalty,
+            self.env.max_episode_steps,
+            self.learner.gamma,
+        )
 
 
 def _deep_merge(base: dict[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
@@ -291,6 +317,8 @@ def policy_labels(cfg: TrainConfig) -> dict[str, Any]:
     labels = make_agent(cfg.agent.name, cfg.agent).labels
     labels["train_seed"] = cfg.seed
     labels["label"] = _label(labels)
+    if labels["agent"] == "pr-iqn" and cfg.agent.normalisation != "zscore":
+        labels["label"] += f" {cfg.agent.normalisation}"  # our scale-aware rows
     return labels
 
 
@@ -321,6 +349,8 @@ def default_run_name(cfg: TrainConfig) -> str:
             parts.append("notrain")
         if cfg.agent.preorder != "total":
             parts.append(Path(cfg.agent.preorder).stem)
+        if cfg.agent.normalisation != "zscore":
+            parts.append(cfg.agent.normalisation)
     parts.append(f"s{cfg.seed}")
     return "_".join(parts)
 
@@ -426,6 +456,7 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "timeout",
     "route_progress",
     "density_realised",
+    *SUBSET_COLUMNS,
     "net",
     "command",
 )
@@ -666,7 +697,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
     from tqdm import tqdm
 
     from priqn.agents.learner import Learner
-    from priqn.agents.policy import Policy
+    from priqn.agents.policy import Policy, SubsetSizeMeans
     from priqn.agents.registry import make_agent
     from priqn.agents.replay import ReplayBuffer
     from priqn.env.vector import make_vector_env
@@ -707,6 +738,8 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             replay_bytes_total=replay.nbytes(),
             device=str(device),
             num_params=sum(p.numel() for p in learner.online.parameters()),
+            reward_weights=list(cfg.agent.reward_weights),
+            crash_margin=round(cfg.crash_margin, 4),
         )
 
         ckpt_dir, latest = _checkpoint_paths(run_dir)
@@ -732,7 +765,9 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
 
         # --- the loop ------------------------------------------------------------------
         recent = deque(maxlen=100)
-        last_loss, last_q = math.nan, math.nan
+        last_loss = math.nan
+        last_stats: dict[str, float] = {}
+        subset_sizes = SubsetSizeMeans(E, policy.subset_size_names)
         t0 = time.perf_counter()
         t_rate, upd_rate_at, upd_per_s = t0, learner.updates, 0.0
         next_log = step + cfg.log_interval_steps
@@ -751,6 +786,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             # 1. act: agent's acting rule, ε-greedy on top
             epsilon = linear_epsilon(cfg.exploration, step, cfg.total_steps)
             actions = policy.act(obs, rng_act)
+            subset_sizes.add(policy.last_subset_sizes)
             explore = rng_act.random(E) < epsilon
             actions = np.where(explore, rng_act.integers(num_actions, size=E), actions)
 
@@ -770,13 +806,15 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                 due = (step - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
                 while learner.updates < due:
                     stats = learner.update(replay.sample(cfg.learner.batch_size, rng_replay))
-                    last_loss, last_q = stats["loss"], stats["q_mean"]
+                    last_loss = stats["loss"]
+                    last_stats = stats
 
             # 5. episode stats
             wall = wall_before + time.perf_counter() - t0
             for e in np.flatnonzero(ended):
                 episodes += 1
                 row = _episode_row("train", infos["final_info"], int(e), weights)
+                row.update(subset_sizes.pop(int(e)))
                 row.update(
                     step=step,
                     episode=episodes,
@@ -792,6 +830,9 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                 writer.add_scalar("episode/collision", row["collision"], step)
                 for o in OBJECTIVES:
                     writer.add_scalar(f"episode/return_{o}", row[f"return_{o}"], step)
+                for key in SUBSET_COLUMNS:  # acting optimal-subset sizes (preorder agents)
+                    if key in row:
+                        writer.add_scalar(f"episode/{key}", row[key], step)
 
             # 6. progress, logs, evaluation, checkpoint
             now = time.perf_counter()
@@ -808,9 +849,8 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                     print(f"{run_dir.name} step {step}/{cfg.total_steps} {line}", flush=True)
                 writer.add_scalar("train/epsilon", epsilon, step)
                 writer.add_scalar("train/updates_per_s", upd_per_s, step)
-                if not math.isnan(last_loss):
-                    writer.add_scalar("train/loss", last_loss, step)
-                    writer.add_scalar("train/q_mean", last_q, step)
+                for key, value in last_stats.items():  # loss, q_mean, target subset sizes
+                    writer.add_scalar(f"train/{key}", value, step)
                 _write_metrics(run_dir / "metrics.csv", metrics)
             if cfg.evaluation.interval_steps > 0 and step >= next_eval:
                 next_eval = _next_multiple(step, cfg.evaluation.interval_steps)
@@ -925,6 +965,7 @@ def load_policy(run_dir: str | Path, device: str = "cpu") -> Any:
     network = build_network(cfg, space, num_actions, seed=0)
     network.load_state_dict(state["learner"]["online"])
     network.eval()
+    agent.load_state_dict(state["learner"].get("agent", {}))  # the running scale, if any
     labels = policy_labels(cfg)
     return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
 

@@ -91,7 +91,11 @@ def test_pr_iqn_acts_only_inside_the_leaf_set():
 def test_baseline_acting_rules_by_hand():
     q = flat([[1, 0, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0] * 6, [0] * 6])
     u = torch.zeros(1)
-    assert make_agent("ma-iqn").act(q, u).item() == 1  # sum: 1.2 > 1
+    # MA-IQN acts on the IQN scheme's weighted sum of head means (hln-2 by default):
+    # action 0: 1 * w_safety = 1; action 1: 0.6 * (w_risk + w_lane) = 0.6 * 0.0728 = 0.044.
+    assert make_agent("ma-iqn").act(q, u).item() == 0
+    # With equal weights it is the plain sum: 1.2 > 1.
+    assert make_agent("ma-iqn", AgentConfig(reward_weights=(1.0,) * 5)).act(q, u).item() == 1
     assert make_agent("ensemble-iqn").act(q, u).item() == 1  # mean over heads
     assert make_agent("iqn").act(q[:, :1], u).item() == 0
 
@@ -234,6 +238,33 @@ def test_learner_fits_a_fixed_batch(name):
     policy = Policy(learner.online, agent, 8)
     acts = policy.act(random_obs(rng, 5), np.random.default_rng(0))
     assert acts.dtype == np.int64 and acts.shape == (5,) and acts.max() < A
+
+
+def test_scaled_normalisation_learns_its_scale_and_logs_subset_sizes():
+    agent = make_agent("pr-iqn", AgentConfig(normalisation="scaled", scale_momentum=0.5))
+    cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
+    learner = Learner(small_net(agent.num_heads), agent, cfg, torch.device("cpu"), tau_seed=0)
+    rng = np.random.default_rng(0)
+    batch = {
+        "obs": random_obs(rng, 6),
+        "next_obs": random_obs(rng, 6),
+        "action": rng.integers(0, A, 6),
+        "reward": rng.normal(size=(6, 5)).astype(np.float32),
+        "discount": np.full(6, 0.9, dtype=np.float32),
+    }
+    assert agent.subsets.scale.count == 0
+    stats = learner.update(batch)
+    assert agent.subsets.scale.count == 1 and (agent.subsets.scale.floor() > 0).all()
+    keys = {f"subset_size/{o}" for o in OBJECTIVES} | {"subset_size/leaf"}
+    assert keys <= set(stats) and all(1 <= stats[k] <= A for k in keys)
+    # The scale is part of the learner's state (checkpoints, load_policy).
+    state = learner.state_dict()
+    other = make_agent("pr-iqn", AgentConfig(normalisation="scaled"))
+    Learner(small_net(other.num_heads), other, cfg, torch.device("cpu"), 0).load_state_dict(state)
+    assert other.subsets.scale.scale_N.tolist() == agent.subsets.scale.scale_N.tolist()
+    # Paper-literal agents have no scale and the same stats keys.
+    plain = make_agent("pr-iqn")
+    assert plain.subsets.scale is None and plain.state_dict() == {}
 
 
 def test_learner_state_roundtrip_continues_identically():

@@ -6,6 +6,9 @@ import dataclasses
 
 from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
 
+NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
+"""Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class AgentConfig:
@@ -14,20 +17,28 @@ class AgentConfig:
     name: str = "pr-iqn"
     """Agent: iqn, ensemble-iqn, ma-iqn or pr-iqn."""
     comparator: str = "qd"
-    """Pr-IQN comparator for one objective: qd (quantile dominance), mv (mean-variance) or cvar."""
+    """Pr-IQN comparator for one objective: qd (quantile dominance, the paper), mv (mean-variance), cvar, or fsd (ε-first-order stochastic dominance)."""
+    normalisation: str = "zscore"
+    """Pr-IQN quantile normalisation: zscore (the paper: per-state spread) or scaled (spread floored by a per-objective running scale; docs/preorder.md)."""
+    scale_fraction: float = 1.0
+    """Scaled normalisation: spread floor = this fraction of the objective's running typical spread [-]."""
+    scale_momentum: float = 0.01
+    """Scaled normalisation: weight of each learner batch in the running spread average [-]."""
     eps: float | tuple[float, ...] = 0.2
     """Pr-IQN tolerance ε: one number for all objectives or one per objective (OBJECTIVES order)."""
     preorder: str = "total"
     """Pr-IQN preorder: 'total' (chain safety>risk>lane>progress>comfort), 'partial', or a TOML file."""
     train_preorder: bool = True
     """Pr-IQN Eq. 6: head h bootstraps from argmax over its optimal subset S_h (off: all actions)."""
-    reward_weights: tuple[float, ...] = (1.0, 0.5, 0.25, 0.125, 0.0625)
-    """IQN / Ensemble scalar reward Σ w_i r_i, OBJECTIVES order; default halves per hierarchy level."""
+    reward_scheme: str = "hln-2"
+    """Weighted-sum scheme of IQN / Ensemble / MA-IQN: hln-2, hln-4 or halving (priqn.agents.scalarise; docs/implementation-details.md)."""
+    reward_weights: tuple[float, ...] | None = None
+    """Explicit weights Σ w_i r_i in OBJECTIVES order, overriding reward_scheme (unset = the scheme's, resolved for the run's episode length, discount and safety penalty)."""
     ensemble_heads: int = 5
     """Heads of ensemble-iqn (the paper matches the number of objectives)."""
 
     def __post_init__(self) -> None:
-        if len(self.reward_weights) != NUM_OBJECTIVES:
+        if self.reward_weights is not None and len(self.reward_weights) != NUM_OBJECTIVES:
             raise ValueError(
                 f"reward_weights: expected {NUM_OBJECTIVES} numbers ({', '.join(OBJECTIVES)})"
             )
@@ -38,6 +49,12 @@ class AgentConfig:
                 raise ValueError("eps: expected non-negative tolerances")
         elif self.eps < 0:
             raise ValueError("eps: expected a non-negative tolerance")
+        if self.normalisation not in NORMALISATIONS:
+            raise ValueError(
+                f"normalisation: unknown {self.normalisation!r} (valid: {', '.join(NORMALISATIONS)})"
+            )
+        if not self.scale_fraction >= 0 or not 0 < self.scale_momentum <= 1:
+            raise ValueError("scale_fraction >= 0 and scale_momentum in (0, 1] expected")
         if self.ensemble_heads < 1:
             raise ValueError("ensemble_heads: expected a positive integer")
 

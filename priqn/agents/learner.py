@@ -74,6 +74,9 @@ class Learner:
             taus_next = torch.cat([taus_prime_BNp, self.grid_K.expand(B, K)], dim=1)
             next_BHTA = self.target(next_obs, taus_next)
             next_BHNpA, next_grid_BHKA = next_BHTA[:, :, :Np], next_BHTA[:, :, Np:]
+            subsets = self.agent.subsets
+            if subsets is not None:
+                subsets.observe(next_grid_BHKA)  # running scale (scaled normalisation)
             next_action_BH = self.agent.target_actions(next_grid_BHKA)
             index = next_action_BH[:, :, None, None].expand(B, H, Np, 1)
             next_BHNp = next_BHNpA.gather(3, index).squeeze(3)
@@ -97,7 +100,12 @@ class Learner:
         self.updates += 1
         if self.updates % cfg.target_update_interval == 0:
             self.sync_target()
-        return {"loss": float(loss.detach()), "q_mean": float(pred_BHN.detach().mean())}
+        stats = {"loss": float(loss.detach()), "q_mean": float(pred_BHN.detach().mean())}
+        if subsets is not None and subsets.last is not None:
+            # How much each preorder level pruned the target batch (mean |S_r|).
+            sizes = subsets.last.sizes() if self.agent.spec.target_rule == "optimal-subset" else {}
+            stats.update({f"subset_size/{k}": v for k, v in sizes.items()})
+        return stats
 
     def sync_target(self) -> None:
         """Hard copy online → target."""
@@ -110,6 +118,7 @@ class Learner:
             "optimizer": self.optimizer.state_dict(),
             "updates": self.updates,
             "tau_generator": self.tau_generator.get_state(),
+            "agent": self.agent.state_dict(),
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -118,3 +127,4 @@ class Learner:
         self.optimizer.load_state_dict(state["optimizer"])
         self.updates = int(state["updates"])
         self.tau_generator.set_state(state["tau_generator"])
+        self.agent.load_state_dict(state.get("agent", {}))

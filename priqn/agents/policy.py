@@ -37,6 +37,12 @@ class Policy:
         self.grid_K = tau_grid(num_quantiles, self.device)
         self.env_config = env_config
         self.labels = dict(labels or {})
+        self.last_subset_sizes: np.ndarray | None = None
+        """float ``[B, N + 1]`` after :meth:`act` of a preorder agent: |S_r| per objective
+        and of the leaf for each state (None for agents without a preorder)."""
+        names = () if agent.subsets is None else agent.subsets.preorder.objectives
+        self.subset_size_names: tuple[str, ...] = tuple(names) + (("leaf",) if names else ())
+        """Column names of ``last_subset_sizes``."""
 
     @torch.no_grad()
     def quantiles(self, obs_batch: Mapping[str, np.ndarray]) -> torch.Tensor:
@@ -50,4 +56,43 @@ class Policy:
         """Greedy actions ``int64 [B]`` for a batch of observations."""
         q_BHKA = self.quantiles(obs_batch)
         u_B = torch.from_numpy(rng.random(q_BHKA.shape[0])).to(self.device)
-        return self.agent.act(q_BHKA, u_B).cpu().numpy().astype(np.int64)
+        actions = self.agent.act(q_BHKA, u_B).cpu().numpy().astype(np.int64)
+        subsets = self.agent.subsets
+        if subsets is not None and subsets.last is not None:
+            out = subsets.last
+            self.last_subset_sizes = (
+                torch.cat(
+                    [out.per_objective.sum(dim=-1), out.leaf.sum(dim=-1, keepdim=True)], dim=-1
+                )
+                .cpu()
+                .numpy()
+            )
+        return actions
+
+
+class SubsetSizeMeans:
+    """Per-env running means of the acting optimal-subset sizes over an episode.
+
+    ``add(sizes_EN)`` after each acting step (rows of envs that did not act may be
+    skipped with ``rows``); ``pop(e)`` returns ``{"subset_<name>": mean}`` for env e's
+    episode and restarts its mean. Empty for agents without a preorder.
+    """
+
+    def __init__(self, num_envs: int, names: tuple[str, ...]) -> None:
+        self.names = names
+        self.sum_EN = np.zeros((num_envs, len(names)))
+        self.count_E = np.zeros(num_envs)
+
+    def add(self, sizes_BN: np.ndarray | None, rows: Any = slice(None)) -> None:
+        if sizes_BN is None or not self.names:
+            return
+        self.sum_EN[rows] += sizes_BN
+        self.count_E[rows] += 1
+
+    def pop(self, e: int) -> dict[str, float]:
+        if not self.names:
+            return {}
+        mean_N = self.sum_EN[e] / max(self.count_E[e], 1.0)
+        self.sum_EN[e] = 0.0
+        self.count_E[e] = 0.0
+        return {f"subset_{n}": round(float(v), 3) for n, v in zip(self.names, mean_N, strict=True)}

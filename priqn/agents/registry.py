@@ -18,11 +18,9 @@ import torch
 
 from priqn.agents import rules
 from priqn.agents.config import AgentConfig
+from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
-
-COMPARATORS: tuple[str, ...] = ("qd", "mv", "cvar")
-"""Comparators of ``priqn.preorder.optimal_subsets``."""
 
 PREORDER_PRESETS: tuple[str, ...] = ("total", "partial")
 """Named preorders of ``priqn.preorder.Preorder.preset``; anything else is a TOML path."""
@@ -71,18 +69,47 @@ def load_preorder(spec: str) -> Any:
 
 
 class PreorderSubsets:
-    """``quantiles_BNKA → OptimalSubsets`` with this agent's preorder, comparator and ε."""
+    """``quantiles_BNKA → OptimalSubsets`` with this agent's preorder, comparator and ε.
 
-    def __init__(self, preorder: Any, comparator: str, eps: float | tuple[float, ...]) -> None:
-        from priqn.preorder import optimal_subsets
+    With the scaled normalisation it owns the per-objective :class:`RunningScale`, which
+    the learner feeds (:meth:`observe`) and checkpoints (:meth:`state_dict`). ``last``
+    is the most recent result, for logging subset sizes.
+    """
+
+    def __init__(self, preorder: Any, cfg: AgentConfig) -> None:
+        from priqn.preorder import RunningScale, optimal_subsets
 
         self.preorder = preorder
-        self.comparator = comparator
-        self.eps = eps if isinstance(eps, float) else list(eps)
+        self.comparator = cfg.comparator
+        self.eps = cfg.eps if isinstance(cfg.eps, float) else list(cfg.eps)
+        self.scale = None
+        if cfg.normalisation == "scaled":
+            self.scale = RunningScale(len(preorder), cfg.scale_momentum, cfg.scale_fraction)
+        self.last: Any = None
         self._fn = optimal_subsets
 
     def __call__(self, quantiles_BNKA: torch.Tensor) -> Any:
-        return self._fn(quantiles_BNKA, self.preorder, comparator=self.comparator, eps=self.eps)
+        floor = None if self.scale is None else self.scale.floor()
+        self.last = self._fn(
+            quantiles_BNKA,
+            self.preorder,
+            comparator=self.comparator,
+            eps=self.eps,
+            spread_floor=floor,
+        )
+        return self.last
+
+    def observe(self, quantiles_BNKA: torch.Tensor) -> None:
+        """Fold a batch of fixed-grid quantiles into the running scale (scaled only)."""
+        if self.scale is not None:
+            self.scale.update(quantiles_BNKA)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {} if self.scale is None else {"scale": self.scale.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if self.scale is not None and "scale" in state:
+            self.scale.load_state_dict(state["scale"])
 
 
 class Agent:
@@ -100,7 +127,8 @@ class Agent:
         self._reward = rules.lookup(rules.REWARD_RULES, spec.reward_rule, "reward rule")
         self._act = rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule")
         self._target = rules.lookup(rules.TARGET_RULES, spec.target_rule, "target rule")
-        self.reward_weights_5 = torch.tensor(cfg.reward_weights, dtype=torch.float32)
+        weights = cfg.reward_weights or scheme_weights(cfg.reward_scheme)
+        self.reward_weights_5 = torch.tensor(weights, dtype=torch.float32)
 
     @property
     def num_heads(self) -> int:
@@ -111,7 +139,16 @@ class Agent:
         return self._reward(rewards_B5, w, self.num_heads)
 
     def act(self, quantiles_BHKA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
-        return self._act(quantiles_BHKA, self.subsets, u_B)
+        w = self.reward_weights_5.to(quantiles_BHKA.device, quantiles_BHKA.dtype)
+        return self._act(quantiles_BHKA, self.subsets, u_B, w)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Learned state outside the network (the running scale of the scaled normalisation)."""
+        return {} if self.subsets is None else self.subsets.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if self.subsets is not None:
+            self.subsets.load_state_dict(state)
 
     def target_actions(self, next_quantiles_BHKA: torch.Tensor) -> torch.Tensor:
         return self._target(next_quantiles_BHKA, self.subsets)
@@ -143,9 +180,11 @@ def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> A
     spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg)
     subsets = None
     if name == "pr-iqn":
+        from priqn.preorder import COMPARATORS
+
         if cfg.comparator not in COMPARATORS:  # checked here: a one-line error before training
             raise PriqnError(
                 f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATORS)})"
             )
-        subsets = PreorderSubsets(load_preorder(cfg.preorder), cfg.comparator, cfg.eps)
+        subsets = PreorderSubsets(load_preorder(cfg.preorder), cfg)
     return Agent(name, cfg, spec, subsets)

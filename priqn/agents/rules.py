@@ -77,22 +77,36 @@ def masked_uniform_choice(mask_BA: torch.Tensor, u_B: torch.Tensor) -> torch.Ten
     return hit_BA.long().argmax(dim=1)
 
 
-def act_argmax(quantiles_BHKA: torch.Tensor, subsets: SubsetFn | None, u_B: torch.Tensor):
+def act_argmax(
+    quantiles_BHKA: torch.Tensor,
+    subsets: SubsetFn | None,
+    u_B: torch.Tensor,
+    weights_5: torch.Tensor | None = None,
+):
     """IQN: argmax over actions of the (single) head's mean."""
     return quantiles_BHKA.mean(dim=2)[:, 0].argmax(dim=1)
 
 
-def act_argmax_mean_of_heads(quantiles_BHKA, subsets, u_B):
+def act_argmax_mean_of_heads(quantiles_BHKA, subsets, u_B, weights_5=None):
     """Ensemble-IQN: argmax of the heads' mean (each head's mean over K, then over H)."""
     return quantiles_BHKA.mean(dim=2).mean(dim=1).argmax(dim=1)
 
 
-def act_argmax_sum_of_heads(quantiles_BHKA, subsets, u_B):
-    """MA-IQN: argmax of the summed per-objective head means (unweighted)."""
-    return quantiles_BHKA.mean(dim=2).sum(dim=1).argmax(dim=1)
+def act_argmax_sum_of_heads(quantiles_BHKA, subsets, u_B, weights_5=None):
+    """MA-IQN: argmax of the weighted sum Σ_i w_i · mean(Z_i) of the per-objective heads.
+
+    The same weights as the IQN scheme: a head's mean is the expected return of one
+    objective, so this is the value of the scalar reward IQN learns (linearity), and
+    MA-IQN gets the same crash bound (docs/implementation-details.md). ``None`` sums
+    the heads unweighted (the pre-fairness rule).
+    """
+    means_BHA = quantiles_BHKA.mean(dim=2)
+    if weights_5 is None:
+        return means_BHA.sum(dim=1).argmax(dim=1)
+    return torch.einsum("bha,h->ba", means_BHA, weights_5).argmax(dim=1)
 
 
-def act_leaf_uniform(quantiles_BHKA, subsets, u_B):
+def act_leaf_uniform(quantiles_BHKA, subsets, u_B, weights_5=None):
     """Pr-IQN: uniform sample from the leaf optimal subset (the virtual leaf if several)."""
     if subsets is None:
         raise ValueError("the leaf-uniform acting rule needs optimal subsets")
@@ -105,7 +119,7 @@ ACTING_RULES: dict[str, Callable[..., torch.Tensor]] = {
     "argmax-sum-of-heads": act_argmax_sum_of_heads,
     "leaf-uniform": act_leaf_uniform,
 }
-"""Acting rule name → ``fn(quantiles_BHKA, subsets | None, u_B) -> actions_B`` (int64)."""
+"""Acting rule name → ``fn(quantiles_BHKA, subsets | None, u_B, weights_5) -> actions_B`` (int64)."""
 
 
 # ----------------------------------------------------------------------------- targets

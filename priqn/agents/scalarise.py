@@ -1,0 +1,136 @@
+"""Weighted-sum scalarisation of the reward vector for IQN, Ensemble-IQN and MA-IQN.
+
+The scalar baselines learn (or, for MA-IQN, act on) ``Σ_i w_i r_i``. A weighted sum is
+only a fair baseline if it never makes crashing cheap: ending the episode with a safety
+event must cost more than the worst lower-level penalty the agent could still collect
+by driving on. ``docs/implementation-details.md`` ("Reward weights") derives the bound:
+
+    w_safety · P  >  (w_risk + w_lane + w_comfort) · H_T,    H_T = Σ_{t<T} γ^t
+
+with ``P = min(collision_penalty, off_road_penalty)`` (the one-off safety event), the
+lower terms' per-decision range ``[-1, 0]`` and ``T`` decisions per episode. Progress is
+``[0, 1]`` per decision: crashing forfeits it, which only makes crashing worse, so it
+does not enter. :func:`crash_margin` is the left side over the right side; a scheme is
+safe when it is > 1.
+
+Schemes follow the hierarchy-level normalisation of the paper's reference [1]: every
+level's per-decision term has the same unit range, weights fall by a constant ratio ρ
+per level below safety, and the lower levels share one scale ``c`` chosen so that the
+bound holds with a margin ``m``:
+
+    w = (1, c, c/ρ, c/ρ², c/ρ³),   c = P / (m · H_T · (1 + 1/ρ + 1/ρ³))
+
+(risk, lane keeping and comfort are levels 1, 2 and 4 below safety). Torch-free.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+from priqn.errors import PriqnError
+from priqn.objectives import OBJECTIVES
+
+PENALISING_LOWER_OBJECTIVES: tuple[str, ...] = ("risk", "lane_keeping", "comfort")
+"""Lower-level objectives whose per-decision reward lies in [-1, 0] (docs/environment.md)."""
+
+DEFAULT_EPISODE_STEPS = 100
+"""EnvConfig.max_episode_steps default: the T the named schemes are computed for."""
+DEFAULT_GAMMA = 0.99
+"""LearnerConfig.gamma default."""
+DEFAULT_SAFETY_PENALTY = 10.0
+"""RewardConfig collision_penalty / off_road_penalty default."""
+
+
+def horizon(max_episode_steps: int, gamma: float) -> float:
+    """``H_T = Σ_{t<T} γ^t``: the largest discounted count of decisions left [decisions]."""
+    if gamma >= 1.0:
+        return float(max_episode_steps)
+    return (1.0 - gamma**max_episode_steps) / (1.0 - gamma)
+
+
+def crash_margin(
+    weights: Sequence[float],
+    safety_penalty: float = DEFAULT_SAFETY_PENALTY,
+    max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+    gamma: float = DEFAULT_GAMMA,
+) -> float:
+    """Cost of a safety event over the worst accumulable lower-level penalty (> 1 = safe).
+
+    ``weights`` in OBJECTIVES order; ``safety_penalty`` the smaller of the collision and
+    off-road penalties. ``inf`` when no lower objective is penalised.
+    """
+    w = dict(zip(OBJECTIVES, weights, strict=True))
+    worst_lower = sum(w[o] for o in PENALISING_LOWER_OBJECTIVES) * horizon(max_episode_steps, gamma)
+    crash = w["safety"] * safety_penalty
+    return math.inf if worst_lower <= 0 else crash / worst_lower
+
+
+def hierarchy_weights(
+    ratio: float,
+    margin: float,
+    safety_penalty: float = DEFAULT_SAFETY_PENALTY,
+    max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+    gamma: float = DEFAULT_GAMMA,
+) -> tuple[float, ...]:
+    """``(1, c, c/ρ, c/ρ², c/ρ³)`` with ``c`` such that :func:`crash_margin` = ``margin``."""
+    levels = {o: i for i, o in enumerate(OBJECTIVES)}  # safety 0, risk 1, ... comfort 4
+    share = sum(ratio ** -(levels[o] - 1) for o in PENALISING_LOWER_OBJECTIVES)
+    c = safety_penalty / (margin * horizon(max_episode_steps, gamma) * share)
+    return (1.0,) + tuple(c * ratio ** -(i - 1) for i in range(1, len(OBJECTIVES)))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scheme:
+    """A named weighting rule."""
+
+    description: str
+    """One line for --list-options and the docs."""
+    ratio: float | None = None
+    """Hierarchy-level decay ρ per level below safety (None: fixed ``weights``)."""
+    margin: float | None = None
+    """Required crash margin m (None: fixed ``weights``)."""
+    weights: tuple[float, ...] | None = None
+    """Fixed weights (the pre-fairness default)."""
+
+    def resolve(
+        self,
+        safety_penalty: float = DEFAULT_SAFETY_PENALTY,
+        max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+        gamma: float = DEFAULT_GAMMA,
+    ) -> tuple[float, ...]:
+        if self.weights is not None:
+            return self.weights
+        assert self.ratio is not None and self.margin is not None
+        return hierarchy_weights(self.ratio, self.margin, safety_penalty, max_episode_steps, gamma)
+
+
+SCHEMES: dict[str, Scheme] = {
+    "hln-2": Scheme(
+        "hierarchy-level normalisation, weights halve per level, crash margin 2", 2.0, 2.0
+    ),
+    "hln-4": Scheme(
+        "hierarchy-level normalisation, weights quarter per level, crash margin 2", 4.0, 2.0
+    ),
+    "halving": Scheme(
+        "the pre-fairness weights (1, .5, .25, .125, .0625): crashing can be cheaper than "
+        "an episode of lower-level penalties (crash margin 0.19); for comparison only",
+        weights=(1.0, 0.5, 0.25, 0.125, 0.0625),
+    ),
+}
+"""Scheme name → rule. ``hln-2`` is the default; the sensitivity check compares them."""
+
+
+def scheme_weights(
+    name: str,
+    safety_penalty: float = DEFAULT_SAFETY_PENALTY,
+    max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+    gamma: float = DEFAULT_GAMMA,
+) -> tuple[float, ...]:
+    """Weights of the named scheme for an episode of ``max_episode_steps`` decisions."""
+    if name not in SCHEMES:
+        raise PriqnError(
+            f"agent.reward_scheme: unknown scheme {name!r} (valid: {', '.join(SCHEMES)})"
+        )
+    return SCHEMES[name].resolve(safety_penalty, max_episode_steps, gamma)

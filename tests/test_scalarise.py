@@ -1,0 +1,70 @@
+"""The weighted-sum schemes never make crashing cheap (issue: fair test, §2).
+
+Every number is checked from the config values, by hand: H_T = (1 - 0.99**100) / 0.01
+= 63.397 decisions, P = 10.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from priqn.agents.config import AgentConfig
+from priqn.agents.scalarise import SCHEMES, crash_margin, horizon, scheme_weights
+from priqn.env.intersection import EnvConfig
+from priqn.errors import PriqnError
+from priqn.train import TrainConfig
+
+
+def test_horizon_by_hand():
+    assert horizon(100, 0.99) == pytest.approx(63.3968, abs=1e-4)
+    assert horizon(3, 0.5) == pytest.approx(1 + 0.5 + 0.25)
+    assert horizon(7, 1.0) == 7.0
+
+
+def test_old_halving_weights_make_crashing_cheap():
+    # worst lower-level penalty: (0.5 + 0.25 + 0.0625) * 63.397 = 51.51 > 10 = crash cost
+    assert crash_margin((1.0, 0.5, 0.25, 0.125, 0.0625)) == pytest.approx(10 / 51.510, rel=1e-4)
+    assert crash_margin(scheme_weights("halving")) < 1
+
+
+@pytest.mark.parametrize("name", ["hln-2", "hln-4"])
+def test_hierarchy_schemes_keep_a_crash_margin_of_two(name):
+    w = scheme_weights(name)
+    assert crash_margin(w) == pytest.approx(2.0)
+    assert w[0] == 1.0 and all(a > b for a, b in zip(w, w[1:], strict=False))  # falls per level
+
+
+def test_hln2_by_hand():
+    # c = 10 / (2 * 63.397 * (1 + 1/2 + 1/8)) = 0.048534; then halving per level.
+    w = scheme_weights("hln-2")
+    c = 10 / (2 * horizon(100, 0.99) * 1.625)
+    assert w == pytest.approx((1.0, c, c / 2, c / 4, c / 8))
+    assert c == pytest.approx(0.048534, abs=1e-6)
+
+
+def test_progress_does_not_enter_the_bound():
+    # Crashing forfeits progress (>= 0), so only risk, lane keeping and comfort count.
+    base = (1.0, 0.01, 0.01, 0.0, 0.01)
+    assert crash_margin(base) == crash_margin((1.0, 0.01, 0.01, 5.0, 0.01))
+    assert crash_margin((1.0, 0.0, 0.0, 1.0, 0.0)) == math.inf
+
+
+def test_train_config_resolves_the_scheme_for_its_own_episodes():
+    default = TrainConfig()
+    assert default.agent.reward_weights == pytest.approx(scheme_weights("hln-2"))
+    assert default.crash_margin == pytest.approx(2.0)
+    # Longer episodes: the scheme rescales so the margin still holds.
+    long = TrainConfig(env=EnvConfig(obs_size_px=64, max_episode_steps=300))
+    assert long.crash_margin == pytest.approx(2.0)
+    assert long.agent.reward_weights[1] < default.agent.reward_weights[1]
+    # Explicit weights are kept as given; the margin reports what they mean.
+    old = TrainConfig(agent=AgentConfig(reward_weights=(1.0, 0.5, 0.25, 0.125, 0.0625)))
+    assert old.crash_margin < 1
+    assert set(SCHEMES) == {"hln-2", "hln-4", "halving"}
+
+
+def test_unknown_scheme_is_one_line():
+    with pytest.raises(PriqnError, match=r"agent.reward_scheme: unknown scheme 'x' \(valid: hln-2"):
+        scheme_weights("x")
