@@ -1,8 +1,9 @@
 """``priqn train``: train one agent of Table II into a self-explaining run folder.
 
 Read :func:`_train_loop` top to bottom: act (ε-greedy over the agent's acting rule) →
-``envs.step`` → ``replay.add`` → ``replay.sample`` → ``learner.update`` → log, evaluate
-on the hold-out nets, checkpoint. Everything a run needs to be understood later lands
+``envs.step_async`` → ``replay.sample`` → ``learner.update`` (while the env workers
+simulate) → ``envs.step_wait`` → ``replay.add`` → log, evaluate on the hold-out nets,
+checkpoint. Everything a run needs to be understood later lands
 in ``runs/<name>/`` (docs/ARCHITECTURE.md "Run folder"):
 
 - ``config.toml`` the resolved :class:`TrainConfig` (loadable back),
@@ -42,6 +43,7 @@ from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
+from priqn.timing import SectionClock
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 PRESETS: tuple[str, ...] = ("default", "paper")
@@ -768,6 +770,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
         last_loss = math.nan
         last_stats: dict[str, float] = {}
         subset_sizes = SubsetSizeMeans(E, policy.subset_size_names)
+        clock = SectionClock()  # where the wall time goes (meta.json time_s)
         t0 = time.perf_counter()
         t_rate, upd_rate_at, upd_per_s = t0, learner.updates, 0.0
         next_log = step + cfg.log_interval_steps
@@ -784,30 +787,42 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
         )
         while step < cfg.total_steps:
             # 1. act: agent's acting rule, ε-greedy on top
-            epsilon = linear_epsilon(cfg.exploration, step, cfg.total_steps)
-            actions = policy.act(obs, rng_act)
-            subset_sizes.add(policy.last_subset_sizes)
-            explore = rng_act.random(E) < epsilon
-            actions = np.where(explore, rng_act.integers(num_actions, size=E), actions)
+            with clock("act"):
+                epsilon = linear_epsilon(cfg.exploration, step, cfg.total_steps)
+                actions = policy.act(obs, rng_act)
+                subset_sizes.add(policy.last_subset_sizes)
+                explore = rng_act.random(E) < epsilon
+                actions = np.where(explore, rng_act.integers(num_actions, size=E), actions)
 
-            # 2. step the envs; SAME_STEP autoreset: the true last obs is in final_obs
-            next_obs, rewards, terminated, truncated, infos = envs.step(actions)
-            ended = np.logical_or(terminated, truncated)
-            final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(E)]
+            # 2. issue the env step: the workers simulate while this process learns
+            with clock("env_issue"):
+                envs.step_async(actions)
 
-            # 3. store
-            replay.add(obs, actions, rewards, terminated, truncated, final_obs)
+            # 3. learn: one update per decisions_per_update decisions after learning_starts,
+            # counted with this step's decisions. The batch comes from the transitions
+            # stored so far (not the E in flight); a resume without a saved replay buffer
+            # refills a batch's worth first.
+            due_at = step + E
+            if due_at >= cfg.replay.learning_starts and len(replay) >= cfg.learner.batch_size:
+                due = (due_at - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
+                while learner.updates < due:
+                    with clock("replay_sample"):
+                        batch = replay.sample(cfg.learner.batch_size, rng_replay)
+                    with clock("update"):
+                        last_stats = learner.update(batch)
+                    last_loss = last_stats["loss"]
+
+            # 4. collect the step (SAME_STEP autoreset: the true last obs is in final_obs)
+            # and store it
+            with clock("env_wait"):
+                next_obs, rewards, terminated, truncated, infos = envs.step_wait()
+            with clock("replay_add"):
+                ended = np.logical_or(terminated, truncated)
+                final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(E)]
+                replay.add(obs, actions, rewards, terminated, truncated, final_obs)
             obs = next_obs
             step += E
-
-            # 4. learn: one update per decisions_per_update decisions after learning_starts
-            # (a resume without a saved replay buffer refills a batch's worth first)
-            if step >= cfg.replay.learning_starts and len(replay) >= cfg.learner.batch_size:
-                due = (step - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
-                while learner.updates < due:
-                    stats = learner.update(replay.sample(cfg.learner.batch_size, rng_replay))
-                    last_loss = stats["loss"]
-                    last_stats = stats
+            log_t0 = time.perf_counter()
 
             # 5. episode stats
             wall = wall_before + time.perf_counter() - t0
@@ -852,6 +867,8 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                 for key, value in last_stats.items():  # loss, q_mean, target subset sizes
                     writer.add_scalar(f"train/{key}", value, step)
                 _write_metrics(run_dir / "metrics.csv", metrics)
+            t_eval = time.perf_counter()
+            clock.add("logging", t_eval - log_t0)
             if cfg.evaluation.interval_steps > 0 and step >= next_eval:
                 next_eval = _next_multiple(step, cfg.evaluation.interval_steps)
                 if eval_envs is None:
@@ -870,6 +887,8 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                     step,
                 )
                 _write_metrics(run_dir / "metrics.csv", metrics)
+            t_ckpt = time.perf_counter()
+            clock.add("evaluate", t_ckpt - t_eval)
             if step >= next_ckpt or step >= cfg.total_steps:
                 next_ckpt = _next_multiple(step, cfg.checkpoint.interval_steps)
                 wall = wall_before + time.perf_counter() - t0
@@ -892,10 +911,15 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                 _update_meta(
                     run_dir, steps_done=step, episodes_done=episodes, wall_s=round(wall, 1)
                 )
+            clock.add("checkpoint", time.perf_counter() - t_ckpt)
         bar.close()
         writer.close()
+        time_s = clock.totals()
+        if agent.subsets is not None:  # inside "act" and "update"
+            time_s["algorithm1"] = round(agent.subsets.seconds, 4)
         _update_meta(
             run_dir,
+            time_s=time_s,
             status="complete",
             steps_done=step,
             episodes_done=episodes,

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -86,9 +87,12 @@ class PreorderSubsets:
         if cfg.normalisation == "scaled":
             self.scale = RunningScale(len(preorder), cfg.scale_momentum, cfg.scale_fraction)
         self.last: Any = None
+        self.seconds = 0.0
+        """Wall time spent in Algorithm 1 so far (for ``priqn bench train``) [s]."""
         self._fn = optimal_subsets
 
     def __call__(self, quantiles_BNKA: torch.Tensor) -> Any:
+        t0 = time.perf_counter()
         floor = None if self.scale is None else self.scale.floor()
         self.last = self._fn(
             quantiles_BNKA,
@@ -97,6 +101,7 @@ class PreorderSubsets:
             eps=self.eps,
             spread_floor=floor,
         )
+        self.seconds += time.perf_counter() - t0
         return self.last
 
     def observe(self, quantiles_BNKA: torch.Tensor) -> None:

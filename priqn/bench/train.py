@@ -146,11 +146,18 @@ def updates_per_second(
     return out
 
 
-def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[str, Any]:
-    """Env decisions/s and updates/s of the real training loop (default preset)."""
+def loop_throughput(
+    net: str, agent_name: str, steps: int, device: str, learning: bool = True
+) -> dict[str, Any]:
+    """Env decisions/s and updates/s of the real training loop (default preset).
+
+    ``learning=False`` runs the same loop (same workers, acting rule, replay) with no
+    update at all: the env-only throughput the end-to-end figure is compared with.
+    """
     from priqn.io import read_json
     from priqn.train import resolve_config, train
 
+    starts = min(500, steps // 4) if learning else steps + 1
     cfg = resolve_config(
         preset="default",
         agent=agent_name,
@@ -158,7 +165,7 @@ def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[
         steps=steps,
         device=device,
         overrides=[
-            f"replay.learning_starts={min(500, steps // 4)}",
+            f"replay.learning_starts={starts}",
             "evaluation.interval_steps=0",
             f"checkpoint.interval_steps={10 * steps}",
             "checkpoint.save_replay=false",
@@ -176,7 +183,34 @@ def loop_throughput(net: str, agent_name: str, steps: int, device: str) -> dict[
         "wall_s": wall,
         "num_envs": cfg.num_envs,
         "obs_px": cfg.env.obs_size_px,
+        "time_s": meta.get("time_s", {}),
     }
+
+
+TIME_SECTIONS: tuple[tuple[str, str], ...] = (
+    ("env_wait", "waiting for the env workers (step_wait)"),
+    ("env_issue", "sending actions (step_async)"),
+    ("act", "acting: network forward + acting rule"),
+    ("update", "learner updates"),
+    ("algorithm1", "  of act + update: Algorithm 1 (optimal subsets)"),
+    ("replay_sample", "replay: sampling batches"),
+    ("replay_add", "replay: storing transitions"),
+    ("logging", "episode stats, tqdm, TensorBoard, metrics.csv"),
+    ("checkpoint", "checkpoints"),
+)
+"""Sections of the training loop's clock (meta.json ``time_s``), in print order."""
+
+
+def print_time_table(results: list[dict[str, Any]]) -> None:
+    """Where the wall time of each end-to-end run went, in % of its wall time."""
+    head = "".join(f"{r['agent']:>12}" for r in results)
+    print(f"\nwhere the time goes (% of wall time, end to end){'':<6}{head}")
+    for key, what in TIME_SECTIONS:
+        cells = []
+        for r in results:
+            sec = r["time_s"].get(key)
+            cells.append(f"{'-':>12}" if sec is None else f"{100 * sec / r['wall_s']:>11.1f}%")
+        print(f"{what:<56}{''.join(cells)}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -208,11 +242,25 @@ def run(args: argparse.Namespace) -> int:
             f"\nend-to-end training loop (default preset, learning on: one update per "
             f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}"
         )
-        print(f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10}")
+        print(
+            f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
+            f"{'env-only dec/s':>15}"
+        )
+        results = []
         for name in agents:
+            # Same workers, same acting, no learning: the ceiling the loop is measured against.
+            env_only = loop_throughput(args.net, name, args.loop_steps, args.device, False)
             r = loop_throughput(args.net, name, args.loop_steps, args.device)
+            r["env_only"] = env_only["decisions_per_s"]
+            results.append(r)
             print(
-                f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} {r['updates_per_s']:>10.1f}",
+                f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} "
+                f"{r['updates_per_s']:>10.1f} {r['env_only']:>15.1f}",
                 flush=True,
             )
+        for r in results:
+            print(
+                f"{r['agent']}: end-to-end / env-only: {r['decisions_per_s'] / r['env_only']:.2f}"
+            )
+        print_time_table(results)
     return 0
