@@ -121,6 +121,10 @@ class TrainConfig:
     torch_threads: int = 1
     """CPU threads for torch in the learner process (0 = torch's default). On a small CPU the
     env workers need the other cores: oversubscribed torch threads slow everything down."""
+    overlap_updates: bool = True
+    """Run the learner's updates while the env workers simulate (step_async → update →
+    step_wait). False: the serial order act → step → store → update (a step's batch may
+    then include that step's transitions); kept to measure the gain in priqn bench train."""
     log_interval_steps: int = 1_000
     """Env decisions between TensorBoard scalars / metrics.csv flushes."""
     env: EnvConfig = dataclasses.field(default_factory=lambda: EnvConfig(obs_size_px=64))
@@ -771,6 +775,20 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
         last_stats: dict[str, float] = {}
         subset_sizes = SubsetSizeMeans(E, policy.subset_size_names)
         clock = SectionClock()  # where the wall time goes (meta.json time_s)
+
+        def learn(decisions: int) -> dict[str, float]:
+            """The updates due after ``decisions``; the last one's stats ({} if none)."""
+            stats: dict[str, float] = {}
+            if decisions < cfg.replay.learning_starts or len(replay) < cfg.learner.batch_size:
+                return stats
+            due = (decisions - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
+            while learner.updates < due:
+                with clock("replay_sample"):
+                    batch = replay.sample(cfg.learner.batch_size, rng_replay)
+                with clock("update"):
+                    stats = learner.update(batch)
+            return stats
+
         t0 = time.perf_counter()
         t_rate, upd_rate_at, upd_per_s = t0, learner.updates, 0.0
         next_log = step + cfg.log_interval_steps
@@ -802,15 +820,8 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             # counted with this step's decisions. The batch comes from the transitions
             # stored so far (not the E in flight); a resume without a saved replay buffer
             # refills a batch's worth first.
-            due_at = step + E
-            if due_at >= cfg.replay.learning_starts and len(replay) >= cfg.learner.batch_size:
-                due = (due_at - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
-                while learner.updates < due:
-                    with clock("replay_sample"):
-                        batch = replay.sample(cfg.learner.batch_size, rng_replay)
-                    with clock("update"):
-                        last_stats = learner.update(batch)
-                    last_loss = last_stats["loss"]
+            if cfg.overlap_updates:
+                last_stats = learn(step + E) or last_stats
 
             # 4. collect the step (SAME_STEP autoreset: the true last obs is in final_obs)
             # and store it
@@ -822,6 +833,9 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
                 replay.add(obs, actions, rewards, terminated, truncated, final_obs)
             obs = next_obs
             step += E
+            if not cfg.overlap_updates:
+                last_stats = learn(step) or last_stats
+            last_loss = last_stats.get("loss", math.nan)
             log_t0 = time.perf_counter()
 
             # 5. episode stats

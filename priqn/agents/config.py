@@ -110,6 +110,8 @@ class LearnerConfig:
     """Updates between hard copies of the online network into the target network."""
     grad_clip_norm: float = 10.0
     """Clip the global gradient norm to this value (0 = no clipping)."""
+    autocast_bf16: bool = False
+    """Run the network's forward passes in bfloat16 autocast (loss, targets and subsets stay float32); faster on CPUs with bf16 support, see docs/implementation-details.md."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.gamma <= 1.0:

@@ -68,11 +68,11 @@ class Learner:
         taus_BN = torch.rand(B, N, generator=self.tau_generator, device=dev)
         taus_prime_BNp = torch.rand(B, Np, generator=self.tau_generator, device=dev)
 
-        with torch.no_grad():
+        with torch.no_grad(), self._autocast():
             # One target-network pass: N' sampled τ' for the loss + the fixed K grid for
             # the target rule (argmax / optimal subsets); the encoder runs once.
             taus_next = torch.cat([taus_prime_BNp, self.grid_K.expand(B, K)], dim=1)
-            next_BHTA = self.target(next_obs, taus_next)
+            next_BHTA = self.target(next_obs, taus_next).float()
             next_BHNpA, next_grid_BHKA = next_BHTA[:, :, :Np], next_BHTA[:, :, Np:]
             subsets = self.agent.subsets
             if subsets is not None:
@@ -83,7 +83,8 @@ class Learner:
             reward_BH = self.agent.head_rewards(reward_B5)
             target_BHNp = reward_BH[:, :, None] + discount_B[:, None, None] * next_BHNp
 
-        quantiles_BHNA = self.online(obs, taus_BN)
+        with self._autocast():
+            quantiles_BHNA = self.online(obs, taus_BN).float()
         pred_BHN = quantiles_BHNA.gather(3, action_B[:, None, None, None].expand(B, H, N, 1))
         pred_BHN = pred_BHN.squeeze(3)
         loss_BH = quantile_huber_loss(
@@ -106,6 +107,10 @@ class Learner:
             sizes = subsets.last.sizes() if self.agent.spec.target_rule == "optimal-subset" else {}
             stats.update({f"subset_size/{k}": v for k, v in sizes.items()})
         return stats
+
+    def _autocast(self) -> Any:
+        """bfloat16 autocast of the forward passes when ``autocast_bf16`` is set."""
+        return torch.autocast(self.device.type, torch.bfloat16, enabled=self.cfg.autocast_bf16)
 
     def sync_target(self) -> None:
         """Hard copy online → target."""

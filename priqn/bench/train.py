@@ -147,12 +147,18 @@ def updates_per_second(
 
 
 def loop_throughput(
-    net: str, agent_name: str, steps: int, device: str, learning: bool = True
+    net: str,
+    agent_name: str,
+    steps: int,
+    device: str,
+    learning: bool = True,
+    overlap: bool = True,
 ) -> dict[str, Any]:
     """Env decisions/s and updates/s of the real training loop (default preset).
 
     ``learning=False`` runs the same loop (same workers, acting rule, replay) with no
     update at all: the env-only throughput the end-to-end figure is compared with.
+    ``overlap=False`` is the serial loop (update after the env step), the baseline.
     """
     from priqn.io import read_json
     from priqn.train import resolve_config, train
@@ -169,6 +175,7 @@ def loop_throughput(
             "evaluation.interval_steps=0",
             f"checkpoint.interval_steps={10 * steps}",
             "checkpoint.save_replay=false",
+            f"overlap_updates={str(overlap).lower()}",
         ],
     )
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
