@@ -153,12 +153,18 @@ class TrainConfig:
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
+        scalar_heads = self.agent.name in ("iqn", "ensemble-iqn")
+        if scalar_heads and len(set(self.learner.gamma_5)) > 1:
+            raise ValueError(
+                f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
+                "so it needs one discount (per-objective values are for ma-iqn and pr-iqn)"
+            )
         if self.agent.reward_weights is None:  # the scheme, for this run's episodes
             weights = scheme_weights(
                 self.agent.reward_scheme,
                 self.safety_penalty,
                 self.env.max_episode_steps,
-                self.learner.gamma,
+                max(self.learner.gamma_5),  # the longest horizon: the margin holds for all
             )
             object.__setattr__(
                 self, "agent", dataclasses.replace(self.agent, reward_weights=weights)
@@ -176,7 +182,7 @@ class TrainConfig:
             self.agent.reward_weights,
             self.safety_penalty,
             self.env.max_episode_steps,
-            self.learner.gamma,
+            self.learner.gamma_5,
         )
 
 

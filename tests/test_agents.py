@@ -190,12 +190,26 @@ def test_replay_n_step_final_obs_and_discounts():
     # row 0: 1 + 0.5*2, then the timeout ends the episode: bootstrap from 99 with 0.5^2
     assert batch["reward"][:, 0].tolist() == [2.0, 2.0, 4.0]
     assert batch["next_obs"]["x"][:, 0].tolist() == [99.0, 99.0, 98.0]
-    assert batch["discount"].tolist() == [0.25, 0.5, 0.0]
+    assert batch["discount"][:, 0].tolist() == [0.25, 0.5, 0.0]
+    assert (batch["discount"] == batch["discount"][:, :1]).all()  # one gamma: equal columns
     # row 5 (obs 20) has no complete 2-step window yet; final rows never start transitions
     rng = np.random.default_rng(0)
     s = rb.sample(64, rng)
     assert set(s["obs"]["x"][:, 0].tolist()) == {0.0, 1.0, 10.0}
     assert len(rb) == 4 and rb.bytes_per_row() == 4 + 8 + 20 + 3
+
+
+def test_replay_discounts_each_objective_with_its_own_gamma():
+    # Two steps of rewards 1 (all objectives), n = 2, gamma_i = (1, .5, .5, .5, .9):
+    # n-step reward_i = 1 + gamma_i; bootstrap discount gamma_i ** 2.
+    gammas = (1.0, 0.5, 0.5, 0.5, 0.9)
+    rb = ReplayBuffer({"x": ((1,), np.float32)}, num_envs=1, capacity=16, n_step=2, gamma=gammas)
+    f = np.array([False])
+    for t in range(4):
+        rb.add(tiny_obs(t, 1), np.array([0]), np.ones((1, 5), np.float32), f, f, [None])
+    s = rb.sample(4, np.random.default_rng(0))
+    assert np.allclose(s["reward"], [1 + g for g in gammas])
+    assert np.allclose(s["discount"], [g**2 for g in gammas])
 
 
 def test_replay_truncate_open_episodes_and_save_load(tmp_path):

@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from priqn.agents.config import AgentConfig
+from priqn.agents.config import AgentConfig, LearnerConfig
 from priqn.agents.scalarise import SCHEMES, crash_margin, horizon, scheme_weights
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
@@ -68,3 +68,14 @@ def test_train_config_resolves_the_scheme_for_its_own_episodes():
 def test_unknown_scheme_is_one_line():
     with pytest.raises(PriqnError, match=r"agent.reward_scheme: unknown scheme 'x' \(valid: hln-2"):
         scheme_weights("x")
+
+
+def test_per_objective_discounts():
+    # Lower objectives with gamma 0.5: H = 2 - 2**-99 ~ 2 decisions; crash 10 vs 3 * 0.1 * 2.
+    gammas = (0.99, 0.5, 0.5, 0.99, 0.5)
+    assert crash_margin((1.0, 0.1, 0.1, 0.1, 0.1), gamma=gammas) == pytest.approx(10 / 0.6)
+    # Scalar-reward agents have one head, so one discount.
+    with pytest.raises(ValueError, match=r"learner.gamma: agent 'iqn' learns one weighted-sum"):
+        TrainConfig(agent=AgentConfig(name="iqn"), learner=LearnerConfig(gamma=gammas))
+    cfg = TrainConfig(agent=AgentConfig(name="pr-iqn"), learner=LearnerConfig(gamma=gammas))
+    assert cfg.crash_margin >= 2.0  # the scheme uses the longest horizon

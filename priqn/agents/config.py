@@ -88,8 +88,8 @@ class NetworkConfig:
 class LearnerConfig:
     """IQN learning hyper-parameters (names follow Dabney et al. 2018)."""
 
-    gamma: float = 0.99
-    """Discount γ per decision (0.5 s)."""
+    gamma: float | tuple[float, ...] = 0.99
+    """Discount γ per decision (0.5 s): one number, or one per objective (OBJECTIVES order; the paper defines a γ_i per objective). Agents whose heads learn a weighted sum need equal values."""
     lr: float = 1e-4
     """Adam learning rate."""
     adam_eps: float = 3.125e-4
@@ -114,8 +114,11 @@ class LearnerConfig:
     """Run the network's forward passes in bfloat16 autocast (loss, targets and subsets stay float32); faster on CPUs with bf16 support, see docs/implementation-details.md."""
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.gamma <= 1.0:
-            raise ValueError("gamma: expected a number in [0, 1]")
+        gammas = self.gamma if isinstance(self.gamma, tuple) else (self.gamma,)
+        if isinstance(self.gamma, tuple) and len(self.gamma) != NUM_OBJECTIVES:
+            raise ValueError(f"gamma: expected one number or {NUM_OBJECTIVES} numbers")
+        if not all(0.0 <= g <= 1.0 for g in gammas):
+            raise ValueError("gamma: expected numbers in [0, 1]")
         for name in (
             "batch_size",
             "num_tau_samples",
@@ -128,3 +131,10 @@ class LearnerConfig:
                 raise ValueError(f"{name}: expected a positive integer")
         if self.kappa <= 0 or self.lr <= 0:
             raise ValueError("kappa and lr: expected positive numbers")
+
+    @property
+    def gamma_5(self) -> tuple[float, ...]:
+        """γ per objective (OBJECTIVES order)."""
+        if isinstance(self.gamma, tuple):
+            return tuple(float(g) for g in self.gamma)
+        return (float(self.gamma),) * NUM_OBJECTIVES

@@ -56,13 +56,19 @@ class Learner:
         self.updates = 0
 
     def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
-        """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats."""
+        """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats.
+
+        ``discount`` is ``[B, 5]`` (γ_i^m per objective, as the replay gives it) or ``[B]``
+        (the same for every objective).
+        """
         cfg, dev = self.cfg, self.device
         obs = to_tensors(batch["obs"], dev)
         next_obs = to_tensors(batch["next_obs"], dev)
         action_B = torch.as_tensor(batch["action"], device=dev)
         reward_B5 = torch.as_tensor(batch["reward"], device=dev)
-        discount_B = torch.as_tensor(batch["discount"], device=dev)
+        discount_B5 = torch.as_tensor(batch["discount"], device=dev)
+        if discount_B5.ndim == 1:  # one discount for every objective
+            discount_B5 = discount_B5[:, None].expand(-1, reward_B5.shape[1])
         B, H = action_B.shape[0], self.agent.num_heads
         N, Np, K = cfg.num_tau_samples, cfg.num_tau_prime_samples, cfg.num_quantiles
         taus_BN = torch.rand(B, N, generator=self.tau_generator, device=dev)
@@ -81,7 +87,8 @@ class Learner:
             index = next_action_BH[:, :, None, None].expand(B, H, Np, 1)
             next_BHNp = next_BHNpA.gather(3, index).squeeze(3)
             reward_BH = self.agent.head_rewards(reward_B5)
-            target_BHNp = reward_BH[:, :, None] + discount_B[:, None, None] * next_BHNp
+            discount_BH = self.agent.head_discounts(discount_B5)
+            target_BHNp = reward_BH[:, :, None] + discount_BH[:, :, None] * next_BHNp
 
         with self._autocast():
             quantiles_BHNA = self.online(obs, taus_BN).float()

@@ -143,6 +143,13 @@ class Agent:
         w = self.reward_weights_5.to(rewards_B5.device, rewards_B5.dtype)
         return self._reward(rewards_B5, w, self.num_heads)
 
+    def head_discounts(self, discount_B5: torch.Tensor) -> torch.Tensor:
+        """Bootstrap discount per head ``[B, H]``: γ_h^m for per-objective heads; a
+        weighted-sum head has one γ (config validation keeps the objectives' equal)."""
+        if self.spec.reward_rule == "per-objective":
+            return discount_B5
+        return discount_B5[:, :1].expand(-1, self.num_heads)
+
     def act(self, quantiles_BHKA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
         w = self.reward_weights_5.to(quantiles_BHKA.device, quantiles_BHKA.dtype)
         return self._act(quantiles_BHKA, self.subsets, u_B, w)

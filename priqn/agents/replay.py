@@ -40,7 +40,11 @@ class ReplayBuffer:
         self.num_envs = int(num_envs)
         self.rows = int(capacity) // self.num_envs
         self.n_step = int(n_step)
-        self.gamma = float(gamma)
+        # γ per objective [5] (a number applies to all): the n-step sum discounts each
+        # reward component with its own γ_i and the bootstrap discount is γ_i^m.
+        self.gamma_5 = np.broadcast_to(
+            np.asarray(gamma, dtype=np.float64), (NUM_OBJECTIVES,)
+        ).copy()
         E, R = self.num_envs, self.rows
         self.obs = {k: np.zeros((E, R, *shape), dtype=dt) for k, (shape, dt) in obs_spec.items()}
         self.action = np.zeros((E, R), dtype=np.int64)
@@ -123,7 +127,8 @@ class ReplayBuffer:
         """``batch_size`` n-step transitions, uniform over stored ones.
 
         Returns numpy arrays: ``obs`` / ``next_obs`` (dicts of ``[B, ...]``), ``action [B]``,
-        ``reward [B, 5]`` (n-step discounted sum), ``discount [B]`` (γ^m, 0 if terminated).
+        ``reward [B, 5]`` (n-step discounted sum), ``discount [B, 5]`` (γ_i^m per objective,
+        0 if terminated).
         """
         lo = np.maximum(self.written - self.rows, 0)
         avail = self.written - lo
@@ -162,17 +167,17 @@ class ReplayBuffer:
     def _gather(self, e: np.ndarray, p: np.ndarray) -> dict[str, Any]:
         B = len(p)
         reward = np.zeros((B, NUM_OBJECTIVES), dtype=np.float32)
-        disc = np.ones(B, dtype=np.float64)
+        disc = np.ones((B, NUM_OBJECTIVES), dtype=np.float64)
         alive = np.ones(B, dtype=bool)
         done = np.zeros(B, dtype=bool)
         nxt = p + self.n_step
         for k in range(self.n_step):
             r = (p + k) % self.rows
-            reward += (alive * disc)[:, None].astype(np.float32) * self.reward[e, r]
+            reward += (alive[:, None] * disc).astype(np.float32) * self.reward[e, r]
             end = alive & self.ended[e, r]
             done |= end & self.terminated[e, r]
             nxt = np.where(end, p + k + 1, nxt)
-            disc = np.where(alive, disc * self.gamma, disc)
+            disc = np.where(alive[:, None], disc * self.gamma_5, disc)
             alive &= ~end
         r0, r1 = p % self.rows, nxt % self.rows
         return {
@@ -180,7 +185,7 @@ class ReplayBuffer:
             "next_obs": {k: a[e, r1] for k, a in self.obs.items()},
             "action": self.action[e, r0],
             "reward": reward,
-            "discount": np.where(done, 0.0, disc).astype(np.float32),
+            "discount": np.where(done[:, None], 0.0, disc).astype(np.float32),
         }
 
     # ------------------------------------------------------------------ persistence

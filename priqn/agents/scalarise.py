@@ -54,17 +54,25 @@ def crash_margin(
     weights: Sequence[float],
     safety_penalty: float = DEFAULT_SAFETY_PENALTY,
     max_episode_steps: int = DEFAULT_EPISODE_STEPS,
-    gamma: float = DEFAULT_GAMMA,
+    gamma: float | Sequence[float] = DEFAULT_GAMMA,
 ) -> float:
     """Cost of a safety event over the worst accumulable lower-level penalty (> 1 = safe).
 
     ``weights`` in OBJECTIVES order; ``safety_penalty`` the smaller of the collision and
-    off-road penalties. ``inf`` when no lower objective is penalised.
+    off-road penalties; ``gamma`` one number or one per objective. ``inf`` when no lower
+    objective is penalised.
     """
     w = dict(zip(OBJECTIVES, weights, strict=True))
-    worst_lower = sum(w[o] for o in PENALISING_LOWER_OBJECTIVES) * horizon(max_episode_steps, gamma)
+    g = dict(zip(OBJECTIVES, _per_objective(gamma), strict=True))
+    worst_lower = sum(w[o] * horizon(max_episode_steps, g[o]) for o in PENALISING_LOWER_OBJECTIVES)
     crash = w["safety"] * safety_penalty
     return math.inf if worst_lower <= 0 else crash / worst_lower
+
+
+def _per_objective(gamma: float | Sequence[float]) -> tuple[float, ...]:
+    if isinstance(gamma, (int, float)):
+        return (float(gamma),) * len(OBJECTIVES)
+    return tuple(float(x) for x in gamma)
 
 
 def hierarchy_weights(

@@ -251,23 +251,28 @@ def run(args: argparse.Namespace) -> int:
         )
         print(
             f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
-            f"{'env-only dec/s':>15}"
+            f"{'serial dec/s':>13} {'env-only dec/s':>15}"
         )
         results = []
         for name in agents:
-            # Same workers, same acting, no learning: the ceiling the loop is measured against.
+            # Same workers, same acting, no learning: the ceiling the loop is measured against;
+            # the serial loop (update after the step) is the baseline of the overlap.
             env_only = loop_throughput(args.net, name, args.loop_steps, args.device, False)
+            serial = loop_throughput(args.net, name, args.loop_steps, args.device, overlap=False)
             r = loop_throughput(args.net, name, args.loop_steps, args.device)
             r["env_only"] = env_only["decisions_per_s"]
+            r["serial"] = serial["decisions_per_s"]
             results.append(r)
             print(
                 f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} "
-                f"{r['updates_per_s']:>10.1f} {r['env_only']:>15.1f}",
+                f"{r['updates_per_s']:>10.1f} {r['serial']:>13.1f} {r['env_only']:>15.1f}",
                 flush=True,
             )
         for r in results:
             print(
                 f"{r['agent']}: end-to-end / env-only: {r['decisions_per_s'] / r['env_only']:.2f}"
+                f"   (serial loop: {r['serial'] / r['env_only']:.2f}; overlap / serial: "
+                f"{r['decisions_per_s'] / r['serial']:.2f})"
             )
         print_time_table(results)
     return 0
