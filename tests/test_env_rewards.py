@@ -25,11 +25,11 @@ def test_safety_is_the_event_penalty_or_zero() -> None:
 
 
 def test_risk_by_hand() -> None:
-    # clearance 2 m of 4 m safe -> 0.5; ttc 1.5 s of 3 s -> 0.5; ttc 0.75 s -> 0.75
-    assert R.risk(np.array([2.0]), np.array([np.inf]), CFG) == pytest.approx(-0.5)
-    assert R.risk(np.array([np.inf]), np.array([0.75]), CFG) == pytest.approx(-0.75)
-    assert R.risk(np.array([10.0, 0.0]), np.array([np.inf, np.inf]), CFG) == pytest.approx(-0.5)
-    assert R.risk(np.array([np.inf]), np.array([np.inf]), CFG) == 0.0
+    # time to conflict 1.5 s of 3 s -> 0.5; 0.75 s -> 0.75; 3 s or more -> 0; 0 -> 1
+    assert R.risk(np.array([1.5]), CFG) == pytest.approx(-0.5)
+    assert R.risk(np.array([0.75]), CFG) == pytest.approx(-0.75)
+    assert R.risk(np.array([10.0, 0.0]), CFG) == pytest.approx(-0.5)
+    assert R.risk(np.array([3.0, np.inf]), CFG) == 0.0
 
 
 def test_lane_keeping_by_hand() -> None:
@@ -62,42 +62,11 @@ def test_reward_vector_order_and_dtype() -> None:
     assert list(v) == [1, 2, 3, 4, 5]
 
 
-def _box(cx: float, cy: float, heading: float = 0.0, length: float = 4.0, width: float = 2.0):
-    from priqn.env.geometry import boxes_corners
-
-    return boxes_corners(
-        np.array([[cx, cy]]), np.array([heading]), np.array([length]), np.array([width])
-    )
-
-
-def test_box_clearance_by_hand() -> None:
-    ego = _box(0.0, 0.0)[0]
-    # Same heading, 10 m ahead: gap = 10 - 4 = 6 m; 3 m to the left: gap = 3 - 2 = 1 m.
-    others = np.concatenate(
-        [_box(10.0, 0.0), _box(0.0, 3.0), _box(1.0, 0.5), _box(3.0, 2.0, np.pi / 2)]
-    )
-    gaps = R.box_clearance_m(ego, others)
-    assert gaps[0] == pytest.approx(6.0)
-    assert gaps[1] == pytest.approx(1.0)
-    assert gaps[2] == 0.0  # overlapping
-    # Rotated 90°: other spans x in [2, 4], y in [0, 4]; ego spans x in [-2, 2], y in [-1, 1]: touching.
-    assert gaps[3] == pytest.approx(0.0)
-    assert R.box_clearance_m(ego, np.zeros((0, 4, 2))).shape == (0,)
-
-
-def test_time_to_collision_by_hand() -> None:
-    # Ego at 0 driving +x at 10 m/s, actor 20 m ahead driving -x at 10 m/s, gap 16 m -> 0.8 s.
-    ttc = R.time_to_collision_s(
-        np.zeros(2), np.array([10.0, 0.0]), np.array([[20.0, 0.0], [0.0, 5.0]]),
-        np.array([[-10.0, 0.0], [10.0, 0.0]]), np.array([16.0, 3.0]),
-    )  # fmt: skip
-    assert ttc[0] == pytest.approx(0.8)
-    assert ttc[1] == np.inf  # side by side, not closing
-
-
 def test_reward_config_rejects_bad_values() -> None:
-    with pytest.raises(PriqnError, match="reward.ttc_safe_s"):
-        from_dict(EnvConfig, {"reward": {"ttc_safe_s": 0.0}}, where="env.toml [env]")
+    with pytest.raises(PriqnError, match="reward.conflict_time_safe_s"):
+        from_dict(EnvConfig, {"reward": {"conflict_time_safe_s": 0.0}}, where="env.toml [env]")
+    with pytest.raises(PriqnError, match="reward.lat_safe_gap_m"):
+        from_dict(EnvConfig, {"reward": {"lat_safe_gap_m": -0.1}}, where="env.toml [env]")
     with pytest.raises(PriqnError, match="advance_weight"):
         from_dict(EnvConfig, {"reward": {"advance_weight": 2.0}}, where="env.toml [env]")
 

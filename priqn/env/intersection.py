@@ -28,7 +28,7 @@ import numpy as np
 from gymnasium import spaces
 
 from priqn.config import from_dict
-from priqn.env import geometry, planner, sensors
+from priqn.env import geometry, measures, planner, sensors
 from priqn.env import rewards as R
 from priqn.env.traffic import ObstacleSite, Traffic, check_density
 from priqn.errors import PriqnError
@@ -271,8 +271,17 @@ class IntersectionEnv(gymnasium.Env):
             }
         )
 
+        rc = cfg.reward
+        self._envelope = measures.Envelope(
+            rc.lon_safe_gap_m, rc.lat_safe_gap_m, rc.reaction_time_s, rc.conflict_time_safe_s
+        )
+        # The risk look-ahead from the decision's last step reads the plan beyond its horizon.
+        n_plan = int(round(cfg.planning_horizon_s / cfg.sim_step_s))
+        n_look = measures.look_ahead_samples(rc.conflict_time_safe_s, cfg.sim_step_s)
         self._planner_cfg = planner.PlannerConfig(
-            horizon_s=cfg.planning_horizon_s, dt_s=cfg.sim_step_s
+            horizon_s=cfg.planning_horizon_s,
+            dt_s=cfg.sim_step_s,
+            extend_s=max(0, cfg.substeps + n_look - n_plan) * cfg.sim_step_s,
         )
         self._pool = self._net_pool()
         self._scenes: dict[str, _Scene] = {}
@@ -396,7 +405,7 @@ class IntersectionEnv(gymnasium.Env):
         v_f, d_f = self._table[a]
         traj = self._plan(float(v_f), float(d_f))
         try:
-            measures = self._execute(traj)
+            meas = self._execute(traj)
         except _sumo_errors() as exc:
             ep.done = True
             raise PriqnError(
@@ -411,17 +420,17 @@ class IntersectionEnv(gymnasium.Env):
         rc = cfg.reward
         reward = R.reward_vector(
             R.safety(flags["collision"], flags["off_road"], rc),
-            R.risk(measures["clearance"], measures["ttc"], rc),
-            R.lane_keeping(measures["lat_offset"], measures["heading_err"], rc),
+            R.risk(meas["conflict_time"], rc),
+            R.lane_keeping(meas["lat_offset"], meas["heading_err"], rc),
             R.progress(
-                measures["advance"],
-                measures["speed"],
+                meas["advance"],
+                meas["speed"],
                 ep.target_speed,
                 cfg.decision_interval_s,
                 success,
                 rc,
             ),
-            R.comfort(measures["jerk"], measures["lat_acc"], rc),
+            R.comfort(meas["jerk"], meas["lat_acc"], rc),
         )
         ep.returns += reward
         ep.done = terminated or truncated
@@ -604,7 +613,7 @@ class IntersectionEnv(gymnasium.Env):
 
         Collision (oriented boxes, after a bounding-circle broad phase) and off-road are
         tested after every SUMO step so the episode ends at the step they happen; the
-        risk measures (clearance, TTC) are computed once for all steps, vectorised.
+        risk measure (time to conflict) is computed once for all steps, vectorised.
         """
         cfg, ep = self.config, self._episode
         sim, traffic, route = ep.sim, ep.traffic, ep.route
@@ -663,11 +672,17 @@ class IntersectionEnv(gymnasium.Env):
             traffic.top_up()
             traffic.update_offsets()
         sl = slice(1, done_at + 1)
-        clearance, ttc = self._risk_measures(traj, per_step)
+        ego_path = measures.EgoPath(
+            traj.x, traj.y, traj.heading_rad, traj.speed_mps, cfg.sim_step_s,
+            cfg.ego_length_m, cfg.ego_width_m,
+        )  # fmt: skip
+        actors = [measures.Actors(a["boxes"], a["speed"]) for a in per_step]
+        conflict = measures.conflict_times_s(
+            ego_path, np.arange(1, done_at + 1), actors, self._envelope
+        )
         ref_heading = ep.ref.heading_at(traj.s[sl])
         return {
-            "clearance": clearance,
-            "ttc": ttc,
+            "conflict_time": conflict,
             "lat_offset": traj.d[sl],
             "heading_err": np.angle(np.exp(1j * (traj.heading_rad[sl] - ref_heading))),
             "advance": float(ep.state.s - s_before),
@@ -675,56 +690,6 @@ class IntersectionEnv(gymnasium.Env):
             "jerk": traj.jerk_lon_mps3[sl],
             "lat_acc": traj.accel_lat_mps2[sl],
         }
-
-    def _risk_measures(
-        self, traj: planner.Trajectory, per_step: list[dict[str, Any]]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Clearance [m] and TTC [s] to the nearest actor at each executed sim step ([T] each).
-
-        A bounding-circle bound first drops the (step, actor) pairs that cannot reach the
-        risk thresholds (gap >= clearance_safe_m and TTC >= ttc_safe_s); steps without
-        any remaining pair report ``inf`` for both (their risk term is 0 either way).
-        """
-        cfg, rc = self.config, self.config.reward
-        t_steps = len(per_step)
-        clearance = np.full(t_steps, np.inf)
-        ttc = np.full(t_steps, np.inf)
-        counts = np.array([len(a["boxes"]) for a in per_step])
-        if counts.sum() == 0:
-            return clearance, ttc
-        seen = [a for a in per_step if len(a["boxes"])]
-        step_of = np.repeat(np.arange(t_steps), counts)  # [M] pairs (step, actor)
-        k = step_of + 1  # trajectory sample of each pair
-        centre = np.concatenate([a["boxes"].center_xy for a in seen])
-        heading = np.concatenate([a["boxes"].heading_rad for a in seen])
-        radius = np.concatenate([a["radius"] for a in seen])
-        speed = np.concatenate([a["speed"] for a in seen])
-        ego_xy = np.stack([traj.x[k], traj.y[k]], axis=1)
-        ego_dir = np.stack([np.cos(traj.heading_rad[k]), np.sin(traj.heading_rad[k])], axis=1)
-        v_ego = traj.speed_mps[k, None] * ego_dir
-        v_act = speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], axis=1)
-        dp = centre - ego_xy
-        dist = np.maximum(np.hypot(dp[:, 0], dp[:, 1]), 1e-6)
-        closing = -np.sum(dp * (v_act - v_ego), axis=1) / dist
-        bound = dist - radius - 0.5 * math.hypot(cfg.ego_length_m, cfg.ego_width_m)
-        keep = np.flatnonzero(bound < np.maximum(rc.clearance_safe_m, rc.ttc_safe_s * closing))
-        if len(keep) == 0:
-            return clearance, ttc
-        k, step_of = k[keep], step_of[keep]
-        ego_corners = geometry.boxes_corners(
-            ego_xy[keep],
-            traj.heading_rad[k],
-            np.full(len(k), cfg.ego_length_m),
-            np.full(len(k), cfg.ego_width_m),
-        )
-        length = np.concatenate([a["boxes"].length_m for a in seen])[keep]
-        width = np.concatenate([a["boxes"].width_m for a in seen])[keep]
-        actor_corners = geometry.boxes_corners(centre[keep], heading[keep], length, width)
-        gaps = R.box_clearance_m(ego_corners, actor_corners)
-        times = R.time_to_collision_s(ego_xy[keep], v_ego[keep], centre[keep], v_act[keep], gaps)
-        np.minimum.at(clearance, step_of, gaps)
-        np.minimum.at(ttc, step_of, times)
-        return clearance, ttc
 
     def _read_actors(self) -> dict[str, Any]:
         """Vehicles within ``sensor_query_range_m`` of the ego (NPCs and obstacles).

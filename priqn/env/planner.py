@@ -241,15 +241,21 @@ class PlannerConfig:
     """Sampling step of the returned trajectory (s); T must be a whole number of steps."""
     min_lateral_distance_m: float = 10.0
     """Shortest arc length over which the lateral offset changes (m); see module docs."""
+    extend_s: float = 0.0
+    """Samples continue this long past the horizon (s), along the plan's own continuation
+    (speed ``v_f``, offset ``d_f`` once reached); the env's risk look-ahead reads them."""
 
     def __post_init__(self) -> None:
         if not self.horizon_s > 0 or not self.dt_s > 0:
             raise ValueError("planner.horizon_s and planner.dt_s must be > 0")
-        n = self.horizon_s / self.dt_s
-        if abs(n - round(n)) > 1e-6:
-            raise ValueError(
-                f"planner.horizon_s ({self.horizon_s}) must be a multiple of dt_s ({self.dt_s})"
-            )
+        for name in ("horizon_s", "extend_s"):
+            n = getattr(self, name) / self.dt_s
+            if abs(n - round(n)) > 1e-6:
+                raise ValueError(
+                    f"planner.{name} ({getattr(self, name)}) must be a multiple of dt_s ({self.dt_s})"
+                )
+        if self.extend_s < 0:
+            raise ValueError("planner.extend_s must be >= 0")
         if not self.min_lateral_distance_m > 0:
             raise ValueError("planner.min_lateral_distance_m must be > 0")
 
@@ -344,7 +350,7 @@ class _Lateral:
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A planned trajectory sampled at ``t = 0, dt, ..., T`` (all arrays [N+1]).
+    """A planned trajectory sampled at ``t = 0, dt, ..., T + extend_s`` (all arrays [N+1]).
 
     ``heading_rad`` is the car's yaw (tangent of the Cartesian path); ``accel_lon_mps2``
     is d(speed)/dt, ``accel_lat_mps2`` the centripetal acceleration speed² · path
@@ -417,8 +423,9 @@ def plan(
         raise ValueError(f"target lateral offset must be finite, got {d_f_m!r}")
     T = cfg.horizon_s
     n = int(round(T / cfg.dt_s))
-    t = np.arange(n + 1) * cfg.dt_s
-    t[-1] = T  # exact end point
+    n_ext = int(round(cfg.extend_s / cfg.dt_s))
+    t = np.arange(n + n_ext + 1) * cfg.dt_s
+    t[n] = T  # exact end of the horizon
     lon = _Longitudinal(state.s, state.s_dot, state.s_ddot, v_f_mps, T)
     s_T = lon.s_end()
     lat = _Lateral(

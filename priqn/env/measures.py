@@ -1,0 +1,250 @@
+"""Pure per-decision measures of the ego against the road and the other actors.
+
+Everything here is a pure numpy function of poses and actor states, vectorised over
+the SUMO steps of one decision and over the actors: the env reads SUMO, calls these,
+and hands the results to :mod:`priqn.env.rewards`.
+
+* :func:`off_road_steps` — is the ego footprint off the drivable area at each pose?
+* :func:`first_collision` — the first step at which the ego box overlaps an actor box.
+* :func:`conflict_times_s` — per step, the time until the ego (on its planned path)
+  and an actor (at constant velocity) first come closer than the safety envelope
+  (separate longitudinal and lateral safe gaps); the risk reward is built on it.
+
+The risk measure's derivation, with units, is in ``docs/environment.md`` ("Risk:
+time to conflict"); the hand-computed cases are in ``tests/test_env_measures.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from priqn.env import geometry
+
+
+@dataclass(frozen=True)
+class EgoPath:
+    """The ego's pose at every sample of its plan: ``t = 0, dt, 2·dt, ...`` (arrays [S]).
+
+    Sample 0 is the decision's start; samples past the executed part are where the
+    ego *would* be if it kept its plan (the risk look-ahead reads them).
+    """
+
+    x_m: np.ndarray
+    """[S] centre x (m)."""
+    y_m: np.ndarray
+    """[S] centre y (m)."""
+    heading_rad: np.ndarray
+    """[S] yaw, counter-clockwise from +x (rad)."""
+    speed_mps: np.ndarray
+    """[S] speed along the path (m/s)."""
+    dt_s: float
+    """Time between samples (s)."""
+    length_m: float
+    """Ego length (m)."""
+    width_m: float
+    """Ego width (m)."""
+
+    @classmethod
+    def straight(
+        cls,
+        xy: tuple[float, float],
+        heading_rad: float,
+        speed_mps: float,
+        samples: int,
+        dt_s: float = 0.1,
+        length_m: float = 4.5,
+        width_m: float = 1.8,
+    ) -> EgoPath:
+        """A constant-velocity straight path (tests and hand computations)."""
+        t = np.arange(samples) * dt_s
+        c, s = math.cos(heading_rad), math.sin(heading_rad)
+        return cls(
+            xy[0] + c * speed_mps * t,
+            xy[1] + s * speed_mps * t,
+            np.full(samples, float(heading_rad)),
+            np.full(samples, float(speed_mps)),
+            dt_s,
+            length_m,
+            width_m,
+        )
+
+
+@dataclass(frozen=True)
+class Actors:
+    """The other vehicles and obstacles at one instant (arrays [M]), read from SUMO."""
+
+    boxes: geometry.Boxes
+    """Their footprints (centre-based)."""
+    speed_mps: np.ndarray
+    """[M] speed along their heading (m/s)."""
+
+    @classmethod
+    def empty(cls) -> Actors:
+        """No actors."""
+        return cls(geometry.Boxes.empty(), np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.speed_mps)
+
+    @property
+    def radius_m(self) -> np.ndarray:
+        """[M] bounding-circle radius (m)."""
+        return 0.5 * np.hypot(self.boxes.length_m, self.boxes.width_m)
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """The ego's safety envelope: its box grown by separate longitudinal / lateral gaps.
+
+    RSS-style: ahead of the ego the longitudinal gap grows by the distance the ego
+    covers in its response time (``lon_gap_m + reaction_time_s · v_ego``); behind it,
+    by the distance a following actor covers in its response time
+    (``lon_gap_m + reaction_time_s · max(0, v_actor along the ego heading)``). The
+    lateral gap is constant (lateral motion is in the constant-velocity prediction).
+    """
+
+    lon_gap_m: float
+    """Standstill gap ahead of and behind the ego box, along the ego's heading (m)."""
+    lat_gap_m: float
+    """Gap beside the ego box, across the ego's heading (m)."""
+    reaction_time_s: float
+    """Response time ρ (s): the longitudinal gap grows by ρ times the follower's speed."""
+    horizon_s: float
+    """Look-ahead (s): conflicts later than this are ignored."""
+
+
+# --------------------------------------------------------------------------- risk: time to conflict
+
+
+def look_ahead_samples(horizon_s: float, dt_s: float) -> int:
+    """Number J of path samples after the current one that cover ``horizon_s``."""
+    return int(math.ceil(horizon_s / dt_s - 1e-9))
+
+
+def envelope_slack_m(
+    rel_xy: np.ndarray,
+    ego_heading_rad: np.ndarray,
+    ego_speed_mps: np.ndarray,
+    actor_heading_rad: np.ndarray,
+    actor_speed_mps: np.ndarray,
+    ego_half_m: tuple[float, float],
+    actor_half_length_m: np.ndarray,
+    actor_half_width_m: np.ndarray,
+    envelope: Envelope,
+) -> np.ndarray:
+    """Signed distance (m) of an actor box outside the ego's safety envelope (< 0: inside).
+
+    ``rel_xy`` [..., 2] is the actor centre minus the ego centre (world frame). In the
+    ego frame (x forward, y left) the actor box's extent is its axis-aligned hull,
+    half-sizes ``e_lon = l_a|cos φ| + w_a|sin φ|``, ``e_lat = l_a|sin φ| + w_a|cos φ|``
+    (``l_a, w_a`` half length / width, ``φ`` the relative heading). The box gaps are
+    ``g_lon = |Δx| − l_e − e_lon`` and ``g_lat = |Δy| − w_e − e_lat``; the actor is in
+    the envelope iff ``g_lon < G_lon`` **and** ``g_lat < lat_gap``, with ``G_lon`` the
+    RSS-style longitudinal gap of :class:`Envelope` (ego speed for an actor ahead, the
+    actor's speed along the ego heading for one behind). The slack is
+    ``max(g_lon − G_lon, g_lat − lat_gap)``. Broadcasts over all leading dimensions.
+    """
+    c, s = np.cos(ego_heading_rad), np.sin(ego_heading_rad)
+    dx = rel_xy[..., 0] * c + rel_xy[..., 1] * s
+    dy = rel_xy[..., 1] * c - rel_xy[..., 0] * s
+    phi = actor_heading_rad - ego_heading_rad
+    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+    ac, as_ = np.abs(cos_phi), np.abs(sin_phi)
+    e_lon = actor_half_length_m * ac + actor_half_width_m * as_
+    e_lat = actor_half_length_m * as_ + actor_half_width_m * ac
+    g_lon = np.abs(dx) - ego_half_m[0] - e_lon
+    g_lat = np.abs(dy) - ego_half_m[1] - e_lat
+    follower_mps = np.where(dx >= 0.0, ego_speed_mps, np.maximum(actor_speed_mps * cos_phi, 0.0))
+    lon_gap = envelope.lon_gap_m + envelope.reaction_time_s * follower_mps
+    return np.maximum(g_lon - lon_gap, g_lat - envelope.lat_gap_m)
+
+
+def first_conflict_time_s(slack_PJ: np.ndarray, dt_s: float) -> np.ndarray:
+    """[P] time (s) of the first sample with negative slack, ``inf`` if none.
+
+    ``slack_PJ[p, j]`` is the slack at ``t = j·dt``. Between the last sample outside
+    and the first inside, the crossing is interpolated linearly (exact when the
+    slack is linear in time there, as for straight constant-velocity motion).
+    """
+    inside = slack_PJ < 0.0
+    hit = inside.any(axis=1)
+    j = np.argmax(inside, axis=1)
+    out = np.full(len(slack_PJ), np.inf)
+    rows = np.flatnonzero(hit)
+    jr = j[rows]
+    at_start = jr == 0
+    out[rows[at_start]] = 0.0
+    r, k = rows[~at_start], jr[~at_start]
+    before, after = slack_PJ[r, k - 1], slack_PJ[r, k]
+    out[r] = (k - 1 + before / (before - after)) * dt_s
+    return out
+
+
+def conflict_times_s(
+    ego: EgoPath, steps: np.ndarray, actors: list[Actors], envelope: Envelope
+) -> np.ndarray:
+    """[K] time to the first conflict (s) seen from each executed step, ``inf`` if none.
+
+    ``steps`` [K] are the ego path's sample indices of the executed SUMO steps and
+    ``actors[i]`` the actors read after step ``steps[i]``. From each step the ego
+    follows its path (samples ``steps[i] + j``, ``j = 0..J``, ``J·dt`` = the
+    look-ahead) and each actor keeps its velocity; the result is the minimum over
+    actors of :func:`first_conflict_time_s` of the :func:`envelope_slack_m`.
+    ``ego`` must have at least ``max(steps) + J + 1`` samples.
+
+    Pairs (step, actor) that cannot meet within the look-ahead (bounding circles of
+    the envelope and the actor, closing at most at ``v_actor + max ego speed``) are
+    skipped before the per-sample work.
+    """
+    k_steps = len(steps)
+    out = np.full(k_steps, np.inf)
+    counts = np.array([len(a) for a in actors], dtype=int)
+    if counts.sum() == 0:
+        return out
+    n_look = look_ahead_samples(envelope.horizon_s, ego.dt_s)
+    if int(np.max(steps)) + n_look >= len(ego.x_m):
+        raise ValueError(
+            f"ego path has {len(ego.x_m)} samples; the look-ahead needs {int(np.max(steps)) + n_look + 1}"
+        )
+    seen = [a for a in actors if len(a)]
+    step_of = np.repeat(np.arange(k_steps), counts)  # [M] pair -> executed step
+    sample = np.asarray(steps, dtype=int)[step_of]  # [M] ego sample of each pair
+    centre = np.concatenate([a.boxes.center_xy for a in seen])
+    heading = np.concatenate([a.boxes.heading_rad for a in seen])
+    speed = np.concatenate([a.speed_mps for a in seen])
+    half_len = 0.5 * np.concatenate([a.boxes.length_m for a in seen])
+    half_wid = 0.5 * np.concatenate([a.boxes.width_m for a in seen])
+
+    # Broad phase: the distance now, less the radius of the largest envelope and the
+    # actor's, must be coverable within the look-ahead at the largest closing speed.
+    hl_e, hw_e = 0.5 * ego.length_m, 0.5 * ego.width_m
+    window = sample[:, None] + np.arange(n_look + 1)[None, :]  # [M, J+1]
+    v_max = np.maximum(ego.speed_mps[window].max(axis=1), speed)
+    lon_max = hl_e + envelope.lon_gap_m + envelope.reaction_time_s * v_max
+    r_env = np.hypot(lon_max, hw_e + envelope.lat_gap_m)
+    dist = np.hypot(centre[:, 0] - ego.x_m[sample], centre[:, 1] - ego.y_m[sample])
+    reach = (speed + ego.speed_mps[window].max(axis=1)) * envelope.horizon_s
+    keep = np.flatnonzero(dist - r_env - (half_len + half_wid) < reach)
+    if len(keep) == 0:
+        return out
+    window = window[keep]
+    t_J = np.arange(n_look + 1) * ego.dt_s
+    vel = speed[keep, None] * np.stack([np.cos(heading[keep]), np.sin(heading[keep])], axis=1)
+    actor_xy = centre[keep, None, :] + vel[:, None, :] * t_J[None, :, None]  # [P, J+1, 2]
+    ego_xy = np.stack([ego.x_m[window], ego.y_m[window]], axis=-1)
+    slack = envelope_slack_m(
+        actor_xy - ego_xy,
+        ego.heading_rad[window],
+        ego.speed_mps[window],
+        heading[keep, None],
+        speed[keep, None],
+        (hl_e, hw_e),
+        half_len[keep, None],
+        half_wid[keep, None],
+        envelope,
+    )
+    np.minimum.at(out, step_of[keep], first_conflict_time_s(slack, ego.dt_s))
+    return out
