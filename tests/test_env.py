@@ -241,6 +241,44 @@ def _traffic_checks() -> dict:
         env.close()
 
 
+def _sumo_fails_mid_episode(where: str) -> list[str]:
+    """Inject a libsumo exception at decision 2: after a SUMO step or in the traffic top-up."""
+    import libsumo
+
+    env = _make_env(obstacles_per_episode=(0, 0))
+    try:
+        env.reset(seed=0, options={"net": NET, "density": 0.5, "command": "straight"})
+        env.step(SPEED_6 * 5 + 2)
+        env.step(SPEED_6 * 5 + 2)
+        owner, name = {
+            "step": (libsumo, "simulationStep"),
+            "top_up": (libsumo.simulation, "getPendingVehicles"),
+        }[where]
+        real = getattr(owner, name)
+
+        def broken(*args: Any, **kwargs: Any) -> Any:
+            real(*args, **kwargs)
+            raise libsumo.TraCIException("injected failure")
+
+        setattr(owner, name, broken)
+        msgs = []
+        try:
+            env.step(SPEED_6 * 5 + 2)
+        except PriqnError as exc:
+            msgs.append(str(exc))
+        finally:
+            setattr(owner, name, real)
+        try:
+            env.step(SPEED_6 * 5 + 2)
+        except PriqnError as exc:
+            msgs.append(str(exc))
+        env.reset(seed=1)  # the env recovers with a new episode
+        env.step(SPEED_6 * 5 + 2)
+        return msgs
+    finally:
+        env.close()
+
+
 def _two_envs_one_process() -> tuple[bool, bool, str]:
     first, second = _make_env(), _make_env()
     try:
@@ -390,6 +428,14 @@ def test_obstacles_stand_and_offsets_fade_before_the_junction(worker) -> None:
     assert len(out["junction_lat"]) > 20
     assert max(out["junction_lat"]) < 0.15  # faded to the lane centre in the junction
     assert max(out["arm_lat"]) > 0.2  # while offsets exist on the arms
+
+
+@pytest.mark.parametrize("where", ["step", "top_up"])
+def test_sumo_failure_mid_episode_is_one_line_naming_net_and_decision(worker, where) -> None:
+    # issue 10: this path used to raise TypeError ('_Episode' object is not subscriptable).
+    failed, after = run_in(worker, _sumo_fails_mid_episode, where)
+    assert failed == f"{NET}: SUMO failed at decision 2 (TraCIException: injected failure)"
+    assert "after the episode ended" in after
 
 
 def test_second_env_in_one_process_takes_sumo_over_cleanly(worker) -> None:

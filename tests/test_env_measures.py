@@ -14,6 +14,7 @@ import pytest
 
 from priqn.env import geometry, measures
 from priqn.env import rewards as R
+from priqn.env.reads import Actors
 
 CFG = R.RewardConfig()
 ENV = measures.Envelope(
@@ -27,7 +28,7 @@ def actors(*rows: tuple[float, float, float, float], length: float = 4.5, width:
     """Actors from (x, y, heading_rad, speed_mps) rows."""
     a = np.array(rows, dtype=float).reshape(-1, 4)
     boxes = geometry.Boxes.make(a[:, :2], a[:, 2], length, width)
-    return measures.Actors(boxes, a[:, 3])
+    return Actors(boxes, a[:, 3])
 
 
 def time_to_conflict(ego: measures.EgoPath, *rows, **kw) -> float:

@@ -89,6 +89,42 @@ def test_env_config_errors_are_one_line(data: dict, match: str) -> None:
     assert "\n" not in str(exc.value)
 
 
+@pytest.mark.parametrize(
+    ("densities", "match"),
+    [
+        (["abc"], r"densities: 'abc' is not a number; expected values in \(0, 1\]"),
+        ([0.5, None], r"densities: None is not a number"),
+        (0.5, r"densities: expected a list of numbers in \(0, 1\], got 0.5"),
+        ("0.5", r"densities: expected a list of numbers"),
+        ([True], r"densities: True is not a number"),
+    ],
+)
+def test_env_config_densities_of_the_wrong_type_are_one_line(densities, match) -> None:
+    # issue 10: EnvConfig(densities=["abc"]) raised a bare TypeError from a comparison.
+    with pytest.raises(ValueError, match=match) as exc:
+        EnvConfig(densities=densities)
+    assert "\n" not in str(exc.value)
+
+
+def test_nets_dir_errors_describe_that_folder(tmp_path) -> None:
+    # issue 10: an empty nets_dir listed the repository's families instead.
+    with pytest.raises(PriqnError) as exc:
+        IntersectionEnv(EnvConfig(family="all", nets_dir=str(tmp_path)))
+    assert str(exc.value) == (
+        f"env.nets_dir: {tmp_path} has no tjunction/manifest.json (it holds no family); "
+        f"generate nets there with 'priqn scenario generate --family tjunction --out {tmp_path}'"
+    )
+    (tmp_path / "fourway").mkdir()
+    (tmp_path / "fourway" / "manifest.json").write_text('{"family": "fourway", "nets": []}')
+    with pytest.raises(PriqnError, match=r"has no tjunction/manifest.json \(it holds fourway\)"):
+        IntersectionEnv(EnvConfig(family="all", nets_dir=str(tmp_path)))
+    with pytest.raises(PriqnError, match=r"fourway: the manifest lists no nets"):
+        IntersectionEnv(EnvConfig(family="fourway", nets_dir=str(tmp_path)))
+    missing = tmp_path / "nowhere"
+    with pytest.raises(PriqnError, match=f"env.nets_dir: {missing} is not a folder"):
+        IntersectionEnv(EnvConfig(nets_dir=str(missing)))
+
+
 @pytest.mark.parametrize("bad", [0.0, -0.5, 1.01, float("nan"), "lots", None])
 def test_density_out_of_range(bad: object) -> None:
     with pytest.raises(PriqnError, match="density"):
@@ -138,7 +174,7 @@ def test_step_before_reset_is_a_clear_error() -> None:
 
 def test_vectorised_off_road_matches_geometry() -> None:
     from priqn.env import geometry
-    from priqn.env.intersection import _off_road_steps
+    from priqn.env.measures import off_road_steps
     from priqn.env.sensors import synthetic_crossroads
 
     polys, marks, _ = synthetic_crossroads(lane_width_m=3.5)
@@ -147,7 +183,7 @@ def test_vectorised_off_road_matches_geometry() -> None:
     x = rng.uniform(-12.0, 12.0, 200)
     y = rng.uniform(-12.0, 12.0, 200)
     head = rng.uniform(-np.pi, np.pi, 200)
-    got = _off_road_steps(raster, x, y, head, 4.5, 1.8)
+    got = off_road_steps(raster, x, y, head, 4.5, 1.8)
     want = [
         geometry.is_off_road(raster, geometry.Boxes.make((a, b), h, 4.5, 1.8))
         for a, b, h in zip(x, y, head, strict=True)

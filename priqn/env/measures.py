@@ -5,7 +5,8 @@ the SUMO steps of one decision and over the actors: the env reads SUMO, calls th
 and hands the results to :mod:`priqn.env.rewards`.
 
 * :func:`off_road_steps` — is the ego footprint off the drivable area at each pose?
-* :func:`first_collision` — the first step at which the ego box overlaps an actor box.
+* :func:`first_collision` — the first step at which the ego box overlaps an actor box
+  (oriented boxes, separating axes; touching is no collision).
 * :func:`conflict_times_s` — per step, the time until the ego (on its planned path)
   and an actor (at constant velocity) first come closer than the safety envelope
   (separate longitudinal and lateral safe gaps); the risk reward is built on it.
@@ -21,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from priqn.env import geometry
+from priqn.env import geometry, planner
+from priqn.env.reads import Actors
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,14 @@ class EgoPath:
     """Ego length (m)."""
     width_m: float
     """Ego width (m)."""
+
+    @classmethod
+    def of(cls, traj: planner.Trajectory, length_m: float, width_m: float) -> EgoPath:
+        """Every sample of a plan (including its ``extend_s`` continuation)."""
+        return cls(
+            traj.x, traj.y, traj.heading_rad, traj.speed_mps, float(traj.t[1] - traj.t[0]),
+            length_m, width_m,
+        )  # fmt: skip
 
     @classmethod
     def straight(
@@ -73,29 +83,6 @@ class EgoPath:
 
 
 @dataclass(frozen=True)
-class Actors:
-    """The other vehicles and obstacles at one instant (arrays [M]), read from SUMO."""
-
-    boxes: geometry.Boxes
-    """Their footprints (centre-based)."""
-    speed_mps: np.ndarray
-    """[M] speed along their heading (m/s)."""
-
-    @classmethod
-    def empty(cls) -> Actors:
-        """No actors."""
-        return cls(geometry.Boxes.empty(), np.zeros(0))
-
-    def __len__(self) -> int:
-        return len(self.speed_mps)
-
-    @property
-    def radius_m(self) -> np.ndarray:
-        """[M] bounding-circle radius (m)."""
-        return 0.5 * np.hypot(self.boxes.length_m, self.boxes.width_m)
-
-
-@dataclass(frozen=True)
 class Envelope:
     """The ego's safety envelope: its box grown by separate longitudinal / lateral gaps.
 
@@ -114,6 +101,50 @@ class Envelope:
     """Response time ρ (s): the longitudinal gap grows by ρ times the follower's speed."""
     horizon_s: float
     """Look-ahead (s): conflicts later than this are ignored."""
+
+
+# --------------------------------------------------------------------------- road and collisions
+
+
+def off_road_steps(
+    raster: geometry.MapRaster,
+    x_m: np.ndarray,
+    y_m: np.ndarray,
+    heading_rad: np.ndarray,
+    length_m: float,
+    width_m: float,
+) -> np.ndarray:
+    """bool [T]: is the ego footprint off the road at each of T poses?
+
+    Same test as :func:`priqn.env.geometry.is_off_road` (corners and edge midpoints,
+    any point off the drivable area), vectorised over the poses.
+    """
+    t = len(x_m)
+    corners = geometry.boxes_corners(
+        np.stack([x_m, y_m], axis=1), heading_rad, np.full(t, length_m), np.full(t, width_m)
+    )
+    mids = 0.5 * (corners + np.roll(corners, -1, axis=1))
+    points = np.concatenate([corners, mids], axis=1)  # [T, 8, 2]
+    return ~raster.drivable(points).all(axis=1)
+
+
+def first_collision(ego: geometry.Boxes, actors: list[Actors]) -> int | None:
+    """Index of the first step whose ego box (``ego[i]``) overlaps a box of ``actors[i]``.
+
+    ``ego`` holds one box per step; None when no step collides. A bounding-circle broad
+    phase over all (step, actor) pairs, then the separating-axis test on the rest.
+    """
+    every, step_of = Actors.stack(actors)
+    if len(every) == 0:
+        return None
+    ego_radius = 0.5 * np.hypot(ego.length_m, ego.width_m)
+    centre = every.boxes.center_xy
+    gap = np.hypot(*(centre - ego.center_xy[step_of]).T) - every.radius_m - ego_radius[step_of]
+    near = np.flatnonzero(gap < 0.0)
+    if len(near) == 0:
+        return None
+    hit = geometry.obb_overlap_pairs(ego[step_of[near]], every.boxes[near])
+    return int(step_of[near][hit].min()) if hit.any() else None
 
 
 # --------------------------------------------------------------------------- risk: time to conflict
@@ -201,22 +232,17 @@ def conflict_times_s(
     """
     k_steps = len(steps)
     out = np.full(k_steps, np.inf)
-    counts = np.array([len(a) for a in actors], dtype=int)
-    if counts.sum() == 0:
+    every, step_of = Actors.stack(actors)
+    if len(every) == 0:
         return out
     n_look = look_ahead_samples(envelope.horizon_s, ego.dt_s)
     if int(np.max(steps)) + n_look >= len(ego.x_m):
         raise ValueError(
             f"ego path has {len(ego.x_m)} samples; the look-ahead needs {int(np.max(steps)) + n_look + 1}"
         )
-    seen = [a for a in actors if len(a)]
-    step_of = np.repeat(np.arange(k_steps), counts)  # [M] pair -> executed step
-    sample = np.asarray(steps, dtype=int)[step_of]  # [M] ego sample of each pair
-    centre = np.concatenate([a.boxes.center_xy for a in seen])
-    heading = np.concatenate([a.boxes.heading_rad for a in seen])
-    speed = np.concatenate([a.speed_mps for a in seen])
-    half_len = 0.5 * np.concatenate([a.boxes.length_m for a in seen])
-    half_wid = 0.5 * np.concatenate([a.boxes.width_m for a in seen])
+    sample = np.asarray(steps, dtype=int)[step_of]  # [M] ego sample of each (step, actor) pair
+    centre, heading, speed = every.boxes.center_xy, every.boxes.heading_rad, every.speed_mps
+    half_len, half_wid = 0.5 * every.boxes.length_m, 0.5 * every.boxes.width_m
 
     # Broad phase: the distance now, less the radius of the largest envelope and the
     # actor's, must be coverable within the look-ahead at the largest closing speed.
