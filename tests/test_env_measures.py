@@ -14,7 +14,7 @@ import pytest
 
 from priqn.env import geometry, measures
 from priqn.env import rewards as R
-from priqn.env.reads import Actors
+from priqn.env.reads import Actors, StepActors
 
 CFG = R.RewardConfig()
 ENV = measures.Envelope(
@@ -33,7 +33,9 @@ def actors(*rows: tuple[float, float, float, float], length: float = 4.5, width:
 
 def time_to_conflict(ego: measures.EgoPath, *rows, **kw) -> float:
     """Conflict time seen from the ego path's first sample, actors at constant velocity."""
-    return float(measures.conflict_times_s(ego, np.array([0]), [actors(*rows, **kw)], ENV)[0])
+    return float(
+        measures.conflict_times_s(ego, np.array([0]), StepActors.of([actors(*rows, **kw)]), ENV)[0]
+    )
 
 
 def level(t: float) -> float:
@@ -73,10 +75,10 @@ def test_stopped_car_ahead_while_approaching_at_9_mps_from_28_m() -> None:
     # Per decision (steps at 0.1..0.5 s, then 0.6..1.0 s): conflict times 1.9..1.5 s,
     # mean level 1 - 1.7/3 = 0.433; then 1.4..1.0 s, mean 1 - 1.2/3 = 0.6.
     still = [actors((28.0, 0.0, 0.0, 0.0))] * 5
-    first = measures.conflict_times_s(ego, np.arange(1, 6), still, ENV)
+    first = measures.conflict_times_s(ego, np.arange(1, 6), StepActors.of(still), ENV)
     np.testing.assert_allclose(first, [1.9, 1.8, 1.7, 1.6, 1.5])
     assert R.risk(first, CFG) == pytest.approx(-(1 - 1.7 / 3))
-    second = measures.conflict_times_s(ego, np.arange(6, 11), still, ENV)
+    second = measures.conflict_times_s(ego, np.arange(6, 11), StepActors.of(still), ENV)
     assert R.risk(second, CFG) == pytest.approx(-(1 - 1.2 / 3))
     assert R.risk(first, CFG) < -0.3  # "clearly negative" well before contact (at 2.6 s)
 
@@ -158,7 +160,7 @@ def test_broad_phase_skips_only_pairs_that_cannot_meet() -> None:
             rng.uniform(-60, 60, (m, 2)), rng.uniform(-np.pi, np.pi, m), rng.uniform(0, 14, m)
         ]
         per_step.append(actors(*map(tuple, rows)))
-    got = measures.conflict_times_s(ego, np.arange(1, n_steps + 1), per_step, ENV)
+    got = measures.conflict_times_s(ego, np.arange(1, n_steps + 1), StepActors.of(per_step), ENV)
     want = np.full(n_steps, np.inf)
     t_J = np.arange(LOOK + 1) * DT
     for i, a in enumerate(per_step):
@@ -189,4 +191,6 @@ def test_risk_stays_in_minus_one_to_zero() -> None:
 def test_look_ahead_longer_than_the_path_is_an_error() -> None:
     ego = measures.EgoPath.straight((0.0, 0.0), 0.0, 5.0, 10, DT)
     with pytest.raises(ValueError, match="look-ahead"):
-        measures.conflict_times_s(ego, np.array([1]), [actors((5.0, 0.0, 0.0, 0.0))], ENV)
+        measures.conflict_times_s(
+            ego, np.array([1]), StepActors.of([actors((5.0, 0.0, 0.0, 0.0))]), ENV
+        )

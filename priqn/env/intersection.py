@@ -36,7 +36,7 @@ from gymnasium import spaces
 
 from priqn.env import geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
-from priqn.env.reads import KIN_LIMIT, Actors, EgoState
+from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
 from priqn.env.traffic import Traffic, check_density
 from priqn.errors import PriqnError
@@ -263,6 +263,8 @@ class _Measures:
     """Frenet lateral offset from the route's centre line [m]."""
     heading_error_rad: np.ndarray
     """Heading minus the centre line's heading [rad]."""
+    end: EgoState
+    """The ego after the last counted step (the next decision starts from it)."""
     advance_m: float
     """Arc length gained along the route in the decision [m]."""
     speed_mps: np.ndarray
@@ -276,7 +278,7 @@ class _Measures:
 class _Decision:
     """What one decision's simulation produced, step by step (arrays [T], T = steps run)."""
 
-    actors: list[Actors]
+    seen: StepActors
     """Actors read after each SUMO step."""
     departed: list[tuple[str, ...]]
     """Vehicles SUMO inserted in each step."""
@@ -398,7 +400,8 @@ class IntersectionEnv(gymnasium.Env):
             traffic = self._setup_episode(
                 scene, route, density, v0, np.random.default_rng(traffic_seed)
             )
-            actors = reads.read_actors(self._session.sim, EGO_ID)
+            raw = reads.read_actors(self._session.sim, EGO_ID)
+            actors = reads.decode_actors([raw], EGO_ID).at(0)
         except _sumo_errors() as exc:
             raise PriqnError(f"{net}: SUMO failed while setting up the episode: {exc}") from exc
 
@@ -426,7 +429,7 @@ class IntersectionEnv(gymnasium.Env):
             sim = self._simulate(plan)
         m = self._measure(ep, plan, sim)
         with self._sumo_failure(ep):
-            self._advance(ep, plan, sim, m)
+            self._advance(ep, sim, m)
         reward = self._reward(ep, m)
         ep.returns += reward
         return self._observe(), reward, ep.outcome.terminated, ep.outcome.timeout, self._info()
@@ -588,16 +591,16 @@ class IntersectionEnv(gymnasium.Env):
         front, angles = geometry.sumo_from_center(
             np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m
         )
-        out = _Decision([], [], [])
+        raw, departed, arrived = [], [], []
         for k in range(plan.steps):
             sim.vehicle.moveToXY(
                 EGO_ID, "", -1, float(front[k, 0]), float(front[k, 1]), float(angles[k]), 3
             )
             sim.simulationStep()
-            out.departed.append(sim.simulation.getDepartedIDList())
-            out.arrived.append(sim.simulation.getArrivedIDList())
-            out.actors.append(reads.read_actors(sim, EGO_ID))
-        return out
+            departed.append(sim.simulation.getDepartedIDList())
+            arrived.append(sim.simulation.getArrivedIDList())
+            raw.append(reads.read_actors(sim, EGO_ID))
+        return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
     def _measure(self, ep: _Episode, plan: _Plan, sim: _Decision) -> _Measures:
         """Termination events and the reward inputs; the first collision ends the decision."""
@@ -607,12 +610,13 @@ class IntersectionEnv(gymnasium.Env):
             np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m,
             cfg.ego_width_m, EGO_HEIGHT_M,
         )  # fmt: skip
-        hit = measures.first_collision(ego, sim.actors)
+        hit = measures.first_collision(ego, sim.seen)
         done_at = n if hit is None else hit + 1
         steps = np.arange(1, done_at + 1)  # plan samples of the executed SUMO steps
         off_road = bool(plan.off_road[done_at - 1])
         success = bool(plan.at_goal[done_at - 1]) and hit is None and not off_road
         ref_heading = ep.ref.heading_at(traj.s[steps])
+        end = EgoState.from_plan(traj, done_at)
         return _Measures(
             steps=done_at,
             collision=hit is not None,
@@ -621,18 +625,19 @@ class IntersectionEnv(gymnasium.Env):
             conflict_time_s=measures.conflict_times_s(
                 measures.EgoPath.of(traj, cfg.ego_length_m, cfg.ego_width_m),
                 steps,
-                sim.actors[:done_at],
+                sim.seen.first(done_at),
                 self._envelope,
             ),
             lateral_offset_m=traj.d[steps],
             heading_error_rad=np.angle(np.exp(1j * (traj.heading_rad[steps] - ref_heading))),
-            advance_m=float(traj.state_at(float(traj.t[done_at])).s - ep.ego.frenet.s),
+            end=end,
+            advance_m=end.frenet.s - ep.ego.frenet.s,
             speed_mps=traj.speed_mps[steps],
             jerk_mps3=traj.jerk_lon_mps3[steps],
             lateral_accel_mps2=traj.accel_lat_mps2[steps],
         )
 
-    def _advance(self, ep: _Episode, plan: _Plan, sim: _Decision, m: _Measures) -> None:
+    def _advance(self, ep: _Episode, sim: _Decision, m: _Measures) -> None:
         """Move the episode to the end of the decision; top the traffic up if it goes on."""
         for k in range(m.steps):
             ep.traffic.record_step(sim.departed[k], sim.arrived[k])
@@ -642,8 +647,8 @@ class IntersectionEnv(gymnasium.Env):
         if not out.terminated:
             ep.traffic.top_up()
             ep.traffic.update_offsets()
-        ep.ego = EgoState.from_plan(plan.traj, m.steps)
-        ep.actors = sim.actors[m.steps - 1]
+        ep.ego = m.end
+        ep.actors = sim.seen.at(m.steps - 1)
         ep.steps += 1
         ep.done = out.terminated or out.timeout
 
@@ -691,7 +696,7 @@ class IntersectionEnv(gymnasium.Env):
             "collision": out.collision,
             "off_road": out.off_road,
             "timeout": out.timeout,
-            "route_progress": float(np.clip(progress, 0.0, 1.0)),
+            "route_progress": float(min(max(progress, 0.0), 1.0)),
             "density_requested": float(ep.density),
             "density_realised": float(ep.traffic.density_realised),
             "net": ep.net,

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from priqn.env import geometry, planner
-from priqn.env.reads import Actors
+from priqn.env.reads import StepActors
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,10 @@ class EgoPath:
     """Ego length (m)."""
     width_m: float
     """Ego width (m)."""
+
+    def cos_sin(self) -> tuple[np.ndarray, np.ndarray]:
+        """[S] cosine and sine of the heading at every sample."""
+        return np.cos(self.heading_rad), np.sin(self.heading_rad)
 
     @classmethod
     def of(cls, traj: planner.Trajectory, length_m: float, width_m: float) -> EgoPath:
@@ -128,18 +132,20 @@ def off_road_steps(
     return ~raster.drivable(points).all(axis=1)
 
 
-def first_collision(ego: geometry.Boxes, actors: list[Actors]) -> int | None:
-    """Index of the first step whose ego box (``ego[i]``) overlaps a box of ``actors[i]``.
+def first_collision(ego: geometry.Boxes, seen: StepActors) -> int | None:
+    """Index of the first step ``k`` whose ego box ``ego[k]`` overlaps an actor of that step.
 
-    ``ego`` holds one box per step; None when no step collides. A bounding-circle broad
-    phase over all (step, actor) pairs, then the separating-axis test on the rest.
+    ``ego`` holds one box per step of ``seen``; None when no step collides. A
+    bounding-circle broad phase over all (step, actor) pairs, then the separating-axis
+    test on the rest.
     """
-    every, step_of = Actors.stack(actors)
+    every = seen.actors
     if len(every) == 0:
         return None
+    step_of = seen.step
     ego_radius = 0.5 * np.hypot(ego.length_m, ego.width_m)
-    centre = every.boxes.center_xy
-    gap = np.hypot(*(centre - ego.center_xy[step_of]).T) - every.radius_m - ego_radius[step_of]
+    delta = every.boxes.center_xy - ego.center_xy[step_of]
+    gap = np.hypot(delta[:, 0], delta[:, 1]) - every.radius_m - ego_radius[step_of]
     near = np.flatnonzero(gap < 0.0)
     if len(near) == 0:
         return None
@@ -178,19 +184,40 @@ def envelope_slack_m(
     actor's speed along the ego heading for one behind). The slack is
     ``max(g_lon − G_lon, g_lat − lat_gap)``. Broadcasts over all leading dimensions.
     """
-    c, s = np.cos(ego_heading_rad), np.sin(ego_heading_rad)
-    dx = rel_xy[..., 0] * c + rel_xy[..., 1] * s
-    dy = rel_xy[..., 1] * c - rel_xy[..., 0] * s
-    phi = actor_heading_rad - ego_heading_rad
-    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+    ego_c, ego_s = np.cos(ego_heading_rad), np.sin(ego_heading_rad)
+    act_c, act_s = np.cos(actor_heading_rad), np.sin(actor_heading_rad)
+    return _slack(
+        rel_xy[..., 0], rel_xy[..., 1], ego_c, ego_s, ego_speed_mps, act_c, act_s,
+        actor_speed_mps, ego_half_m, actor_half_length_m, actor_half_width_m, envelope,
+    )  # fmt: skip
+
+
+def _slack(
+    rx: np.ndarray,
+    ry: np.ndarray,
+    ego_c: np.ndarray,
+    ego_s: np.ndarray,
+    ego_v: np.ndarray,
+    act_c: np.ndarray,
+    act_s: np.ndarray,
+    act_v: np.ndarray,
+    ego_half_m: tuple[float, float],
+    act_hl: np.ndarray,
+    act_hw: np.ndarray,
+    envelope: Envelope,
+) -> np.ndarray:
+    """:func:`envelope_slack_m` from cosines and sines of the headings (no trigonometry)."""
+    dx = rx * ego_c + ry * ego_s
+    dy = ry * ego_c - rx * ego_s
+    cos_phi = act_c * ego_c + act_s * ego_s  # cos(ψ_a - ψ_e)
+    sin_phi = act_s * ego_c - act_c * ego_s
     ac, as_ = np.abs(cos_phi), np.abs(sin_phi)
-    e_lon = actor_half_length_m * ac + actor_half_width_m * as_
-    e_lat = actor_half_length_m * as_ + actor_half_width_m * ac
-    g_lon = np.abs(dx) - ego_half_m[0] - e_lon
-    g_lat = np.abs(dy) - ego_half_m[1] - e_lat
-    follower_mps = np.where(dx >= 0.0, ego_speed_mps, np.maximum(actor_speed_mps * cos_phi, 0.0))
-    lon_gap = envelope.lon_gap_m + envelope.reaction_time_s * follower_mps
-    return np.maximum(g_lon - lon_gap, g_lat - envelope.lat_gap_m)
+    g_lon = np.abs(dx) - (ego_half_m[0] + act_hl * ac + act_hw * as_)
+    g_lat = np.abs(dy) - (ego_half_m[1] + act_hl * as_ + act_hw * ac)
+    follower_mps = np.where(dx >= 0.0, ego_v, np.maximum(act_v * cos_phi, 0.0))
+    g_lon -= envelope.lon_gap_m + envelope.reaction_time_s * follower_mps
+    g_lat -= envelope.lat_gap_m
+    return np.maximum(g_lon, g_lat)
 
 
 def first_conflict_time_s(slack_PJ: np.ndarray, dt_s: float) -> np.ndarray:
@@ -215,12 +242,12 @@ def first_conflict_time_s(slack_PJ: np.ndarray, dt_s: float) -> np.ndarray:
 
 
 def conflict_times_s(
-    ego: EgoPath, steps: np.ndarray, actors: list[Actors], envelope: Envelope
+    ego: EgoPath, steps: np.ndarray, seen: StepActors, envelope: Envelope
 ) -> np.ndarray:
     """[K] time to the first conflict (s) seen from each executed step, ``inf`` if none.
 
     ``steps`` [K] are the ego path's sample indices of the executed SUMO steps and
-    ``actors[i]`` the actors read after step ``steps[i]``. From each step the ego
+    ``seen.at(i)`` the actors read after step ``steps[i]``. From each step the ego
     follows its path (samples ``steps[i] + j``, ``j = 0..J``, ``J·dt`` = the
     look-ahead) and each actor keeps its velocity; the result is the minimum over
     actors of :func:`first_conflict_time_s` of the :func:`envelope_slack_m`.
@@ -232,7 +259,7 @@ def conflict_times_s(
     """
     k_steps = len(steps)
     out = np.full(k_steps, np.inf)
-    every, step_of = Actors.stack(actors)
+    every = seen.actors
     if len(every) == 0:
         return out
     n_look = look_ahead_samples(envelope.horizon_s, ego.dt_s)
@@ -240,37 +267,37 @@ def conflict_times_s(
         raise ValueError(
             f"ego path has {len(ego.x_m)} samples; the look-ahead needs {int(np.max(steps)) + n_look + 1}"
         )
-    sample = np.asarray(steps, dtype=int)[step_of]  # [M] ego sample of each (step, actor) pair
-    centre, heading, speed = every.boxes.center_xy, every.boxes.heading_rad, every.speed_mps
-    half_len, half_wid = 0.5 * every.boxes.length_m, 0.5 * every.boxes.width_m
+    step_of = seen.step
+    sample = np.asarray(steps, dtype=np.intp)[step_of]  # [M] ego sample of each pair
+    boxes, speed = every.boxes, every.speed_mps
+    half_len, half_wid = 0.5 * boxes.length_m, 0.5 * boxes.width_m
 
     # Broad phase: the distance now, less the radius of the largest envelope and the
     # actor's, must be coverable within the look-ahead at the largest closing speed.
     hl_e, hw_e = 0.5 * ego.length_m, 0.5 * ego.width_m
-    window = sample[:, None] + np.arange(n_look + 1)[None, :]  # [M, J+1]
-    v_max = np.maximum(ego.speed_mps[window].max(axis=1), speed)
-    lon_max = hl_e + envelope.lon_gap_m + envelope.reaction_time_s * v_max
+    v_ego_max = np.maximum.accumulate(ego.speed_mps[::-1])[::-1]  # max over the rest of the path
+    v_ego_max = v_ego_max[sample]
+    lon_max = hl_e + envelope.lon_gap_m + envelope.reaction_time_s * np.maximum(v_ego_max, speed)
     r_env = np.hypot(lon_max, hw_e + envelope.lat_gap_m)
-    dist = np.hypot(centre[:, 0] - ego.x_m[sample], centre[:, 1] - ego.y_m[sample])
-    reach = (speed + ego.speed_mps[window].max(axis=1)) * envelope.horizon_s
+    delta = boxes.center_xy - np.stack([ego.x_m[sample], ego.y_m[sample]], axis=1)
+    dist = np.hypot(delta[:, 0], delta[:, 1])
+    reach = (speed + v_ego_max) * envelope.horizon_s
     keep = np.flatnonzero(dist - r_env - (half_len + half_wid) < reach)
     if len(keep) == 0:
         return out
-    window = window[keep]
+
+    # Narrow phase over [P pairs, J + 1 samples], trigonometry done once per sample.
+    window = sample[keep, None] + np.arange(n_look + 1)[None, :]  # [P, J+1]
     t_J = np.arange(n_look + 1) * ego.dt_s
-    vel = speed[keep, None] * np.stack([np.cos(heading[keep]), np.sin(heading[keep])], axis=1)
-    actor_xy = centre[keep, None, :] + vel[:, None, :] * t_J[None, :, None]  # [P, J+1, 2]
-    ego_xy = np.stack([ego.x_m[window], ego.y_m[window]], axis=-1)
-    slack = envelope_slack_m(
-        actor_xy - ego_xy,
-        ego.heading_rad[window],
-        ego.speed_mps[window],
-        heading[keep, None],
-        speed[keep, None],
-        (hl_e, hw_e),
-        half_len[keep, None],
-        half_wid[keep, None],
+    act_c, act_s = np.cos(boxes.heading_rad[keep]), np.sin(boxes.heading_rad[keep])
+    v = speed[keep]
+    rx = boxes.center_xy[keep, 0, None] + (v * act_c)[:, None] * t_J - ego.x_m[window]
+    ry = boxes.center_xy[keep, 1, None] + (v * act_s)[:, None] * t_J - ego.y_m[window]
+    ego_c, ego_s = ego.cos_sin()
+    slack = _slack(
+        rx, ry, ego_c[window], ego_s[window], ego.speed_mps[window], act_c[:, None],
+        act_s[:, None], v[:, None], (hl_e, hw_e), half_len[keep, None], half_wid[keep, None],
         envelope,
-    )
+    )  # fmt: skip
     np.minimum.at(out, step_of[keep], first_conflict_time_s(slack, ego.dt_s))
     return out

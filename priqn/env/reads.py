@@ -4,8 +4,9 @@
   follows its plan exactly (``moveToXY``), so its state comes from the plan, never
   from SUMO.
 * :class:`Actors` — every other vehicle and obstacle near the ego at one instant,
-  decoded from ONE libsumo context-subscription read per SUMO step
-  (:func:`read_actors`, after :func:`subscribe_actors` at the episode's set-up).
+  from ONE libsumo context-subscription read per SUMO step (:func:`read_actors`, after
+  :func:`subscribe_actors` at the episode's set-up); the raw results of a decision's
+  steps are decoded together (:func:`decode_actors`) into :class:`StepActors`.
 
 SUMO reports a vehicle's front bumper and a compass angle; :class:`Actors` holds
 centre-based :class:`~priqn.env.geometry.Boxes`.
@@ -13,8 +14,10 @@ centre-based :class:`~priqn.env.geometry.Boxes`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +72,7 @@ class EgoState:
             float(traj.x[j]),
             float(traj.y[j]),
             float(traj.heading_rad[j]),
-            np.clip(np.array(kin, np.float32), -KIN_LIMIT, KIN_LIMIT),
+            np.minimum(np.maximum(np.array(kin, np.float32), -KIN_LIMIT), KIN_LIMIT),
         )
 
     def box(self, length_m: float, width_m: float, height_m: float) -> geometry.Boxes:
@@ -104,14 +107,29 @@ class Actors:
     def __getitem__(self, index: np.ndarray | slice) -> Actors:
         return Actors(self.boxes[index], self.speed_mps[index])
 
+
+@dataclass(frozen=True)
+class StepActors:
+    """The actors read after each SUMO step of a decision, stacked step after step.
+
+    Row ``i`` of :attr:`actors` was read after step :attr:`step` ``[i]``; the rows of step
+    ``k`` are ``offsets[k]:offsets[k + 1]``. Stacked so that the measures of a decision
+    run once over all its (step, actor) pairs.
+    """
+
+    actors: Actors
+    """[M] every actor of every step."""
+    offsets: np.ndarray
+    """int [K + 1]: first row of each step, then M."""
+
     @classmethod
-    def stack(cls, per_step: list[Actors]) -> tuple[Actors, np.ndarray]:
-        """All actors of several steps as one :class:`Actors`, and each one's step index [M]."""
+    def of(cls, per_step: Sequence[Actors]) -> StepActors:
+        """Stack the actors of K steps."""
         counts = [len(a) for a in per_step]
-        step_of = np.repeat(np.arange(len(per_step)), counts)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
         seen = [a for a in per_step if len(a)]
         if not seen:
-            return cls.empty(), step_of
+            return cls(Actors.empty(), offsets)
         b = [a.boxes for a in seen]
         boxes = geometry.Boxes(
             np.concatenate([x.center_xy for x in b]),
@@ -120,7 +138,25 @@ class Actors:
             np.concatenate([x.width_m for x in b]),
             np.concatenate([x.height_m for x in b]),
         )
-        return cls(boxes, np.concatenate([a.speed_mps for a in seen])), step_of
+        return cls(Actors(boxes, np.concatenate([a.speed_mps for a in seen])), offsets)
+
+    @property
+    def n_steps(self) -> int:
+        """K, the number of steps."""
+        return len(self.offsets) - 1
+
+    @property
+    def step(self) -> np.ndarray:
+        """int [M]: the step of each row."""
+        return np.repeat(np.arange(self.n_steps), np.diff(self.offsets))
+
+    def at(self, k: int) -> Actors:
+        """The actors read after step ``k``."""
+        return self.actors[self.offsets[k] : self.offsets[k + 1]]
+
+    def first(self, k: int) -> StepActors:
+        """Steps ``0..k-1`` only."""
+        return StepActors(self.actors[: self.offsets[k]], self.offsets[: k + 1])
 
 
 def subscribe_actors(sim: ModuleType, ego_id: str, range_m: float) -> None:
@@ -141,20 +177,34 @@ def subscribe_actors(sim: ModuleType, ego_id: str, range_m: float) -> None:
     )
 
 
-def read_actors(sim: ModuleType, ego_id: str) -> Actors:
-    """The vehicles of :func:`subscribe_actors` after the last SUMO step, the ego left out."""
+def read_actors(sim: ModuleType, ego_id: str) -> dict[str, dict[int, Any]]:
+    """The raw result of :func:`subscribe_actors` after the last SUMO step (one libsumo call).
+
+    Decode the results of one or several steps with :func:`decode_actors`.
+    """
+    return sim.vehicle.getContextSubscriptionResults(ego_id)
+
+
+def decode_actors(raw_per_step: Sequence[dict[str, dict[int, Any]]], ego_id: str) -> StepActors:
+    """The actors of :func:`read_actors` results, one per step, decoded in one go (ego left out)."""
     import libsumo
 
-    res = sim.vehicle.getContextSubscriptionResults(ego_id)
     pos, ang, spd = libsumo.VAR_POSITION, libsumo.VAR_ANGLE, libsumo.VAR_SPEED
     length, width = libsumo.VAR_LENGTH, libsumo.VAR_WIDTH
-    rows = [(*d[pos], d[ang], d[spd], d[length], d[width]) for v, d in res.items() if v != ego_id]
+    rows: list[tuple[float, ...]] = []
+    offsets = [0]
+    for res in raw_per_step:
+        rows += [
+            (*d[pos], d[ang], d[spd], d[length], d[width]) for v, d in res.items() if v != ego_id
+        ]
+        offsets.append(len(rows))
+    offsets_k = np.array(offsets, dtype=np.intp)
     if not rows:
-        return Actors.empty()
+        return StepActors(Actors.empty(), offsets_k)
     vals = np.array(rows)
     heading = np.radians(90.0 - vals[:, 2])
-    cos_h, sin_h = np.cos(heading), np.sin(heading)
     half = 0.5 * vals[:, 4]
-    centre = np.stack([vals[:, 0] - half * cos_h, vals[:, 1] - half * sin_h], axis=1)
+    centre = vals[:, 0:2] - half[:, None] * np.stack([np.cos(heading), np.sin(heading)], axis=1)
     height = np.full(len(rows), ACTOR_HEIGHT_M)
-    return Actors(geometry.Boxes(centre, heading, vals[:, 4], vals[:, 5], height), vals[:, 3])
+    boxes = geometry.Boxes(centre, heading, vals[:, 4], vals[:, 5], height)
+    return StepActors(Actors(boxes, vals[:, 3]), offsets_k)

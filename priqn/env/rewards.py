@@ -101,7 +101,7 @@ def risk(conflict_time_s: np.ndarray, cfg: RewardConfig) -> float:
     0 when no conflict is due within ``conflict_time_safe_s``; -1 inside the envelope.
     """
     t = np.asarray(conflict_time_s, float)
-    return -float(np.mean(np.clip(1.0 - t / cfg.conflict_time_safe_s, 0.0, 1.0)))
+    return -float(np.mean(np.minimum(np.maximum(1.0 - t / cfg.conflict_time_safe_s, 0.0), 1.0)))
 
 
 def lane_keeping(
@@ -129,7 +129,7 @@ def progress(
     ``v*`` the target speed. Range [0, 1] (+ success_bonus): 0 standing still, 1 at v*.
     """
     v_star = float(target_speed_mps)
-    adv = float(np.clip(advance_m / (v_star * duration_s), 0.0, 1.0))
+    adv = min(max(float(advance_m) / (v_star * duration_s), 0.0), 1.0)
     v = np.asarray(speed_mps, float)
     adherence = float(np.mean(1.0 - np.minimum(np.abs(v - v_star) / v_star, 1.0)))
     w = cfg.advance_weight

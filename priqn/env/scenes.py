@@ -4,7 +4,7 @@ A :class:`ScenePool` knows which nets ``reset`` may draw (the families of
 ``EnvConfig.family`` under ``EnvConfig.nets_dir`` or the repository's ``sumo_nets/``)
 and builds a :class:`Scene` per net the first time it is used, then keeps it: parsing
 a net and rasterising its road takes 0.1-0.3 s, a reset afterwards only milliseconds.
-A scene also caches, per ego route, the map raster with that route's bit drawn
+A scene also caches, per ego route, the cells of that route's bit
 (:meth:`Scene.route_raster`), so a reset on a known (net, route) draws nothing.
 
 Nothing here talks to SUMO: lane lengths and widths come from the parsed net.
@@ -15,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 from priqn.config import from_dict
 from priqn.env import geometry, planner
@@ -53,20 +55,29 @@ class Scene:
     """Planner reference line per ego route name."""
     traffic: TrafficSpec
     """The family's traffic settings (from the manifest beside the net)."""
-    _route_rasters: dict[str, geometry.MapRaster] = dataclasses.field(default_factory=dict)
+    _route_cells: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     _sites: dict[float, list[ObstacleSite]] = dataclasses.field(default_factory=dict)
 
     def route_raster(self, route: EgoRoute) -> geometry.MapRaster:
-        """The map raster with ``route``'s bit set (drawn at the first use, then cached).
+        """A fresh copy of the map raster with ``route``'s bit set.
 
-        The returned raster is shared between episodes on this route: treat it as read-only.
+        The route is drawn once per (net, route) and kept as the flat indices of its
+        cells (~0.1 MB per route instead of a whole raster); later calls copy the base
+        raster and set those cells, identical to ``raster.with_route(...)``.
         """
-        raster = self._route_rasters.get(route.name)
-        if raster is None:
-            raster = self.raster.with_route(route.reference_xy, route.lane_width_m)
-            raster.bits.flags.writeable = False
-            self._route_rasters[route.name] = raster
-        return raster
+        cells = self._route_cells.get(route.name)
+        if cells is None:
+            drawn = self.raster.with_route(route.reference_xy, route.lane_width_m)
+            cells = np.flatnonzero(drawn.bits & geometry.ROUTE).astype(np.int32)
+            self._route_cells[route.name] = cells
+        bits = self.raster.bits.copy()
+        bits.ravel()[cells] |= geometry.ROUTE
+        return geometry.MapRaster(bits, self.raster.origin_xy, self.raster.resolution_m)
+
+    def prepare_routes(self) -> None:
+        """Draw every ego route now (so that no reset draws one)."""
+        for route in self.roadmap.ego_routes:
+            self.route_raster(route)
 
     def obstacle_sites(self, route: EgoRoute, clearance_m: float) -> list[ObstacleSite]:
         """Where obstacles may stand in an episode on ``route``.
@@ -151,9 +162,9 @@ class ScenePool:
         return scene
 
     def preload(self) -> int:
-        """Build every scene of the pool now; returns how many."""
+        """Build every scene of the pool and draw its routes now; returns how many scenes."""
         for net in self.refs:
-            self.scene(net)
+            self.scene(net).prepare_routes()
         return len(self.refs)
 
 
