@@ -606,9 +606,9 @@ class IntersectionEnv(gymnasium.Env):
         """Termination events and the reward inputs; the first collision ends the decision."""
         cfg, traj, n = self.config, plan.traj, plan.steps
         sl = slice(1, n + 1)
-        ego = geometry.Boxes.make(
-            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m,
-            cfg.ego_width_m, EGO_HEIGHT_M,
+        ego = geometry.Boxes(
+            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl],
+            np.full(n, cfg.ego_length_m), np.full(n, cfg.ego_width_m), np.full(n, EGO_HEIGHT_M),
         )  # fmt: skip
         hit = measures.first_collision(ego, sim.seen)
         done_at = n if hit is None else hit + 1

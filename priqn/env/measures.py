@@ -110,6 +110,21 @@ class Envelope:
 # --------------------------------------------------------------------------- road and collisions
 
 
+_OUTLINE_FL = np.array(
+    [
+        [1.0, -1.0],
+        [1.0, 1.0],
+        [-1.0, 1.0],
+        [-1.0, -1.0],
+        [1.0, 0.0],
+        [0.0, 1.0],
+        [-1.0, 0.0],
+        [0.0, -1.0],
+    ]
+)
+"""The 4 corners and 4 edge midpoints of a box, in (forward, left) half-extents."""
+
+
 def off_road_steps(
     raster: geometry.MapRaster,
     x_m: np.ndarray,
@@ -123,12 +138,12 @@ def off_road_steps(
     Same test as :func:`priqn.env.geometry.is_off_road` (corners and edge midpoints,
     any point off the drivable area), vectorised over the poses.
     """
-    t = len(x_m)
-    corners = geometry.boxes_corners(
-        np.stack([x_m, y_m], axis=1), heading_rad, np.full(t, length_m), np.full(t, width_m)
-    )
-    mids = 0.5 * (corners + np.roll(corners, -1, axis=1))
-    points = np.concatenate([corners, mids], axis=1)  # [T, 8, 2]
+    fwd = _OUTLINE_FL[:, 0] * (0.5 * length_m)  # [8]
+    left = _OUTLINE_FL[:, 1] * (0.5 * width_m)
+    c, s = np.cos(heading_rad)[:, None], np.sin(heading_rad)[:, None]
+    points = np.empty((len(x_m), len(fwd), 2))
+    points[..., 0] = x_m[:, None] + c * fwd - s * left
+    points[..., 1] = y_m[:, None] + s * fwd + c * left
     return ~raster.drivable(points).all(axis=1)
 
 

@@ -14,6 +14,7 @@ centre-based :class:`~priqn.env.geometry.Boxes`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import ModuleType
@@ -68,7 +69,7 @@ class EgoState:
         j = index
         kin = [traj.speed_mps[j], traj.d_dot[j], traj.accel_lon_mps2[j], traj.accel_lat_mps2[j]]
         return cls(
-            traj.state_at(float(traj.t[j])),
+            traj.state_at_sample(j),
             float(traj.x[j]),
             float(traj.y[j]),
             float(traj.heading_rad[j]),
@@ -77,8 +78,12 @@ class EgoState:
 
     def box(self, length_m: float, width_m: float, height_m: float) -> geometry.Boxes:
         """The ego's footprint as one box."""
-        return geometry.Boxes.make(
-            (self.x_m, self.y_m), self.heading_rad, length_m, width_m, height_m
+        return geometry.Boxes(
+            np.array([[self.x_m, self.y_m]]),
+            np.array([self.heading_rad]),
+            np.array([length_m]),
+            np.array([width_m]),
+            np.array([height_m]),
         )
 
 
@@ -121,6 +126,12 @@ class StepActors:
     """[M] every actor of every step."""
     offsets: np.ndarray
     """int [K + 1]: first row of each step, then M."""
+    step: np.ndarray = dataclasses.field(init=False, repr=False)
+    """int [M]: the step of each row."""
+
+    def __post_init__(self) -> None:
+        step = np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
+        object.__setattr__(self, "step", step)
 
     @classmethod
     def of(cls, per_step: Sequence[Actors]) -> StepActors:
@@ -144,11 +155,6 @@ class StepActors:
     def n_steps(self) -> int:
         """K, the number of steps."""
         return len(self.offsets) - 1
-
-    @property
-    def step(self) -> np.ndarray:
-        """int [M]: the step of each row."""
-        return np.repeat(np.arange(self.n_steps), np.diff(self.offsets))
 
     def at(self, k: int) -> Actors:
         """The actors read after step ``k``."""
