@@ -20,8 +20,8 @@ def test_bench_env_cli_smoke(tmp_path: Path) -> None:
     row = data["density"]["0.5"]
     assert row["env"]["decisions"] == 10 and row["floor"]["decisions"] == 10
     assert row["ratio"] == row["floor"]["decisions_per_s"] / row["env"]["decisions_per_s"] > 0
-    assert len(row["env_runs"]) == len(row["floor_runs"]) == 2
-    assert row["env"]["decisions_per_s"] == min(row["env_runs"])  # median_low of two
+    assert len(row["env_runs"]) == len(row["floor_runs"]) == len(row["ratio_runs"]) == 2
+    assert row["ratio"] == min(row["ratio_runs"])  # the run with the median_low ratio
     env = row["env"]
     assert env["risk_us_per_step"] > 0 and env["parts_ms"]["risk_ms"] > 0
     assert env["reset_ms"] > 0 and set(env["episode"]) == {
