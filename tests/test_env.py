@@ -20,6 +20,7 @@ from priqn.errors import PriqnError
 
 NET = "tjunction/tjunction_00"
 SPEED_6 = 2  # index of 6 m/s in the default speed grid linspace(0, 12, 5)
+SPEED_9 = 3  # index of 9 m/s
 
 
 @pytest.fixture(scope="module")
@@ -85,9 +86,10 @@ def _scripted(case: str) -> dict:
     """Straight route, no traffic, no obstacles; ``case`` adds one scripted vehicle.
 
     'calm': nothing added. 'ahead': a stopped car 30 m ahead in the ego lane.
+    'ahead9': the ego at 9 m/s, a stopped car 28 m ahead (front to front) in its lane.
     'partial': a stopped car in the opposite lane; the ego drives with an offset that puts
     ~1 m of it into that lane. 'head_on': a car driving towards the ego in the opposite
-    lane, the ego fully in that lane.
+    lane, the ego fully in that lane. 'oncoming': the same car, the ego in its own lane.
     """
     import sumolib
 
@@ -105,10 +107,12 @@ def _scripted(case: str) -> dict:
     )
     # Lateral distance from the ego lane centre to the nearest opposite lane's centre.
     x_opp = (approach.getLaneNumber() - lane_index) * lane_w
-    offset = {"calm": 1.0, "ahead": 1.0, "partial": x_opp - 1.4, "head_on": x_opp}[case]
+    offset = {"partial": x_opp - 1.4, "head_on": x_opp}.get(case, 1.0)
+    speed = (9.0, 9.0) if case == "ahead9" else (4.0, 8.0)
     env = _make_env(
-        n_offsets=3, max_offset_m=offset, obstacles_per_episode=(0, 0), max_episode_steps=60
-    )
+        n_offsets=3, max_offset_m=offset, obstacles_per_episode=(0, 0), max_episode_steps=60,
+        ego_start_speed_mps=speed,
+    )  # fmt: skip
     try:
         env.reset(seed=1, options={"net": NET, "density": 0.01, "command": "straight"})
         sim = env._session.sim
@@ -117,13 +121,23 @@ def _scripted(case: str) -> dict:
             _add_parked_car(
                 sim, "blocker", route.edges[0], lane_index, route.start_pos_m + 30.0, 0.0
             )
-        elif case in ("partial", "head_on"):
+        elif case == "ahead9":
+            # SUMO refuses to insert a stopped car 28 m ahead of a car doing 9 m/s: insert it
+            # at the end of the lane, then move it to 28 m ahead of the ego's front.
+            edge = route.edges[0]
+            _add_parked_car(sim, "blocker", edge, lane_index, approach.getLength() - 1.0, 0.0)
+            sim.simulationStep()  # inserts it (the env moves the ego from its own state)
+            x, y = sim.simulation.convert2D(edge, route.start_pos_m + 28.0, lane_index)
+            angle = sim.vehicle.getAngle("blocker")
+            sim.vehicle.moveToXY("blocker", edge, lane_index, x, y, angle, 1)
+        elif case in ("partial", "head_on", "oncoming"):
             opp_lane = opposite.getLaneNumber() - 1  # nearest the centre line
             pos = to_junction - (30.0 if case == "partial" else 45.0)
             _add_parked_car(
                 sim, "other", opposite.getID(), opp_lane, pos, 0.0 if case == "partial" else 8.0
             )
-        action = SPEED_6 * 3 + (1 if case in ("calm", "ahead") else 2)
+        in_lane = case in ("calm", "ahead", "ahead9", "oncoming")
+        action = (SPEED_9 if case == "ahead9" else SPEED_6) * 3 + (1 if in_lane else 2)
         rewards, infos = [], []
         while True:
             _, r, term, trunc, info = env.step(action)
@@ -227,6 +241,44 @@ def _traffic_checks() -> dict:
         env.close()
 
 
+def _sumo_fails_mid_episode(where: str) -> list[str]:
+    """Inject a libsumo exception at decision 2: after a SUMO step or in the traffic top-up."""
+    import libsumo
+
+    env = _make_env(obstacles_per_episode=(0, 0))
+    try:
+        env.reset(seed=0, options={"net": NET, "density": 0.5, "command": "straight"})
+        env.step(SPEED_6 * 5 + 2)
+        env.step(SPEED_6 * 5 + 2)
+        owner, name = {
+            "step": (libsumo, "simulationStep"),
+            "top_up": (libsumo.simulation, "getPendingVehicles"),
+        }[where]
+        real = getattr(owner, name)
+
+        def broken(*args: Any, **kwargs: Any) -> Any:
+            real(*args, **kwargs)
+            raise libsumo.TraCIException("injected failure")
+
+        setattr(owner, name, broken)
+        msgs = []
+        try:
+            env.step(SPEED_6 * 5 + 2)
+        except PriqnError as exc:
+            msgs.append(str(exc))
+        finally:
+            setattr(owner, name, real)
+        try:
+            env.step(SPEED_6 * 5 + 2)
+        except PriqnError as exc:
+            msgs.append(str(exc))
+        env.reset(seed=1)  # the env recovers with a new episode
+        env.step(SPEED_6 * 5 + 2)
+        return msgs
+    finally:
+        env.close()
+
+
 def _two_envs_one_process() -> tuple[bool, bool, str]:
     first, second = _make_env(), _make_env()
     try:
@@ -265,6 +317,25 @@ def test_driving_into_a_stopped_car_collides(worker) -> None:
     assert np.all(out["rewards"][:-1, 0] == 0.0)
     assert out["rewards"][-1, 1] < 0.0  # risk: touching at the end
     assert np.all(out["info"]["returns"] == pytest.approx(out["rewards"].sum(0), abs=1e-4))
+
+
+def test_risk_fires_well_before_hitting_a_stopped_car(worker) -> None:
+    # issue 9: approaching a stopped car at 9 m/s from 28 m must be clearly risky
+    # (below -0.3 at some decision before contact), growing towards the contact.
+    out = run_in(worker, _scripted, "ahead9")
+    assert out["info"]["collision"]
+    risk = out["rewards"][:, 1]
+    assert len(risk) >= 4
+    assert risk[:-1].min() < -0.3
+    assert np.all(np.diff(risk) <= 1e-6)  # never decreasing risk on the way in
+    assert risk[-1] == pytest.approx(-1.0, abs=0.25)  # inside the envelope at the end
+
+
+def test_oncoming_car_in_the_opposite_lane_costs_no_risk(worker) -> None:
+    # issue 9: the old clearance + centre-distance TTC charged -0.4..-0.96 per decision here.
+    out = run_in(worker, _scripted, "oncoming")
+    assert not out["info"]["collision"] and not out["info"]["off_road"]
+    assert np.all(out["rewards"][:, 1] == 0.0)
 
 
 def test_ego_partly_in_the_opposite_lane_collides(worker) -> None:
@@ -357,6 +428,14 @@ def test_obstacles_stand_and_offsets_fade_before_the_junction(worker) -> None:
     assert len(out["junction_lat"]) > 20
     assert max(out["junction_lat"]) < 0.15  # faded to the lane centre in the junction
     assert max(out["arm_lat"]) > 0.2  # while offsets exist on the arms
+
+
+@pytest.mark.parametrize("where", ["step", "top_up"])
+def test_sumo_failure_mid_episode_is_one_line_naming_net_and_decision(worker, where) -> None:
+    # issue 10: this path used to raise TypeError ('_Episode' object is not subscriptable).
+    failed, after = run_in(worker, _sumo_fails_mid_episode, where)
+    assert failed == f"{NET}: SUMO failed at decision 2 (TraCIException: injected failure)"
+    assert "after the episode ended" in after
 
 
 def test_second_env_in_one_process_takes_sumo_over_cleanly(worker) -> None:

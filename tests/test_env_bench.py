@@ -12,14 +12,24 @@ def test_bench_env_cli_smoke(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     cmd = [sys.executable, "-m", "priqn.cli", "bench", "env", "--family", "tjunction",
            "--densities", "0.5", "--decisions", "10", "--vector-decisions", "10",
-           "--max-workers", "1", "--obs-size", "32", "--json", str(out)]  # fmt: skip
+           "--max-workers", "1", "--obs-size", "32", "--repeats", "2", "--json", str(out)]  # fmt: skip
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "env/floor" in proc.stdout
+    assert "env/floor" in proc.stdout and "risk us/step" in proc.stdout
     data = json.loads(out.read_text())
     row = data["density"]["0.5"]
     assert row["env"]["decisions"] == 10 and row["floor"]["decisions"] == 10
     assert row["ratio"] == row["floor"]["decisions_per_s"] / row["env"]["decisions_per_s"] > 0
+    assert len(row["env_runs"]) == len(row["floor_runs"]) == len(row["ratio_runs"]) == 2
+    assert row["ratio"] == min(row["ratio_runs"])  # the run with the median_low ratio
+    env = row["env"]
+    assert env["risk_us_per_step"] > 0 and env["parts_ms"]["risk_ms"] > 0
+    assert env["reset_ms"] > 0 and set(env["episode"]) == {
+        "count",
+        "decisions",
+        "ms",
+        "decisions_per_s",
+    }
     assert data["vector"]["1"]["decisions"] == 10
 
 

@@ -25,11 +25,11 @@ def test_safety_is_the_event_penalty_or_zero() -> None:
 
 
 def test_risk_by_hand() -> None:
-    # clearance 2 m of 4 m safe -> 0.5; ttc 1.5 s of 3 s -> 0.5; ttc 0.75 s -> 0.75
-    assert R.risk(np.array([2.0]), np.array([np.inf]), CFG) == pytest.approx(-0.5)
-    assert R.risk(np.array([np.inf]), np.array([0.75]), CFG) == pytest.approx(-0.75)
-    assert R.risk(np.array([10.0, 0.0]), np.array([np.inf, np.inf]), CFG) == pytest.approx(-0.5)
-    assert R.risk(np.array([np.inf]), np.array([np.inf]), CFG) == 0.0
+    # time to conflict 1.5 s of 3 s -> 0.5; 0.75 s -> 0.75; 3 s or more -> 0; 0 -> 1
+    assert R.risk(np.array([1.5]), CFG) == pytest.approx(-0.5)
+    assert R.risk(np.array([0.75]), CFG) == pytest.approx(-0.75)
+    assert R.risk(np.array([10.0, 0.0]), CFG) == pytest.approx(-0.5)
+    assert R.risk(np.array([3.0, np.inf]), CFG) == 0.0
 
 
 def test_lane_keeping_by_hand() -> None:
@@ -62,42 +62,11 @@ def test_reward_vector_order_and_dtype() -> None:
     assert list(v) == [1, 2, 3, 4, 5]
 
 
-def _box(cx: float, cy: float, heading: float = 0.0, length: float = 4.0, width: float = 2.0):
-    from priqn.env.geometry import boxes_corners
-
-    return boxes_corners(
-        np.array([[cx, cy]]), np.array([heading]), np.array([length]), np.array([width])
-    )
-
-
-def test_box_clearance_by_hand() -> None:
-    ego = _box(0.0, 0.0)[0]
-    # Same heading, 10 m ahead: gap = 10 - 4 = 6 m; 3 m to the left: gap = 3 - 2 = 1 m.
-    others = np.concatenate(
-        [_box(10.0, 0.0), _box(0.0, 3.0), _box(1.0, 0.5), _box(3.0, 2.0, np.pi / 2)]
-    )
-    gaps = R.box_clearance_m(ego, others)
-    assert gaps[0] == pytest.approx(6.0)
-    assert gaps[1] == pytest.approx(1.0)
-    assert gaps[2] == 0.0  # overlapping
-    # Rotated 90°: other spans x in [2, 4], y in [0, 4]; ego spans x in [-2, 2], y in [-1, 1]: touching.
-    assert gaps[3] == pytest.approx(0.0)
-    assert R.box_clearance_m(ego, np.zeros((0, 4, 2))).shape == (0,)
-
-
-def test_time_to_collision_by_hand() -> None:
-    # Ego at 0 driving +x at 10 m/s, actor 20 m ahead driving -x at 10 m/s, gap 16 m -> 0.8 s.
-    ttc = R.time_to_collision_s(
-        np.zeros(2), np.array([10.0, 0.0]), np.array([[20.0, 0.0], [0.0, 5.0]]),
-        np.array([[-10.0, 0.0], [10.0, 0.0]]), np.array([16.0, 3.0]),
-    )  # fmt: skip
-    assert ttc[0] == pytest.approx(0.8)
-    assert ttc[1] == np.inf  # side by side, not closing
-
-
 def test_reward_config_rejects_bad_values() -> None:
-    with pytest.raises(PriqnError, match="reward.ttc_safe_s"):
-        from_dict(EnvConfig, {"reward": {"ttc_safe_s": 0.0}}, where="env.toml [env]")
+    with pytest.raises(PriqnError, match="reward.conflict_time_safe_s"):
+        from_dict(EnvConfig, {"reward": {"conflict_time_safe_s": 0.0}}, where="env.toml [env]")
+    with pytest.raises(PriqnError, match="reward.lat_safe_gap_m"):
+        from_dict(EnvConfig, {"reward": {"lat_safe_gap_m": -0.1}}, where="env.toml [env]")
     with pytest.raises(PriqnError, match="advance_weight"):
         from_dict(EnvConfig, {"reward": {"advance_weight": 2.0}}, where="env.toml [env]")
 
@@ -118,6 +87,42 @@ def test_env_config_errors_are_one_line(data: dict, match: str) -> None:
     with pytest.raises(PriqnError, match=match) as exc:
         from_dict(EnvConfig, data, where="cfg.toml [env]")
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize(
+    ("densities", "match"),
+    [
+        (["abc"], r"densities: 'abc' is not a number; expected values in \(0, 1\]"),
+        ([0.5, None], r"densities: None is not a number"),
+        (0.5, r"densities: expected a list of numbers in \(0, 1\], got 0.5"),
+        ("0.5", r"densities: expected a list of numbers"),
+        ([True], r"densities: True is not a number"),
+    ],
+)
+def test_env_config_densities_of_the_wrong_type_are_one_line(densities, match) -> None:
+    # issue 10: EnvConfig(densities=["abc"]) raised a bare TypeError from a comparison.
+    with pytest.raises(ValueError, match=match) as exc:
+        EnvConfig(densities=densities)
+    assert "\n" not in str(exc.value)
+
+
+def test_nets_dir_errors_describe_that_folder(tmp_path) -> None:
+    # issue 10: an empty nets_dir listed the repository's families instead.
+    with pytest.raises(PriqnError) as exc:
+        IntersectionEnv(EnvConfig(family="all", nets_dir=str(tmp_path)))
+    assert str(exc.value) == (
+        f"env.nets_dir: {tmp_path} has no tjunction/manifest.json (it holds no family); "
+        f"generate nets there with 'priqn scenario generate --family tjunction --out {tmp_path}'"
+    )
+    (tmp_path / "fourway").mkdir()
+    (tmp_path / "fourway" / "manifest.json").write_text('{"family": "fourway", "nets": []}')
+    with pytest.raises(PriqnError, match=r"has no tjunction/manifest.json \(it holds fourway\)"):
+        IntersectionEnv(EnvConfig(family="all", nets_dir=str(tmp_path)))
+    with pytest.raises(PriqnError, match=r"fourway: the manifest lists no nets"):
+        IntersectionEnv(EnvConfig(family="fourway", nets_dir=str(tmp_path)))
+    missing = tmp_path / "nowhere"
+    with pytest.raises(PriqnError, match=f"env.nets_dir: {missing} is not a folder"):
+        IntersectionEnv(EnvConfig(nets_dir=str(missing)))
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.5, 1.01, float("nan"), "lots", None])
@@ -169,7 +174,7 @@ def test_step_before_reset_is_a_clear_error() -> None:
 
 def test_vectorised_off_road_matches_geometry() -> None:
     from priqn.env import geometry
-    from priqn.env.intersection import _off_road_steps
+    from priqn.env.measures import off_road_steps
     from priqn.env.sensors import synthetic_crossroads
 
     polys, marks, _ = synthetic_crossroads(lane_width_m=3.5)
@@ -178,7 +183,7 @@ def test_vectorised_off_road_matches_geometry() -> None:
     x = rng.uniform(-12.0, 12.0, 200)
     y = rng.uniform(-12.0, 12.0, 200)
     head = rng.uniform(-np.pi, np.pi, 200)
-    got = _off_road_steps(raster, x, y, head, 4.5, 1.8)
+    got = off_road_steps(raster, x, y, head, 4.5, 1.8)
     want = [
         geometry.is_off_road(raster, geometry.Boxes.make((a, b), h, 4.5, 1.8))
         for a, b, h in zip(x, y, head, strict=True)

@@ -92,3 +92,34 @@ def test_a_vector_worker_replays_the_serial_episode() -> None:
     finally:
         venv.close()
     np.testing.assert_array_equal(np.array(parallel), serial)
+
+
+def test_a_worker_killed_while_the_parent_waits_is_named() -> None:
+    # The training loop blocks in step_wait while the workers step: a worker that dies
+    # then shows up as a broken pipe before the OS reports its exit (issue 10).
+    cfg = EnvConfig(family="tjunction", obs_size_px=32)
+    venv = make_vector_env(cfg, num_envs=2, seed=3)
+    try:
+        venv.reset()
+        victim = venv.processes[0].pid
+        os.kill(victim, signal.SIGSTOP)  # it cannot answer the step sent next
+        venv.step_async(np.array([12, 12]))
+        os.kill(victim, signal.SIGKILL)
+        with pytest.raises(PriqnError, match=r"vector env step: worker 0 \(exit code -9\) died"):
+            venv.step_wait()
+        assert venv.closed
+    finally:
+        venv.close()
+
+
+def test_an_error_in_a_worker_names_it_without_a_traceback(capfd) -> None:
+    venv = make_vector_env(EnvConfig(family="tjunction", obs_size_px=32), num_envs=2, seed=3)
+    try:
+        with pytest.raises(PriqnError) as exc:
+            venv.reset(options={"colour": "red"})
+        assert str(exc.value) == (
+            "vector env worker 0: reset options: unknown key 'colour' (valid: net, density, command)"
+        )
+        assert "Traceback" not in capfd.readouterr().err
+    finally:
+        venv.close()

@@ -274,3 +274,25 @@ def test_sumo_pose_convention():
     center, heading = center_from_sumo(front, np.array([0.0, 90.0]), 4.0)
     np.testing.assert_allclose(center, [[0.0, 0.0], [10.0, 5.0]], atol=1e-12)
     np.testing.assert_allclose(heading, [np.pi / 2, 0.0], atol=1e-12)
+
+
+def test_state_at_a_sample_equals_evaluating_the_polynomials_there():
+    ref = left_turn(15.0)
+    cfg = PlannerConfig(horizon_s=3.0, dt_s=0.1, extend_s=0.5)
+    for state, v_f, d_f in [
+        (FrenetState(20.0, 6.0, 0.5, 0.3, 0.02, 0.001), 9.0, -0.75),
+        (FrenetState(25.0, 4.0, -6.0, 0.0, 0.0, 0.0), 0.0, 1.5),  # braking hard: t_rest < T
+    ]:
+        tr = plan(ref, state, v_f, d_f, cfg)
+        assert len(tr.t) == 36 and tr.t[30] == 3.0 and tr.t[-1] == pytest.approx(3.5)
+        for j in (0, 1, 5, 30, 35):
+            a, b = tr.state_at_sample(j), tr.state_at(float(tr.t[j]))
+            np.testing.assert_allclose(
+                [a.s, a.s_dot, a.s_ddot, a.d, a.d_prime, a.d_pprime],
+                [b.s, b.s_dot, b.s_ddot, b.d, b.d_prime, b.d_pprime],
+                rtol=1e-12,
+                atol=1e-12,
+            )
+        # Past the horizon the plan continues at v_f with the lateral offset it reached.
+        np.testing.assert_allclose(tr.s_dot[31:], v_f, atol=1e-9)
+        np.testing.assert_allclose(np.diff(tr.s[30:]), v_f * 0.1, atol=1e-9)

@@ -5,22 +5,28 @@ process, and a fresh process keeps the measurements independent):
 
 1. **env** — one :class:`~priqn.env.intersection.IntersectionEnv` with the default
    observation, at each density: episodes on pinned scenes (net, command, seed) driven
-   by a fixed seeded policy (target speed 3/6/9 m/s, no lateral offset); the time of
-   ``step`` only (resets are timed separately, after every net of the pool was parsed
-   once, as in a long training run).
-2. **floor** — the same scenes (same seeds, so the same net, traffic and obstacles)
-   stepped with ``libsumo.simulationStep`` only: no planner, no ego ``moveToXY``, no
-   collision tests, no sensors, the same number of decisions per episode, each
-   decision = ``decision_interval_s / sim_step_s`` SUMO steps.
+   by a fixed seeded policy (target speed 3/6/9 m/s, no lateral offset), after every
+   net of the pool was parsed and every route drawn once (``preload_nets``), as in a
+   long training run. Timed: ``step`` (the ratio below), its parts (SUMO stepping,
+   planner, sensors, the risk measure), resets, and whole episodes (reset + steps).
+2. **floor** — right after each env episode, in the same process, the same scene
+   (same seed, so the same net, traffic and obstacles) is reset and stepped with
+   ``libsumo.simulationStep`` only: no planner, no ego ``moveToXY``, no collision
+   tests, no sensors, as many decisions as the env episode had, each decision =
+   ``decision_interval_s / sim_step_s`` SUMO steps. Interleaving episode by episode
+   puts env and floor under the same machine load (in separate processes the floor
+   alone drifted by ±25 % on a shared machine).
 3. **vector** — ``make_vector_env`` with 1 and with 2 workers, total decisions/s.
 
-The ratio env / floor is the env's overhead over SUMO itself (target: <= 3).
+Each density is measured ``--repeats`` times in fresh processes; the table shows the
+run with the median ``env/floor`` ratio (the env's cost over SUMO's own).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import time
@@ -42,6 +48,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--obs-size", type=int, default=128, help="observation size in px")
     parser.add_argument("--vector-decisions", type=int, default=200, help="vector steps per size")
     parser.add_argument("--max-workers", type=int, default=2, help="largest vector env measured")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="env and floor measurements per density (medians)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of scenes and policy")
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
 
@@ -61,37 +70,58 @@ def run(args: argparse.Namespace) -> int:
         check_density(d, "--densities")
     if args.decisions < 10 or args.vector_decisions < 10:
         raise PriqnError("--decisions and --vector-decisions: expected >= 10")
-    if args.max_workers < 1:
-        raise PriqnError("--max-workers: expected >= 1")
+    if args.max_workers < 0:
+        raise PriqnError("--max-workers: expected >= 0 (0 skips the vector env)")
+    if args.repeats < 1:
+        raise PriqnError("--repeats: expected >= 1")
     base = {"family": args.family, "obs_size_px": args.obs_size, "seed": args.seed}
     results: dict[str, Any] = {
-        "config": {**base, "decisions": args.decisions},
+        "config": {**base, "decisions": args.decisions, "repeats": args.repeats},
         "density": {},
         "vector": {},
     }
-    print(f"priqn bench env: family={args.family} obs={args.obs_size}px decisions={args.decisions}")
     print(
-        f"{'density':>8} {'env dec/s':>10} {'floor dec/s':>12} {'env/floor':>10} {'reset ms':>9}"
-        "   env step ms = sumo + sensors + planner + rest"
+        f"priqn bench env: family={args.family} obs={args.obs_size}px "
+        f"decisions={args.decisions} repeats={args.repeats} (medians)"
+    )
+    print(
+        f"{'density':>7} {'env dec/s':>9} {'floor dec/s':>11} {'env/floor':>9} "
+        f"{'reset ms':>8} {'episode ms':>10} {'dec/s incl. resets':>18} {'risk us/step':>12}"
+        "   env step ms = sumo + sensors + planner + risk + rest"
     )
     for d in densities:
-        env = _child({**base, "mode": "env", "density": d, "decisions": args.decisions})
-        floor = _child({**base, "mode": "floor", "density": d, "episodes": env["episodes"]})
+        runs = [
+            _child({**base, "mode": "env", "density": d, "decisions": args.decisions})
+            for _ in range(args.repeats)
+        ]
+        ratios = [r["floor"]["decisions_per_s"] / r["env"]["decisions_per_s"] for r in runs]
+        mid = runs[ratios.index(statistics.median_low(ratios))]
+        env, floor = mid["env"], mid["floor"]
         ratio = floor["decisions_per_s"] / env["decisions_per_s"]
-        results["density"][str(d)] = {"env": env, "floor": floor, "ratio": ratio}
-        p = env["parts_ms"]
+        results["density"][str(d)] = {
+            "env": env,
+            "floor": floor,
+            "ratio": ratio,
+            "ratio_runs": ratios,
+            "env_runs": [r["env"]["decisions_per_s"] for r in runs],
+            "floor_runs": [r["floor"]["decisions_per_s"] for r in runs],
+        }
+        p, ep = env["parts_ms"], env["episode"]
         print(
-            f"{d:>8.2f} {env['decisions_per_s']:>10.1f} {floor['decisions_per_s']:>12.1f} "
-            f"{ratio:>9.2f}x {env['reset_ms']:>9.1f}   {env['step_ms']:.2f} = {p['sumo_ms']:.2f} "
-            f"+ {p['sensors_ms']:.2f} + {p['plan_ms']:.2f} + {p['rest_ms']:.2f}"
+            f"{d:>7.2f} {env['decisions_per_s']:>9.1f} {floor['decisions_per_s']:>11.1f} "
+            f"{ratio:>8.2f}x {env['reset_ms']:>8.1f} {ep['ms']:>10.1f} "
+            f"{ep['decisions_per_s']:>18.1f} {env['risk_us_per_step']:>12.1f}   "
+            f"{env['step_ms']:.2f} = {p['sumo_ms']:.2f} + {p['sensors_ms']:.2f} + "
+            f"{p['plan_ms']:.2f} + {p['risk_ms']:.2f} + {p['rest_ms']:.2f}"
         )
-    print(f"{'workers':>8} {'dec/s':>10} {'speed-up':>10}")
+    if args.max_workers:
+        print(f"{'workers':>7} {'dec/s':>9} {'speed-up':>9}")
     one = None
     for n in range(1, args.max_workers + 1):
         vec = _child({**base, "mode": "vector", "workers": n, "decisions": args.vector_decisions})
         one = one or vec["decisions_per_s"]
         results["vector"][str(n)] = vec
-        print(f"{n:>8d} {vec['decisions_per_s']:>10.1f} {vec['decisions_per_s'] / one:>9.2f}x")
+        print(f"{n:>7d} {vec['decisions_per_s']:>9.1f} {vec['decisions_per_s'] / one:>8.2f}x")
     if args.json is not None:
         from priqn.io import atomic_write_json
 
@@ -127,8 +157,6 @@ def _scenes(env: Any, seed: int, density: float) -> Any:
 
 def measure(spec: dict[str, Any]) -> dict[str, Any]:
     """One measurement (runs in the child process); see the module docstring."""
-    import numpy as np
-
     from priqn.env.intersection import EnvConfig, IntersectionEnv
 
     cfg = EnvConfig(family=spec["family"], obs_size_px=spec["obs_size_px"])
@@ -136,72 +164,97 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
     if mode == "vector":
         return _measure_vector(cfg, spec)
     env = IntersectionEnv(cfg)
-    n_off = cfg.n_offsets
-    policy = np.random.default_rng(spec["seed"] + 1)
     try:
-        env.preload_nets()  # parse every net once: resets are timed warm
+        env.preload_nets()  # parse every net and draw every route once: resets are timed warm
         if mode == "env":
-            parts = _time_parts(env)
-            episodes, step_s, reset_s, done = [], 0.0, 0.0, 0
-            for seed, options in _scenes(env, spec["seed"], spec["density"]):
-                t0 = time.perf_counter()
-                env.reset(seed=seed, options=options)
-                reset_s += time.perf_counter() - t0
-                steps = 0
-                while done < spec["decisions"]:
-                    a = int(policy.choice(POLICY_ACTIONS_SPEED)) * n_off + n_off // 2
-                    t0 = time.perf_counter()
-                    _, _, term, trunc, _ = env.step(a)
-                    step_s += time.perf_counter() - t0
-                    steps += 1
-                    done += 1
-                    if term or trunc:
-                        break
-                episodes.append([seed, options, steps])
-                if done >= spec["decisions"]:
-                    break
-            parts = {k: 1e3 * v / done for k, v in parts.items()}
-            parts["rest_ms"] = 1e3 * step_s / done - sum(parts.values())
-            return {
-                "decisions": done,
-                "decisions_per_s": done / step_s,
-                "step_ms": 1e3 * step_s / done,
-                "reset_ms": 1e3 * reset_s / len(episodes),
-                "parts_ms": parts,
-                "episodes": episodes,
-            }
-        if mode == "floor":
-            sub = cfg.substeps
-            total, floor_s = 0, 0.0
-            for seed, options, steps in spec["episodes"]:
-                env.reset(seed=seed, options=options)
-                sim = env._session.sim
-                t0 = time.perf_counter()
-                for _ in range(steps * sub):
-                    sim.simulationStep()
-                floor_s += time.perf_counter() - t0
-                total += steps
-            return {
-                "decisions": total,
-                "decisions_per_s": total / floor_s,
-                "step_ms": 1e3 * floor_s / total,
-            }
+            return _measure_env(env, spec)
         raise ValueError(f"unknown bench mode {mode!r}")
     finally:
         env.close()
 
 
-def _time_parts(env: Any) -> dict[str, float]:
-    """Wrap the env's SUMO stepping, planner and sensors with timers (seconds, summed).
+def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
+    import numpy as np
 
-    Includes resets' SUMO steps only for the one set-up step per episode (negligible).
+    n_off = env.config.n_offsets
+    policy = np.random.default_rng(spec["seed"] + 1)
+    parts = _time_parts(env)
+    sim_step = parts.pop("simulation_step")  # the unwrapped libsumo step, for the floor
+    episodes, step_s, reset_s, done, floor_s = [], 0.0, 0.0, 0, 0.0
+    whole = []  # (decisions, seconds incl. reset) of every episode that ended
+    for seed, options in _scenes(env, spec["seed"], spec["density"]):
+        t0 = time.perf_counter()
+        env.reset(seed=seed, options=options)
+        t_reset = time.perf_counter() - t0
+        reset_s += t_reset
+        steps, t_steps, ended = 0, 0.0, False
+        while done < spec["decisions"]:
+            a = int(policy.choice(POLICY_ACTIONS_SPEED)) * n_off + n_off // 2
+            t0 = time.perf_counter()
+            _, _, term, trunc, _ = env.step(a)
+            t_steps += time.perf_counter() - t0
+            steps += 1
+            done += 1
+            if term or trunc:
+                ended = True
+                break
+        step_s += t_steps
+        episodes.append([seed, options, steps])
+        env.reset(seed=seed, options=options)  # the floor: the same scene, SUMO alone
+        t0 = time.perf_counter()
+        for _ in range(steps * env.config.substeps):
+            sim_step()
+        floor_s += time.perf_counter() - t0
+        if ended:
+            whole.append((steps, t_reset + t_steps))
+        if done >= spec["decisions"]:
+            break
+    sim_steps = parts.pop("risk_steps")
+    risk_s = parts["risk_ms"]
+    parts_ms = {k: 1e3 * v / done for k, v in parts.items()}
+    parts_ms["rest_ms"] = 1e3 * step_s / done - sum(parts_ms.values())
+    n_whole = max(sum(d for d, _ in whole), 1)
+    t_whole = sum(t for _, t in whole)
+    env_out = {
+        "decisions": done,
+        "decisions_per_s": done / step_s,
+        "step_ms": 1e3 * step_s / done,
+        "reset_ms": 1e3 * reset_s / len(episodes),
+        "parts_ms": parts_ms,
+        "risk_us_per_step": 1e6 * risk_s / max(sim_steps, 1),
+        "episode": {
+            "count": len(whole),
+            "decisions": n_whole / max(len(whole), 1),
+            "ms": 1e3 * t_whole / max(len(whole), 1),
+            "decisions_per_s": n_whole / t_whole if t_whole else 0.0,
+        },
+        "episodes": episodes,
+    }
+    floor = {"decisions": done, "decisions_per_s": done / floor_s, "step_ms": 1e3 * floor_s / done}
+    return {"env": env_out, "floor": floor}
+
+
+def _time_parts(env: Any) -> dict[str, Any]:
+    """Wrap SUMO stepping, the planner, the sensors and the risk measure with timers.
+
+    Returns the dict the wrappers add seconds to while ``env.step`` runs (resets are
+    not counted); ``risk_steps`` counts the SUMO steps the risk measure covered and
+    ``simulation_step`` is the unwrapped libsumo step.
     """
     import libsumo
 
-    totals = {"sumo_ms": 0.0, "plan_ms": 0.0, "sensors_ms": 0.0}
+    from priqn.env import measures, planner
+
+    totals: dict[str, Any] = {
+        "sumo_ms": 0.0, "plan_ms": 0.0, "sensors_ms": 0.0, "risk_ms": 0.0, "risk_steps": 0,
+        "simulation_step": libsumo.simulationStep,
+    }  # fmt: skip
+    in_step = [False]
 
     def timed(fn: Any, key: str) -> Any:
         def wrapper(*a: Any, **k: Any) -> Any:
+            if not in_step[0]:
+                return fn(*a, **k)
             t0 = time.perf_counter()
             try:
                 return fn(*a, **k)
@@ -210,9 +263,26 @@ def _time_parts(env: Any) -> dict[str, float]:
 
         return wrapper
 
+    risk = timed(measures.conflict_times_s, "risk_ms")
+
+    def counted_risk(ego: Any, steps: Any, *a: Any, **k: Any) -> Any:
+        totals["risk_steps"] += len(steps)
+        return risk(ego, steps, *a, **k)
+
+    step = env.step
+
+    def stepping(action: Any) -> Any:
+        in_step[0] = True
+        try:
+            return step(action)
+        finally:
+            in_step[0] = False
+
     libsumo.simulationStep = timed(libsumo.simulationStep, "sumo_ms")
-    env._plan = timed(env._plan, "plan_ms")
+    planner.plan = timed(planner.plan, "plan_ms")
+    measures.conflict_times_s = counted_risk
     env._sensors.observe = timed(env._sensors.observe, "sensors_ms")
+    env.step = stepping
     return totals
 
 

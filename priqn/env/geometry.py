@@ -155,24 +155,32 @@ def obb_overlap(ego: Boxes, others: Boxes) -> np.ndarray:
     """
     if len(ego) != 1:
         raise ValueError(f"obb_overlap expects one ego box, got {len(ego)}")
-    m = len(others)
+    return obb_overlap_pairs(ego, others)
+
+
+def obb_overlap_pairs(a: Boxes, b: Boxes) -> np.ndarray:
+    """bool [M]: does box ``a[i]`` overlap box ``b[i]``? (``a`` may hold one box for all.)
+
+    The separating-axis test of :func:`obb_overlap`, pair by pair.
+    """
+    m = len(b)
     if m == 0:
         return np.zeros(0, dtype=bool)
-    h0 = ego.heading_rad[0]
+    h0 = a.heading_rad
     c0, s0 = np.cos(h0), np.sin(h0)
-    hl0, hw0 = 0.5 * ego.length_m[0], 0.5 * ego.width_m[0]
-    # Work in the ego frame: the other's centre (dx, dy) and axes u = (c, s), v = (-s, c).
-    delta = others.center_xy - ego.center_xy[0]
-    dx = delta @ np.array([c0, s0])
-    dy = delta @ np.array([-s0, c0])
-    rel = others.heading_rad - h0
+    hl0, hw0 = 0.5 * a.length_m, 0.5 * a.width_m
+    # Work in a's frame: b's centre (dx, dy) and axes u = (c, s), v = (-s, c).
+    delta = b.center_xy - a.center_xy
+    dx = delta[:, 0] * c0 + delta[:, 1] * s0
+    dy = delta[:, 1] * c0 - delta[:, 0] * s0
+    rel = b.heading_rad - h0
     c, s = np.cos(rel), np.sin(rel)
     ac, as_ = np.abs(c), np.abs(s)
-    hl, hw = 0.5 * others.length_m, 0.5 * others.width_m
-    sep = np.abs(dx) >= hl0 + hl * ac + hw * as_  # ego's forward axis
-    sep |= np.abs(dy) >= hw0 + hl * as_ + hw * ac  # ego's left axis
-    sep |= np.abs(dx * c + dy * s) >= hl + hl0 * ac + hw0 * as_  # other's forward axis
-    sep |= np.abs(dy * c - dx * s) >= hw + hl0 * as_ + hw0 * ac  # other's left axis
+    hl, hw = 0.5 * b.length_m, 0.5 * b.width_m
+    sep = np.abs(dx) >= hl0 + hl * ac + hw * as_  # a's forward axis
+    sep |= np.abs(dy) >= hw0 + hl * as_ + hw * ac  # a's left axis
+    sep |= np.abs(dx * c + dy * s) >= hl + hl0 * ac + hw0 * as_  # b's forward axis
+    sep |= np.abs(dy * c - dx * s) >= hw + hl0 * as_ + hw0 * ac  # b's left axis
     return ~sep
 
 

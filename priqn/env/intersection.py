@@ -4,9 +4,16 @@ One decision every ``decision_interval_s`` (0.5 s): the action picks a target sp
 ``v_f`` at the end of the planning horizon and a lateral offset ``d_f`` from the lane
 centre; a Frenet planner plans from the ego's current state (speed and lateral
 position stay continuous); the ego follows the plan with ``moveToXY`` for
-``decision_interval_s / sim_step_s`` SUMO steps. After every SUMO step our own
-oriented-box collision test and footprint-on-road test decide the episode's end.
-The reward is a ``float32 [5]`` vector in :data:`priqn.objectives.OBJECTIVES` order.
+``decision_interval_s / sim_step_s`` SUMO steps. Our own oriented-box collision
+test and footprint-on-road test, at every SUMO step, decide the episode's end. The
+reward is a ``float32 [5]`` vector in :data:`priqn.objectives.OBJECTIVES` order.
+
+``step()`` reads plan → simulate → measures → rewards → observation; the concepts
+live in their own modules: the pool of nets and what is cached per net
+(:mod:`priqn.env.scenes`), the typed ego and actor reads (:mod:`priqn.env.reads`),
+the pure measures — off-road, first collision, risk (:mod:`priqn.env.measures`) —
+the reward terms (:mod:`priqn.env.rewards`), the sensors, the planner and the
+traffic. This module sets episodes up in SUMO and drives the ego.
 
 All randomness of an episode flows from ``reset(seed=...)``: the net, the requested
 density, the command and route, the traffic (vehicle sizes, speed factors, offsets,
@@ -17,33 +24,27 @@ termination, realised density).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import json
-import math
-from pathlib import Path
+from collections.abc import Iterator
+from numbers import Real
 from typing import Any
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from priqn.config import from_dict
-from priqn.env import geometry, planner, sensors
+from priqn.env import geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
-from priqn.env.traffic import ObstacleSite, Traffic, check_density
+from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
+from priqn.env.scenes import FAMILIES, Scene, ScenePool
+from priqn.env.traffic import Traffic, check_density
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
-from priqn.sim.roadmap import COMMANDS, EgoRoute, RoadMap
-from priqn.sim.scenario import TrafficSpec
-from priqn.sim.session import SumoSession, check_net
+from priqn.sim.roadmap import COMMANDS, EgoRoute
+from priqn.sim.session import SumoSession
 
-FAMILIES: dict[str, tuple[str, ...]] = {
-    "tjunction": ("tjunction",),
-    "fourway": ("fourway",),
-    "all": ("tjunction", "fourway"),
-    "holdout": ("holdout",),
-}
-"""Net pools by ``EnvConfig.family``: 'all' joins both training pools."""
+__all__ = ["FAMILIES", "KIN_LIMIT", "EnvConfig", "IntersectionEnv"]
 
 EGO_ID = "ego"
 """SUMO vehicle id of the ego."""
@@ -51,12 +52,8 @@ EGO_TYPE = "priqn_ego"
 """SUMO vehicle type of the ego."""
 RESET_OPTIONS = ("net", "density", "command")
 """Keys ``reset(options=...)`` accepts."""
-KIN_LIMIT = 100.0
-"""Kinematics are clipped to [-KIN_LIMIT, KIN_LIMIT] (m/s, m/s^2) so the space is bounded."""
 EGO_HEIGHT_M = 1.5
 """Ego height [m] (LiDAR)."""
-NPC_HEIGHT_M = 1.5
-"""Height of NPCs and obstacles [m] (LiDAR)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,9 +124,15 @@ class EnvConfig:
                 raise ValueError(
                     f"bev_channels: unknown channel {c!r} (valid: {', '.join(sensors.BEV_CHANNELS)})"
                 )
+        if isinstance(self.densities, (str, bytes)) or not hasattr(self.densities, "__len__"):
+            raise ValueError(
+                f"densities: expected a list of numbers in (0, 1], got {self.densities!r}"
+            )
         if not self.densities:
             raise ValueError("densities: expected at least one density in (0, 1]")
         for d in self.densities:
+            if not isinstance(d, Real) or isinstance(d, bool):
+                raise ValueError(f"densities: {d!r} is not a number; expected values in (0, 1]")
             if not 0.0 < d <= 1.0:
                 raise ValueError(f"densities: {d} is out of range; expected values in (0, 1]")
         if not self.commands:
@@ -182,52 +185,105 @@ class EnvConfig:
 
 
 @dataclasses.dataclass
-class _Scene:
-    """Per-net data built once and cached (road map, raster, obstacle sites)."""
+class Outcome:
+    """How the episode stands: the termination flags ``info`` reports."""
 
-    roadmap: RoadMap
-    raster: geometry.MapRaster
-    references: dict[str, planner.ReferenceLine]
-    traffic: TrafficSpec
-    sites: list[ObstacleSite] | None = None
+    success: bool = False
+    """The ego reached its goal (no collision or off-road in that step)."""
+    collision: bool = False
+    """The ego box overlapped an actor box."""
+    off_road: bool = False
+    """The ego footprint left the drivable area."""
+    timeout: bool = False
+    """``max_episode_steps`` decisions without one of the above."""
+
+    @property
+    def terminated(self) -> bool:
+        """The episode ended by an event (not by the time limit)."""
+        return self.success or self.collision or self.off_road
 
 
 @dataclasses.dataclass
 class _Episode:
     """State of the running episode."""
 
-    net: str
-    scene: _Scene
+    scene: Scene
     route: EgoRoute
     ref: planner.ReferenceLine
     command: str
     density: float
     traffic: Traffic
-    sim: Any
     raster: geometry.MapRaster
-    state: planner.FrenetState
-    """Frenet state of the ego at the current decision."""
-    target_speed: float
+    """The scene's raster with this route's bit (shared, read-only)."""
+    target_speed_mps: float
     """Progress reward's target speed v* [m/s]."""
-    kin: np.ndarray
-    """Kinematics observation (v_lon, v_lat, a_lon, a_lat)."""
-    pose: tuple[float, float, float]
-    """Ego centre x, y [m] and heading [rad]."""
-    actors: dict[str, Any] = dataclasses.field(default_factory=dict)
+    ego: EgoState
+    """The ego at the current decision."""
+    actors: Actors
     """Actors read after the last SUMO step."""
     steps: int = 0
     returns: np.ndarray = dataclasses.field(
         default_factory=lambda: np.zeros(len(OBJECTIVES), np.float32)
     )
+    outcome: Outcome = dataclasses.field(default_factory=Outcome)
     done: bool = False
-    flags: dict[str, bool] = dataclasses.field(
-        default_factory=lambda: {
-            "success": False,
-            "collision": False,
-            "off_road": False,
-            "timeout": False,
-        }
-    )
+
+    @property
+    def net(self) -> str:
+        """``"family/net_id"``."""
+        return self.scene.net
+
+
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """A decision's plan and what it implies before SUMO runs (arrays [n] over its steps)."""
+
+    traj: planner.Trajectory
+    """The Frenet plan; sample k (k = 1..n) is where the ego is after SUMO step k."""
+    off_road: np.ndarray
+    """bool [n]: the ego footprint is off the road after step k."""
+    at_goal: np.ndarray
+    """bool [n]: the ego has reached its goal after step k."""
+    steps: int
+    """SUMO steps to run: up to the first off-road or goal step, else n."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Measures:
+    """What one decision measured over its executed SUMO steps (arrays [T])."""
+
+    steps: int
+    """T: SUMO steps that count (up to and including the first event)."""
+    collision: bool
+    off_road: bool
+    success: bool
+    conflict_time_s: np.ndarray
+    """Time to the first conflict seen from each step [s] (risk)."""
+    lateral_offset_m: np.ndarray
+    """Frenet lateral offset from the route's centre line [m]."""
+    heading_error_rad: np.ndarray
+    """Heading minus the centre line's heading [rad]."""
+    end: EgoState
+    """The ego after the last counted step (the next decision starts from it)."""
+    advance_m: float
+    """Arc length gained along the route in the decision [m]."""
+    speed_mps: np.ndarray
+    jerk_mps3: np.ndarray
+    """Longitudinal jerk [m/s³]."""
+    lateral_accel_mps2: np.ndarray
+    """Lateral (centripetal) acceleration [m/s²]."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Decision:
+    """What one decision's simulation produced, step by step (arrays [T], T = steps run)."""
+
+    seen: StepActors
+    """Actors read after each SUMO step."""
+    departed: list[tuple[str, ...]]
+    """Vehicles SUMO inserted in each step."""
+    arrived: list[tuple[str, ...]]
+    """Vehicles SUMO removed in each step."""
 
 
 class IntersectionEnv(gymnasium.Env):
@@ -271,11 +327,21 @@ class IntersectionEnv(gymnasium.Env):
             }
         )
 
-        self._planner_cfg = planner.PlannerConfig(
-            horizon_s=cfg.planning_horizon_s, dt_s=cfg.sim_step_s
+        rc = cfg.reward
+        self._envelope = measures.Envelope(
+            rc.lon_safe_gap_m, rc.lat_safe_gap_m, rc.reaction_time_s, rc.conflict_time_safe_s
         )
-        self._pool = self._net_pool()
-        self._scenes: dict[str, _Scene] = {}
+        # The risk look-ahead from the decision's last step reads the plan beyond its horizon.
+        n_plan = int(round(cfg.planning_horizon_s / cfg.sim_step_s))
+        n_look = measures.look_ahead_samples(rc.conflict_time_safe_s, cfg.sim_step_s)
+        self._planner_cfg = planner.PlannerConfig(
+            horizon_s=cfg.planning_horizon_s,
+            dt_s=cfg.sim_step_s,
+            extend_s=max(0, cfg.substeps + n_look - n_plan) * cfg.sim_step_s,
+        )
+        self._scenes = ScenePool(
+            cfg.family, cfg.nets_dir, marking_width_m=max(0.5, self._sensors.cfg.metres_per_px)
+        )
         self._session = SumoSession(cfg.sim_step_s, cfg.lateral_resolution_m)
         self._episode: _Episode | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
@@ -292,14 +358,12 @@ class IntersectionEnv(gymnasium.Env):
         Otherwise each net is parsed at its first reset (~0.1-0.3 s); call this to move
         that cost out of timed or latency-sensitive loops (``venv.call("preload_nets")``).
         """
-        for net in self._pool:
-            self._scene(net)
-        return len(self._pool)
+        return self._scenes.preload()
 
     @property
     def net_pool(self) -> tuple[str, ...]:
         """The nets ``reset`` draws from, as ``"family/net_id"``."""
-        return tuple(self._pool)
+        return self._scenes.refs
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -313,7 +377,8 @@ class IntersectionEnv(gymnasium.Env):
         opts = self._check_options(options)
 
         # Draws in a fixed order so a seed fixes the episode.
-        net_draw = self._pool[int(rng.integers(len(self._pool)))]
+        pool = self._scenes.refs
+        net_draw = pool[int(rng.integers(len(pool)))]
         density_draw = float(cfg.densities[int(rng.integers(len(cfg.densities)))])
         command_u = float(rng.random())
         route_u = float(rng.random())
@@ -321,112 +386,53 @@ class IntersectionEnv(gymnasium.Env):
         sumo_seed = int(rng.integers(0, 2**31 - 1))
         traffic_seed = int(rng.integers(0, 2**63 - 1))
 
-        net_ref = opts.get("net", net_draw)
+        net = opts.get("net", net_draw)
         density = (
             check_density(opts["density"], "reset options 'density'")
             if "density" in opts
             else density_draw
         )
-        scene = self._scene(net_ref)
-        offered = [c for c in cfg.commands if scene.roadmap.routes_for(c)]
-        if "command" in opts:
-            command = opts["command"]
-            if not scene.roadmap.routes_for(command):
-                raise PriqnError(
-                    f"reset options 'command': net {net_ref} has no {command!r} route "
-                    f"(it offers: {', '.join(scene.roadmap.commands())})"
-                )
-        else:
-            if not offered:
-                raise PriqnError(
-                    f"net {net_ref}: none of the configured commands {cfg.commands} is possible here"
-                )
-            command = offered[min(int(command_u * len(offered)), len(offered) - 1)]
-        routes = scene.roadmap.routes_for(command)
-        route = routes[min(int(route_u * len(routes)), len(routes) - 1)]
+        scene = self._scenes.scene(net)
+        route = self._pick_route(scene, opts.get("command"), command_u, route_u)
 
         self._session.start(scene.roadmap.net_path, sumo_seed)
-        sim = self._session.sim
         try:
             traffic = self._setup_episode(
                 scene, route, density, v0, np.random.default_rng(traffic_seed)
             )
+            raw = reads.read_actors(self._session.sim, EGO_ID)
+            actors = reads.decode_actors([raw], EGO_ID).at(0)
         except _sumo_errors() as exc:
-            raise PriqnError(f"{net_ref}: SUMO failed while setting up the episode: {exc}") from exc
+            raise PriqnError(f"{net}: SUMO failed while setting up the episode: {exc}") from exc
 
         ref = scene.references[route.name]
-        xy, heading = ref.to_cartesian(route.start_s_m, 0.0)
-        self._episode = ep = _Episode(
-            net=net_ref,
+        self._episode = _Episode(
             scene=scene,
             route=route,
             ref=ref,
-            command=command,
+            command=route.command,
             density=density,
             traffic=traffic,
-            sim=sim,
-            raster=scene.raster.with_route(route.reference_xy, route.lane_width_m),
-            state=planner.FrenetState(
-                s=route.start_s_m, s_dot=v0, s_ddot=0.0, d=0.0, d_prime=0.0, d_pprime=0.0
-            ),
-            target_speed=min(cfg.reward.target_speed_mps, route.speed_limit_mps),
-            kin=np.array([v0, 0.0, 0.0, 0.0], np.float32),
-            pose=(float(xy[0]), float(xy[1]), float(heading)),
+            raster=scene.route_raster(route),
+            target_speed_mps=min(cfg.reward.target_speed_mps, route.speed_limit_mps),
+            ego=EgoState.start(ref, route.start_s_m, v0),
+            actors=actors,
         )
-        ep.actors = self._read_actors()
-        obs = self._observe()
-        return obs, self._info()
+        return self._observe(), self._info()
 
     def step(
         self, action: Any
     ) -> tuple[dict[str, np.ndarray], np.ndarray, bool, bool, dict[str, Any]]:
-        ep = self._episode
-        if ep is None:
-            raise PriqnError("step() before reset(): call env.reset() first")
-        if ep.done:
-            raise PriqnError("step() after the episode ended: call env.reset() first")
-        if not self._session.is_open:
-            raise PriqnError(
-                "this env's SUMO simulation was taken over by another env in this process "
-                "(libsumo runs one per process): reset() this env, or use "
-                "priqn.env.vector.make_vector_env for several envs"
-            )
-        a = self._check_action(action)
-        cfg = self.config
-        v_f, d_f = self._table[a]
-        traj = self._plan(float(v_f), float(d_f))
-        try:
-            measures = self._execute(traj)
-        except _sumo_errors() as exc:
-            ep.done = True
-            raise PriqnError(
-                f"{ep['net']}: SUMO failed at decision {ep['steps']} ({type(exc).__name__}: {exc})"
-            ) from exc
-        ep.steps += 1
-        flags = ep.flags
-        success = flags["success"]
-        terminated = flags["collision"] or flags["off_road"] or success
-        truncated = (not terminated) and ep.steps >= cfg.max_episode_steps
-        flags["timeout"] = truncated
-        rc = cfg.reward
-        reward = R.reward_vector(
-            R.safety(flags["collision"], flags["off_road"], rc),
-            R.risk(measures["clearance"], measures["ttc"], rc),
-            R.lane_keeping(measures["lat_offset"], measures["heading_err"], rc),
-            R.progress(
-                measures["advance"],
-                measures["speed"],
-                ep.target_speed,
-                cfg.decision_interval_s,
-                success,
-                rc,
-            ),
-            R.comfort(measures["jerk"], measures["lat_acc"], rc),
-        )
+        ep = self._running_episode()
+        plan = self._plan(ep, self._check_action(action))
+        with self._sumo_failure(ep):
+            sim = self._simulate(plan)
+        m = self._measure(ep, plan, sim)
+        with self._sumo_failure(ep):
+            self._advance(ep, sim, m)
+        reward = self._reward(ep, m)
         ep.returns += reward
-        ep.done = terminated or truncated
-        obs = self._observe()
-        return obs, reward, bool(terminated), bool(truncated), self._info()
+        return self._observe(), reward, ep.outcome.terminated, ep.outcome.timeout, self._info()
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -439,52 +445,33 @@ class IntersectionEnv(gymnasium.Env):
         self._session.close()
         self._episode = None
 
-    # ------------------------------------------------------------------ nets
-
-    def _nets_root(self) -> Path | None:
-        return Path(self.config.nets_dir) if self.config.nets_dir else None
-
-    def _net_pool(self) -> list[str]:
-        from priqn.sim.scenario import family_net_refs
-
-        pool: list[str] = []
-        for fam in FAMILIES[self.config.family]:
-            pool += family_net_refs(fam, self._nets_root())
-        if not pool:
-            raise PriqnError(f"family {self.config.family!r}: the manifest lists no nets")
-        return pool
-
-    def _net_file(self, net_ref: str) -> Path:
-        from priqn.sim.scenario import net_path
-
-        root = self._nets_root()
-        if root is None:
-            return net_path(net_ref)
-        parts = Path(net_ref).parts
-        if len(parts) != 2:
-            raise PriqnError(f"net {net_ref!r}: expected 'family/net_id' (e.g. holdout/fourway_00)")
-        path = root / parts[0] / f"{parts[1]}.net.xml"
-        if not path.is_file():
-            raise PriqnError(
-                f"{path}: no such net (nets_dir {root}); pick one of: {', '.join(self._pool)}"
-            )
-        return path
-
-    def _scene(self, net_ref: str) -> _Scene:
-        scene = self._scenes.get(net_ref)
-        if scene is None:
-            path = self._net_file(net_ref)
-            check_net(path)  # a malformed net would crash libsumo (and the process)
-            roadmap = RoadMap.load(path)
-            raster = geometry.MapRaster.from_roadmap(
-                roadmap, marking_width_m=max(0.5, self._sensors.cfg.metres_per_px)
-            )
-            refs = {r.name: planner.ReferenceLine(r.reference_xy) for r in roadmap.ego_routes}
-            scene = _Scene(roadmap, raster, refs, _traffic_spec(roadmap))
-            self._scenes[net_ref] = scene
-        return scene
-
     # ------------------------------------------------------------------ validation
+
+    @contextlib.contextmanager
+    def _sumo_failure(self, ep: _Episode) -> Iterator[None]:
+        """Turn a libsumo error inside the block into one line naming the net and decision."""
+        try:
+            yield
+        except _sumo_errors() as exc:
+            ep.done = True
+            self._session.close_after_failure()  # the next reset starts SUMO afresh
+            raise PriqnError(
+                f"{ep.net}: SUMO failed at decision {ep.steps} ({type(exc).__name__}: {exc})"
+            ) from exc
+
+    def _running_episode(self) -> _Episode:
+        ep = self._episode
+        if ep is None:
+            raise PriqnError("step() before reset(): call env.reset() first")
+        if ep.done:
+            raise PriqnError("step() after the episode ended: call env.reset() first")
+        if not self._session.is_open:
+            raise PriqnError(
+                "this env's SUMO simulation was taken over by another env in this process "
+                "(libsumo runs one per process): reset() this env, or use "
+                "priqn.env.vector.make_vector_env for several envs"
+            )
+        return ep
 
     def _check_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
         if options is None:
@@ -502,7 +489,7 @@ class IntersectionEnv(gymnasium.Env):
                 raise PriqnError(
                     f"reset options 'net': expected 'family/net_id', got {out['net']!r}"
                 )
-            self._net_file(out["net"])  # raises a one-line error for a missing net
+            self._scenes.net_file(out["net"])  # raises a one-line error for a missing net
         if "density" in out:
             check_density(out["density"], "reset options 'density'")
         if "command" in out and out["command"] not in COMMANDS:
@@ -524,36 +511,31 @@ class IntersectionEnv(gymnasium.Env):
 
     # ------------------------------------------------------------------ episode set-up
 
-    def _obstacle_sites(self, scene: _Scene, route: EgoRoute) -> list[ObstacleSite]:
-        """Rightmost lane of every arm edge, away from the junction and ahead of the ego start."""
-        sim, gap = self._session.sim, self.config.obstacle_clearance_m
-        if scene.sites is None:
-            incoming = {r[0] for r in scene.roadmap.npc_routes}
-            outgoing = {r[-1] for r in scene.roadmap.npc_routes}
-            sites = []
-            for edge in sorted(incoming | outgoing):
-                lane = f"{edge}_0"
-                length = sim.lane.getLength(lane)
-                lo, hi = (5.0, length - gap) if edge in incoming else (gap, length - 5.0)
-                if hi - lo > 10.0:
-                    sites.append(ObstacleSite(lane, edge, 0, lo, hi, sim.lane.getWidth(lane)))
-            scene.sites = sites
-        out = []
-        for site in scene.sites:
-            if site.edge_id == route.edges[0]:
-                lo = max(site.s_min_m, route.start_pos_m + gap)
-                if site.s_max_m - lo <= 10.0:
-                    continue
-                site = dataclasses.replace(site, s_min_m=lo)
-            out.append(site)
-        return out
+    def _pick_route(
+        self, scene: Scene, command: str | None, command_u: float, route_u: float
+    ) -> EgoRoute:
+        """The episode's route: for ``command`` (or one drawn by ``command_u``), then by ``route_u``."""
+        roadmap, cfg = scene.roadmap, self.config
+        if command is not None:
+            if not roadmap.routes_for(command):
+                raise PriqnError(
+                    f"reset options 'command': net {scene.net} has no {command!r} route "
+                    f"(it offers: {', '.join(roadmap.commands())})"
+                )
+        else:
+            offered = [c for c in cfg.commands if roadmap.routes_for(c)]
+            if not offered:
+                raise PriqnError(
+                    f"net {scene.net}: none of the configured commands {cfg.commands} is possible here"
+                )
+            command = offered[min(int(command_u * len(offered)), len(offered) - 1)]
+        routes = roadmap.routes_for(command)
+        return routes[min(int(route_u * len(routes)), len(routes) - 1)]
 
     def _setup_episode(
-        self, scene: _Scene, route: EgoRoute, density: float, v0: float, trng: np.random.Generator
+        self, scene: Scene, route: EgoRoute, density: float, v0: float, trng: np.random.Generator
     ) -> Traffic:
         """Ego, obstacles and traffic into the freshly loaded simulation; returns the traffic."""
-        import libsumo
-
         cfg, sim = self.config, self._session.sim
         spec = scene.traffic
         traffic = Traffic(sim, spec, scene.roadmap.npc_routes, density, trng)
@@ -577,208 +559,144 @@ class IntersectionEnv(gymnasium.Env):
         lo, hi = cfg.obstacles_per_episode or spec.obstacles_per_episode
         n_obstacles = int(trng.integers(lo, hi + 1))
         sim.simulationStep()  # inserts the ego (obstacles are moved into place after insertion)
-        traffic.place_obstacles(self._obstacle_sites(scene, route), n_obstacles)
+        traffic.place_obstacles(scene.obstacle_sites(route, cfg.obstacle_clearance_m), n_obstacles)
         traffic.populate(avoid=(route.edges[0], route.start_pos_m - 40.0, route.start_pos_m + 15.0))
-        sim.vehicle.subscribeContext(
-            EGO_ID,
-            libsumo.CMD_GET_VEHICLE_VARIABLE,
-            cfg.sensor_query_range_m,
-            [
-                libsumo.VAR_POSITION,
-                libsumo.VAR_ANGLE,
-                libsumo.VAR_SPEED,
-                libsumo.VAR_LENGTH,
-                libsumo.VAR_WIDTH,
-            ],
-        )
+        reads.subscribe_actors(sim, EGO_ID, cfg.sensor_query_range_m)
         return traffic
 
     # ------------------------------------------------------------------ per step
 
-    def _plan(self, v_f: float, d_f: float) -> planner.Trajectory:
-        ep = self._episode
-        return planner.plan(ep.ref, ep.state, v_f, d_f, self._planner_cfg)
+    def _plan(self, ep: _Episode, action: int) -> _Plan:
+        """Plan from the ego's state; the ego follows the plan exactly, so the steps at which
+        it leaves the road or reaches its goal are known before SUMO runs."""
+        cfg, n = self.config, self.config.substeps
+        v_f, d_f = (float(v) for v in self._table[action])
+        traj = planner.plan(ep.ref, ep.ego.frenet, v_f, d_f, self._planner_cfg)
+        sl = slice(1, n + 1)
+        off_road = measures.off_road_steps(
+            ep.raster, traj.x[sl], traj.y[sl], traj.heading_rad[sl], cfg.ego_length_m,
+            cfg.ego_width_m,
+        )  # fmt: skip
+        at_goal = traj.s[sl] >= ep.route.goal_s_m
+        events = np.flatnonzero(off_road | at_goal)
+        return _Plan(traj, off_road, at_goal, int(events[0]) + 1 if len(events) else n)
 
-    def _execute(self, traj: planner.Trajectory) -> dict[str, Any]:
-        """Drive the first decision interval of ``traj`` in SUMO, testing after every step.
+    def _simulate(self, plan: _Plan) -> _Decision:
+        """Drive the ego along samples 1..steps of the plan, one SUMO step each.
 
-        Collision (oriented boxes, after a bounding-circle broad phase) and off-road are
-        tested after every SUMO step so the episode ends at the step they happen; the
-        risk measures (clearance, TTC) are computed once for all steps, vectorised.
+        One ``moveToXY`` (front bumper, SUMO angle) and one bulk actor read per step.
         """
-        cfg, ep = self.config, self._episode
-        sim, traffic, route = ep.sim, ep.traffic, ep.route
-        flags = ep.flags
-        n = cfg.substeps
-        x, y, head = traj.x[1 : n + 1], traj.y[1 : n + 1], traj.heading_rad[1 : n + 1]
-        front, angles = geometry.sumo_from_center(np.stack([x, y], axis=1), head, cfg.ego_length_m)
-        ego_radius = 0.5 * math.hypot(cfg.ego_length_m, cfg.ego_width_m)
-        # The ego follows the plan exactly, so off-road and goal steps are known before
-        # SUMO runs: test all sub-step poses at once.
-        off_road = _off_road_steps(ep.scene.raster, x, y, head, cfg.ego_length_m, cfg.ego_width_m)
-        at_goal = traj.s[1 : n + 1] >= route.goal_s_m
-        ends = np.flatnonzero(off_road | at_goal)
-        last = int(ends[0]) + 1 if len(ends) else n
-        ego_l, ego_w = np.array([cfg.ego_length_m]), np.array([cfg.ego_width_m])
-        ego_h = np.array([EGO_HEIGHT_M])
-        per_step = []
-        done_at = last
-        for k in range(last):
+        cfg, sim, traj = self.config, self._session.sim, plan.traj
+        sl = slice(1, plan.steps + 1)
+        front, angles = geometry.sumo_from_center(
+            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m
+        )
+        raw, departed, arrived = [], [], []
+        for k in range(plan.steps):
             sim.vehicle.moveToXY(
                 EGO_ID, "", -1, float(front[k, 0]), float(front[k, 1]), float(angles[k]), 3
             )
             sim.simulationStep()
-            traffic.record_step(
-                sim.simulation.getDepartedIDList(), sim.simulation.getArrivedIDList()
-            )
-            actors = self._read_actors()
-            per_step.append(actors)
-            others = actors["boxes"]
-            if len(others):
-                dist = np.hypot(others.center_xy[:, 0] - x[k], others.center_xy[:, 1] - y[k])
-                near = np.flatnonzero(dist < ego_radius + actors["radius"])
-                if len(near):
-                    ego = geometry.Boxes(
-                        np.array([[x[k], y[k]]]), head[k : k + 1], ego_l, ego_w, ego_h
-                    )
-                    if geometry.obb_overlap(ego, others[near]).any():
-                        flags["collision"] = True
-                        done_at = k + 1
-                        break
-        k_end = done_at - 1
-        if off_road[k_end]:
-            flags["off_road"] = True
-        elif at_goal[k_end] and not flags["collision"]:
-            flags["success"] = True
-        ep.actors = per_step[-1]
-        ep.pose = (float(x[done_at - 1]), float(y[done_at - 1]), float(head[done_at - 1]))
-        s_before = ep.state.s
-        ep.state = traj.state_at(done_at * cfg.sim_step_s)
-        j = done_at
-        # v_lat is the lateral speed relative to the lane centre (Frenet ḋ): the ego does
-        # not slip, so its body-frame lateral speed would always be 0.
-        kin = [traj.speed_mps[j], traj.d_dot[j], traj.accel_lon_mps2[j], traj.accel_lat_mps2[j]]
-        ep.kin = np.clip(np.array(kin, np.float32), -KIN_LIMIT, KIN_LIMIT)
-        if not (flags["collision"] or flags["off_road"] or flags["success"]):
-            traffic.top_up()
-            traffic.update_offsets()
-        sl = slice(1, done_at + 1)
-        clearance, ttc = self._risk_measures(traj, per_step)
-        ref_heading = ep.ref.heading_at(traj.s[sl])
-        return {
-            "clearance": clearance,
-            "ttc": ttc,
-            "lat_offset": traj.d[sl],
-            "heading_err": np.angle(np.exp(1j * (traj.heading_rad[sl] - ref_heading))),
-            "advance": float(ep.state.s - s_before),
-            "speed": traj.speed_mps[sl],
-            "jerk": traj.jerk_lon_mps3[sl],
-            "lat_acc": traj.accel_lat_mps2[sl],
-        }
+            departed.append(sim.simulation.getDepartedIDList())
+            arrived.append(sim.simulation.getArrivedIDList())
+            raw.append(reads.read_actors(sim, EGO_ID))
+        return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
-    def _risk_measures(
-        self, traj: planner.Trajectory, per_step: list[dict[str, Any]]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Clearance [m] and TTC [s] to the nearest actor at each executed sim step ([T] each).
-
-        A bounding-circle bound first drops the (step, actor) pairs that cannot reach the
-        risk thresholds (gap >= clearance_safe_m and TTC >= ttc_safe_s); steps without
-        any remaining pair report ``inf`` for both (their risk term is 0 either way).
-        """
-        cfg, rc = self.config, self.config.reward
-        t_steps = len(per_step)
-        clearance = np.full(t_steps, np.inf)
-        ttc = np.full(t_steps, np.inf)
-        counts = np.array([len(a["boxes"]) for a in per_step])
-        if counts.sum() == 0:
-            return clearance, ttc
-        seen = [a for a in per_step if len(a["boxes"])]
-        step_of = np.repeat(np.arange(t_steps), counts)  # [M] pairs (step, actor)
-        k = step_of + 1  # trajectory sample of each pair
-        centre = np.concatenate([a["boxes"].center_xy for a in seen])
-        heading = np.concatenate([a["boxes"].heading_rad for a in seen])
-        radius = np.concatenate([a["radius"] for a in seen])
-        speed = np.concatenate([a["speed"] for a in seen])
-        ego_xy = np.stack([traj.x[k], traj.y[k]], axis=1)
-        ego_dir = np.stack([np.cos(traj.heading_rad[k]), np.sin(traj.heading_rad[k])], axis=1)
-        v_ego = traj.speed_mps[k, None] * ego_dir
-        v_act = speed[:, None] * np.stack([np.cos(heading), np.sin(heading)], axis=1)
-        dp = centre - ego_xy
-        dist = np.maximum(np.hypot(dp[:, 0], dp[:, 1]), 1e-6)
-        closing = -np.sum(dp * (v_act - v_ego), axis=1) / dist
-        bound = dist - radius - 0.5 * math.hypot(cfg.ego_length_m, cfg.ego_width_m)
-        keep = np.flatnonzero(bound < np.maximum(rc.clearance_safe_m, rc.ttc_safe_s * closing))
-        if len(keep) == 0:
-            return clearance, ttc
-        k, step_of = k[keep], step_of[keep]
-        ego_corners = geometry.boxes_corners(
-            ego_xy[keep],
-            traj.heading_rad[k],
-            np.full(len(k), cfg.ego_length_m),
-            np.full(len(k), cfg.ego_width_m),
+    def _measure(self, ep: _Episode, plan: _Plan, sim: _Decision) -> _Measures:
+        """Termination events and the reward inputs; the first collision ends the decision."""
+        cfg, traj, n = self.config, plan.traj, plan.steps
+        sl = slice(1, n + 1)
+        ego = geometry.Boxes(
+            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl],
+            np.full(n, cfg.ego_length_m), np.full(n, cfg.ego_width_m), np.full(n, EGO_HEIGHT_M),
+        )  # fmt: skip
+        hit = measures.first_collision(ego, sim.seen)
+        done_at = n if hit is None else hit + 1
+        steps = np.arange(1, done_at + 1)  # plan samples of the executed SUMO steps
+        off_road = bool(plan.off_road[done_at - 1])
+        success = bool(plan.at_goal[done_at - 1]) and hit is None and not off_road
+        ref_heading = ep.ref.heading_at(traj.s[steps])
+        end = EgoState.from_plan(traj, done_at)
+        return _Measures(
+            steps=done_at,
+            collision=hit is not None,
+            off_road=off_road,
+            success=success,
+            conflict_time_s=measures.conflict_times_s(
+                measures.EgoPath.of(traj, cfg.ego_length_m, cfg.ego_width_m),
+                steps,
+                sim.seen.first(done_at),
+                self._envelope,
+            ),
+            lateral_offset_m=traj.d[steps],
+            heading_error_rad=np.angle(np.exp(1j * (traj.heading_rad[steps] - ref_heading))),
+            end=end,
+            advance_m=end.frenet.s - ep.ego.frenet.s,
+            speed_mps=traj.speed_mps[steps],
+            jerk_mps3=traj.jerk_lon_mps3[steps],
+            lateral_accel_mps2=traj.accel_lat_mps2[steps],
         )
-        length = np.concatenate([a["boxes"].length_m for a in seen])[keep]
-        width = np.concatenate([a["boxes"].width_m for a in seen])[keep]
-        actor_corners = geometry.boxes_corners(centre[keep], heading[keep], length, width)
-        gaps = R.box_clearance_m(ego_corners, actor_corners)
-        times = R.time_to_collision_s(ego_xy[keep], v_ego[keep], centre[keep], v_act[keep], gaps)
-        np.minimum.at(clearance, step_of, gaps)
-        np.minimum.at(ttc, step_of, times)
-        return clearance, ttc
 
-    def _read_actors(self) -> dict[str, Any]:
-        """Vehicles within ``sensor_query_range_m`` of the ego (NPCs and obstacles).
+    def _advance(self, ep: _Episode, sim: _Decision, m: _Measures) -> None:
+        """Move the episode to the end of the decision; top the traffic up if it goes on."""
+        for k in range(m.steps):
+            ep.traffic.record_step(sim.departed[k], sim.arrived[k])
+        out = ep.outcome
+        out.collision, out.off_road, out.success = m.collision, m.off_road, m.success
+        out.timeout = not out.terminated and ep.steps + 1 >= self.config.max_episode_steps
+        if not out.terminated:
+            ep.traffic.top_up()
+            ep.traffic.update_offsets()
+        ep.ego = m.end
+        ep.actors = sim.seen.at(m.steps - 1)
+        ep.steps += 1
+        ep.done = out.terminated or out.timeout
 
-        One context-subscription read per step (SUMO reports front bumpers and compass
-        angles; converted here to centre-based :class:`~priqn.env.geometry.Boxes`),
-        plus bounding radii [m] and speeds [m/s].
-        """
-        import libsumo
-
-        res = self._episode.sim.vehicle.getContextSubscriptionResults(EGO_ID)
-        pos, ang, spd = libsumo.VAR_POSITION, libsumo.VAR_ANGLE, libsumo.VAR_SPEED
-        length, width = libsumo.VAR_LENGTH, libsumo.VAR_WIDTH
-        rows = [
-            (*d[pos], d[ang], d[spd], d[length], d[width]) for v, d in res.items() if v != EGO_ID
-        ]
-        if not rows:
-            return {"boxes": geometry.Boxes.empty(), "radius": np.zeros(0), "speed": np.zeros(0)}
-        vals = np.array(rows)
-        heading = np.radians(90.0 - vals[:, 2])
-        cos_h, sin_h = np.cos(heading), np.sin(heading)
-        half = 0.5 * vals[:, 4]
-        centre = np.stack([vals[:, 0] - half * cos_h, vals[:, 1] - half * sin_h], axis=1)
-        height = np.full(len(rows), NPC_HEIGHT_M)
-        boxes = geometry.Boxes(centre, heading, vals[:, 4], vals[:, 5], height)
-        return {
-            "boxes": boxes,
-            "radius": 0.5 * np.hypot(vals[:, 4], vals[:, 5]),
-            "speed": vals[:, 3],
-        }
+    def _reward(self, ep: _Episode, m: _Measures) -> np.ndarray:
+        """The reward vector of the decision (``float32 [5]``)."""
+        cfg, rc = self.config, self.config.reward
+        return R.reward_vector(
+            R.safety(m.collision, m.off_road, rc),
+            R.risk(m.conflict_time_s, rc),
+            R.lane_keeping(m.lateral_offset_m, m.heading_error_rad, rc),
+            R.progress(
+                m.advance_m,
+                m.speed_mps,
+                ep.target_speed_mps,
+                cfg.decision_interval_s,
+                m.success,
+                rc,
+            ),  # fmt: skip
+            R.comfort(m.jerk_mps3, m.lateral_accel_mps2, rc),
+        )
 
     def _observe(self) -> dict[str, np.ndarray]:
         cfg, ep = self.config, self._episode
-        x, y, h = ep.pose
-        ego = geometry.Boxes.make((x, y), h, cfg.ego_length_m, cfg.ego_width_m, EGO_HEIGHT_M)
-        actors = ep.actors
-        bev, lidar = self._sensors.observe(ep.raster, ego, actors["boxes"], actors["speed"])
+        ego = ep.ego.box(cfg.ego_length_m, cfg.ego_width_m, EGO_HEIGHT_M)
+        bev, lidar = self._sensors.observe(ep.raster, ego, ep.actors.boxes, ep.actors.speed_mps)
         command = np.zeros(len(COMMANDS), np.float32)
         command[COMMANDS.index(ep.command)] = 1.0
-        obs = {"bev": bev, "lidar": lidar, "command": command, "kinematics": ep.kin.copy()}
+        obs = {
+            "bev": bev,
+            "lidar": lidar,
+            "command": command,
+            "kinematics": ep.ego.kinematics.copy(),
+        }
         self._last_obs = obs
         return obs
 
     def _info(self) -> dict[str, Any]:
         ep = self._episode
-        route, flags = ep.route, ep.flags
+        route, out = ep.route, ep.outcome
         span = max(route.goal_s_m - route.start_s_m, 1e-6)
+        progress = (ep.ego.frenet.s - route.start_s_m) / span
         return {
             "reward_names": OBJECTIVES,
-            "success": flags["success"],
-            "collision": flags["collision"],
-            "off_road": flags["off_road"],
-            "timeout": flags["timeout"],
-            "route_progress": float(np.clip((ep.state.s - route.start_s_m) / span, 0.0, 1.0)),
+            "success": out.success,
+            "collision": out.collision,
+            "off_road": out.off_road,
+            "timeout": out.timeout,
+            "route_progress": float(min(max(progress, 0.0), 1.0)),
             "density_requested": float(ep.density),
             "density_realised": float(ep.traffic.density_realised),
             "net": ep.net,
@@ -790,41 +708,7 @@ class IntersectionEnv(gymnasium.Env):
         }
 
 
-def _off_road_steps(
-    raster: geometry.MapRaster,
-    x: np.ndarray,
-    y: np.ndarray,
-    heading: np.ndarray,
-    length: float,
-    width: float,
-) -> np.ndarray:
-    """bool [T]: is the ego footprint off the road at each pose?
-
-    Same test as :func:`priqn.env.geometry.is_off_road` (corners and edge midpoints,
-    any point off the drivable area), vectorised over the T poses of one decision.
-    """
-    t = len(x)
-    corners = geometry.boxes_corners(
-        np.stack([x, y], axis=1), heading, np.full(t, length), np.full(t, width)
-    )
-    mids = 0.5 * (corners + np.roll(corners, -1, axis=1))
-    points = np.concatenate([corners, mids], axis=1)  # [T, 8, 2]
-    return ~raster.drivable(points).all(axis=1)
-
-
 def _sumo_errors() -> tuple[type[BaseException], ...]:
     import libsumo
 
     return (libsumo.TraCIException, libsumo.FatalTraCIError)
-
-
-def _traffic_spec(roadmap: RoadMap) -> TrafficSpec:
-    """The family's TrafficSpec from the manifest beside the net (defaults if it has none)."""
-    manifest = roadmap.net_path.parent / "manifest.json"
-    try:
-        data = json.loads(manifest.read_text(encoding="utf-8")).get("traffic")
-    except (OSError, ValueError):
-        data = None
-    if not data:
-        return TrafficSpec()
-    return from_dict(TrafficSpec, data, where=f"{manifest} [traffic]")

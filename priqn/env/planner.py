@@ -37,6 +37,7 @@ counter-clockwise from +x, ``d`` positive to the left of the reference line.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -95,7 +96,8 @@ class ReferenceLine:
         """Curvature of each segment (1/m, positive = turning left)."""
 
     def _segment(self, s: np.ndarray) -> np.ndarray:
-        return np.clip(np.searchsorted(self.s_P, s, side="right") - 1, 0, len(self._seg_len) - 1)
+        i = np.searchsorted(self.s_P, s, side="right") - 1
+        return np.minimum(np.maximum(i, 0), len(self._seg_len) - 1)  # (np.clip is slower)
 
     def heading_at(self, s_m: np.ndarray | float) -> np.ndarray:
         """Heading of the line at arc length ``s_m`` (rad, unwrapped, constant beyond the ends)."""
@@ -124,6 +126,16 @@ class ReferenceLine:
         p = self.point_at(s)
         normal = np.stack([-np.sin(th), np.cos(th)], axis=-1)
         return p + d[..., None] * normal, th
+
+    def _frame(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``to_cartesian(s, d)`` and ``curvature_at(s)`` with one segment lookup."""
+        i = self._segment(s)
+        th = np.interp(s, self.s_P, self.heading_P)
+        xy = self.xy_P2[i] + (s - self.s_P[i])[:, None] * self._seg_dir[i]
+        xy[:, 0] -= d * np.sin(th)
+        xy[:, 1] += d * np.cos(th)
+        kappa = np.where((s < 0.0) | (s > self.length_m), 0.0, self.curvature_S[i])
+        return xy, th, kappa
 
     def to_frenet(
         self, xy: np.ndarray, s_range_m: tuple[float, float] | None = None
@@ -241,20 +253,67 @@ class PlannerConfig:
     """Sampling step of the returned trajectory (s); T must be a whole number of steps."""
     min_lateral_distance_m: float = 10.0
     """Shortest arc length over which the lateral offset changes (m); see module docs."""
+    extend_s: float = 0.0
+    """Samples continue this long past the horizon (s), along the plan's own continuation
+    (speed ``v_f``, offset ``d_f`` once reached); the env's risk look-ahead reads them."""
 
     def __post_init__(self) -> None:
         if not self.horizon_s > 0 or not self.dt_s > 0:
             raise ValueError("planner.horizon_s and planner.dt_s must be > 0")
-        n = self.horizon_s / self.dt_s
-        if abs(n - round(n)) > 1e-6:
-            raise ValueError(
-                f"planner.horizon_s ({self.horizon_s}) must be a multiple of dt_s ({self.dt_s})"
-            )
+        for name in ("horizon_s", "extend_s"):
+            n = getattr(self, name) / self.dt_s
+            if abs(n - round(n)) > 1e-6:
+                raise ValueError(
+                    f"planner.{name} ({getattr(self, name)}) must be a multiple of dt_s ({self.dt_s})"
+                )
+        if self.extend_s < 0:
+            raise ValueError("planner.extend_s must be >= 0")
         if not self.min_lateral_distance_m > 0:
             raise ValueError("planner.min_lateral_distance_m must be > 0")
 
 
 # --------------------------------------------------------------------------- polynomials
+
+
+def _powers(x: np.ndarray, degree: int) -> np.ndarray:
+    """``[..., degree + 1]``: x⁰, x¹, ..., x^degree."""
+    out = np.empty((*np.shape(x), degree + 1))
+    out[..., 0] = 1.0
+    out[..., 1] = x
+    for k in range(2, degree + 1):
+        np.multiply(out[..., k - 1], x, out=out[..., k])
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _time_grid(horizon_s: float, dt_s: float, extend_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sample times ``[S]`` of a plan and their :func:`_go_profile` (shared, read-only)."""
+    n = int(round(horizon_s / dt_s))
+    n_ext = int(round(extend_s / dt_s))
+    t = np.arange(n + n_ext + 1) * dt_s
+    t[n] = horizon_s  # exact end of the horizon
+    t.flags.writeable = False
+    return t, _go_profile(horizon_s, tuple(t.tolist()))
+
+
+@functools.lru_cache(maxsize=16)
+def _go_profile(horizon_s: float, t_key: tuple[float, ...]) -> np.ndarray:
+    """``[S, 4]`` (position, speed, acceleration, jerk) of the unit "go" part ``Φ(t)``.
+
+    Speed ``φ(t/T)``, ``φ(τ) = 3τ² − 2τ³``, frozen at 1 after ``T``; cached per time grid
+    (every plan of an env samples the same one).
+    """
+    t = np.array(t_key)
+    T = horizon_s
+    tau = np.minimum(t, T) / T
+    before = t <= T
+    out = np.empty((len(t), 4))
+    out[:, 0] = T * tau**3 * (1.0 - 0.5 * tau) + (t - T) * ~before
+    out[:, 1] = tau**2 * (3.0 - 2.0 * tau)
+    out[:, 2] = before * (6.0 / T) * tau * (1.0 - tau)
+    out[:, 3] = before * (6.0 - 12.0 * tau) / T**2
+    out.flags.writeable = False
+    return out
 
 
 class _Longitudinal:
@@ -277,6 +336,18 @@ class _Longitudinal:
             self.rest = np.array([0.0, v0, 0.5 * a0, c3, c4])  # ascending powers
         else:
             self.rest = np.zeros(5)
+        c1, c2, c3, c4 = self.rest[1:]
+        # Columns: position, speed, acceleration, jerk of the rest part, as polynomials
+        # in t (rows: ascending powers).
+        self._rest_54 = np.array(
+            [
+                [0.0, c1, 2 * c2, 6 * c3],
+                [c1, 2 * c2, 6 * c3, 24 * c4],
+                [c2, 3 * c3, 12 * c4, 0.0],
+                [c3, 4 * c4, 0.0, 0.0],
+                [c4, 0.0, 0.0, 0.0],
+            ]
+        )
 
     def s_end(self) -> float:
         """s(T), without evaluating arrays."""
@@ -285,29 +356,25 @@ class _Longitudinal:
         rest = tr * (c[1] + tr * (c[2] + tr * (c[3] + tr * c[4])))
         return float(self.s0 + rest + self.v_f * 0.5 * self.T)  # Φ(T) = T/2
 
-    def __call__(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
+    def __call__(self, t: np.ndarray, go: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """Position, speed, acceleration and jerk at times ``t``.
+
+        ``go``: :func:`_go_profile` of these times when the caller has it.
+        """
         t = np.asarray(t, dtype=float)
-        c1, c2, c3, c4 = self.rest[1:]
-        # Rest part, frozen after t_rest.
+        if go is None:
+            flat = np.atleast_1d(t).ravel()
+            go = _go_profile(self.T, tuple(flat.tolist())).reshape(*t.shape, 4)
+        # Rest part, frozen after t_rest (its speed, acceleration and jerk are 0 there).
         tr = np.minimum(t, self.t_rest)
-        rs = tr * (c1 + tr * (c2 + tr * (c3 + tr * c4)))
-        on = t <= self.t_rest
-        rv = on * (c1 + tr * (2 * c2 + tr * (3 * c3 + tr * 4 * c4)))
-        ra = on * (2 * c2 + tr * (6 * c3 + tr * 12 * c4))
-        rj = on * (6 * c3 + tr * 24 * c4)
-        # Go part v_f·φ(τ), φ = 3τ² − 2τ³, frozen at v_f after T.
-        T, vf = self.T, self.v_f
-        tau = np.minimum(t, T) / T
-        before = t <= T
-        gs = T * tau**3 * (1.0 - 0.5 * tau) + (t - T) * ~before
-        gv = tau**2 * (3.0 - 2.0 * tau)
-        ga = before * (6.0 / T) * tau * (1.0 - tau)
-        gj = before * (6.0 - 12.0 * tau) / T**2
+        rest = _powers(tr, 4) @ self._rest_54
+        rest[..., 1:] *= (t <= self.t_rest)[..., None]
+        out = rest + self.v_f * go
         return (
-            self.s0 + rs + vf * gs,
-            np.maximum(rv + vf * gv, 0.0),  # exact algebra is >= 0; clip rounding only
-            ra + vf * ga,
-            rj + vf * gj,
+            self.s0 + out[..., 0],
+            np.maximum(out[..., 1], 0.0),  # exact algebra is >= 0; clip rounding only
+            out[..., 2],
+            out[..., 3],
         )
 
 
@@ -324,19 +391,26 @@ class _Lateral:
         c3 = (20 * b0 - 8 * b1 * L + b2 * L**2) / (2 * L**3)
         c4 = (-30 * b0 + 14 * b1 * L - 2 * b2 * L**2) / (2 * L**4)
         c5 = (12 * b0 - 6 * b1 * L + b2 * L**2) / (2 * L**5)
-        self.c = np.array([d0, d1, 0.5 * d2, c3, c4, c5])
+        self.c = c = np.array([d0, d1, 0.5 * d2, c3, c4, c5])
+        # Columns: d and its first three derivatives in u, as polynomials in u (rows:
+        # ascending powers).
+        self._m_64 = np.array(
+            [
+                [c[0], c[1], 2 * c[2], 6 * c[3]],
+                [c[1], 2 * c[2], 6 * c[3], 24 * c[4]],
+                [c[2], 3 * c[3], 12 * c[4], 60 * c[5]],
+                [c[3], 4 * c[4], 20 * c[5], 0.0],
+                [c[4], 5 * c[5], 0.0, 0.0],
+                [c[5], 0.0, 0.0, 0.0],
+            ]
+        )
 
     def __call__(self, u: np.ndarray) -> tuple[np.ndarray, ...]:
         u = np.asarray(u, dtype=float)
-        x = np.clip(u, 0.0, self.L)
-        c = self.c
-        d = c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * (c[4] + x * c[5]))))
-        d1 = c[1] + x * (2 * c[2] + x * (3 * c[3] + x * (4 * c[4] + x * 5 * c[5])))
-        d2 = 2 * c[2] + x * (6 * c[3] + x * (12 * c[4] + x * 20 * c[5]))
-        d3 = 6 * c[3] + x * (24 * c[4] + x * 60 * c[5])
-        beyond = u >= self.L
-        d = np.where(beyond, self.d_f, d)
-        return d, np.where(beyond, 0.0, d1), np.where(beyond, 0.0, d2), np.where(beyond, 0.0, d3)
+        x = np.minimum(np.maximum(u, 0.0), self.L)
+        out = _powers(x, 5) @ self._m_64
+        out[u >= self.L] = (self.d_f, 0.0, 0.0, 0.0)
+        return out[..., 0], out[..., 1], out[..., 2], out[..., 3]
 
 
 # --------------------------------------------------------------------------- trajectory
@@ -344,7 +418,7 @@ class _Lateral:
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A planned trajectory sampled at ``t = 0, dt, ..., T`` (all arrays [N+1]).
+    """A planned trajectory sampled at ``t = 0, dt, ..., T + extend_s`` (all arrays [N+1]).
 
     ``heading_rad`` is the car's yaw (tangent of the Cartesian path); ``accel_lon_mps2``
     is d(speed)/dt, ``accel_lat_mps2`` the centripetal acceleration speed² · path
@@ -394,6 +468,22 @@ class Trajectory:
         d, d1, d2, _ = self._lat(s - self._lon.s0)
         return FrenetState(float(s), float(v), float(a), float(d), float(d1), float(d2))
 
+    def state_at_sample(self, index: int) -> FrenetState:
+        """The Frenet state at sample ``index``, read from the sampled arrays.
+
+        Equal to ``state_at(t[index])`` (the same polynomials at the same time) without
+        evaluating them again.
+        """
+        i = index
+        return FrenetState(
+            float(self.s[i]),
+            float(self.s_dot[i]),
+            float(self.s_ddot[i]),
+            float(self.d[i]),
+            float(self.d_prime[i]),
+            float(self.d_pprime[i]),
+        )
+
     def index_at(self, t_s: float) -> int:
         """Index of the sample at time ``t_s`` (must be a sample time)."""
         i = int(round(t_s / (self.t[1] - self.t[0])))
@@ -416,9 +506,7 @@ def plan(
     if not np.isfinite(d_f_m):
         raise ValueError(f"target lateral offset must be finite, got {d_f_m!r}")
     T = cfg.horizon_s
-    n = int(round(T / cfg.dt_s))
-    t = np.arange(n + 1) * cfg.dt_s
-    t[-1] = T  # exact end point
+    t, go = _time_grid(T, cfg.dt_s, cfg.extend_s)
     lon = _Longitudinal(state.s, state.s_dot, state.s_ddot, v_f_mps, T)
     s_T = lon.s_end()
     lat = _Lateral(
@@ -428,12 +516,11 @@ def plan(
         d_f_m,
         max(s_T - state.s, cfg.min_lateral_distance_m),
     )
-    s, sd, sdd, sddd = lon(t)  # time derivatives of s
+    s, sd, sdd, sddd = lon(t, go)  # time derivatives of s
     d, d1, d2, d3 = lat(s - state.s)  # arc-length derivatives of d
     # Cartesian path X(s) = P(s) + d(s)·N(s): |dX/ds| = g = hypot(1 − κd, d'), yaw = θ + φ
     # with φ = atan2(d', 1 − κd); speed = ṡ·g; a_lon = s̈·g + ṡ²·g'; a_lat = ṡ²·g·(κ + φ').
-    xy, theta = ref.to_cartesian(s, d)
-    kappa = ref.curvature_at(s)
+    xy, theta, kappa = ref._frame(s, d)
     A = np.maximum(1.0 - kappa * d, 1e-3)  # 1 - κd (> 0 unless beyond the centre of a curve)
     B = d1
     g = np.hypot(A, B)  # |dP/ds|

@@ -1,11 +1,11 @@
 """The five reward terms, in ``OBJECTIVES`` order: safety, risk, lane keeping, progress, comfort.
 
 Each term is a pure function of quantities the env measures over one decision
-(0.5 s = several SUMO steps); per-step values are averaged over the decision's sim
-steps. Per-decision terms lie in [-1, 1]; only the safety event (collision / off-road)
-and the success bonus are larger, so that the weighted-sum baseline and the
-per-objective heads see sane scales. ``docs/environment.md`` has the table of units
-and ranges; the tests in ``tests/test_env_rewards.py`` check every formula by hand.
+(0.5 s = several SUMO steps, see :mod:`priqn.env.measures`); per-step values are
+averaged over the decision's sim steps. Ranges per decision (see :class:`RewardConfig`):
+risk, lane keeping and comfort in [-1, 0], progress in [0, 1] (plus the one-off
+success bonus), safety 0 or the one-off event penalty. ``docs/environment.md`` has the
+table of units and ranges; ``tests/test_env_rewards.py`` checks every formula by hand.
 """
 
 from __future__ import annotations
@@ -19,16 +19,28 @@ from priqn.objectives import OBJECTIVES
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Parameters of the five reward terms."""
+    """Parameters of the five reward terms.
+
+    Ranges, per decision, that weighting schemes may rely on (tested): ``risk``,
+    ``lane_keeping`` and ``comfort`` lie in [-1, 0]; ``progress`` lies in [0, 1] except on
+    the goal decision, which adds ``success_bonus`` once; ``safety`` is 0 except on the
+    last decision of a crash, ``-collision_penalty`` or ``-off_road_penalty`` once.
+    """
 
     collision_penalty: float = 10.0
     """Safety reward on a collision with a vehicle or obstacle is -collision_penalty [-]."""
     off_road_penalty: float = 10.0
     """Safety reward when the ego footprint leaves the drivable area is -off_road_penalty [-]."""
-    clearance_safe_m: float = 4.0
-    """Risk: clearance [m] (gap between ego box and the nearest actor box) below which risk grows."""
-    ttc_safe_s: float = 3.0
-    """Risk: time-to-collision [s] below which risk grows."""
+    conflict_time_safe_s: float = 3.0
+    """Risk: time to conflict [s] below which risk grows (also the look-ahead of the measure)."""
+    lon_safe_gap_m: float = 1.0
+    """Risk: standstill safe gap ahead of / behind the ego box along its heading [m]."""
+    lat_safe_gap_m: float = 0.5
+    """Risk: safe gap beside the ego box [m] (the envelope's width); below a normal
+    lane-neighbour gap (about 1.1-1.7 m on 3.0-3.6 m lanes), above a scrape."""
+    reaction_time_s: float = 0.5
+    """Risk: RSS-style response time [s]; the follower's speed times this lengthens the
+    longitudinal safe gap (the ego's speed ahead of it, a following actor's behind it)."""
     lateral_offset_scale_m: float = 1.5
     """Lane keeping: lateral offset from the lane centre [m] that costs the full lateral part."""
     heading_error_scale_rad: float = 0.35
@@ -50,8 +62,7 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         positive = (
-            "clearance_safe_m",
-            "ttc_safe_s",
+            "conflict_time_safe_s",
             "lateral_offset_scale_m",
             "heading_error_scale_rad",
             "target_speed_mps",
@@ -64,6 +75,9 @@ class RewardConfig:
         for name in ("lane_offset_weight", "advance_weight", "jerk_weight"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"reward.{name} must be in [0, 1], got {getattr(self, name)!r}")
+        for name in ("lon_safe_gap_m", "lat_safe_gap_m", "reaction_time_s"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"reward.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("collision_penalty", "off_road_penalty", "success_bonus"):
             if getattr(self, name) < 0:
                 raise ValueError(f"reward.{name} must be >= 0, got {getattr(self, name)!r}")
@@ -78,16 +92,16 @@ def safety(collision: bool, off_road: bool, cfg: RewardConfig) -> float:
     return 0.0
 
 
-def risk(clearance_m: np.ndarray, ttc_s: np.ndarray, cfg: RewardConfig) -> float:
-    """-mean over sim steps of max(1 - clearance/clearance_safe, 1 - ttc/ttc_safe), clipped to [0, 1].
+def risk(conflict_time_s: np.ndarray, cfg: RewardConfig) -> float:
+    """-mean over sim steps of clip(1 - τ / conflict_time_safe_s, 0, 1). Range [-1, 0].
 
-    ``clearance_m`` / ``ttc_s``: [T] per sim step, to the nearest actor (inf = none).
-    Range [-1, 0]: 0 with no actor closer than ``clearance_safe_m`` and no TTC under
-    ``ttc_safe_s``; -1 when touching or about to collide.
+    ``conflict_time_s``: [T] per sim step, the time until the ego on its planned path
+    and the nearest-in-time actor at constant velocity enter each other's safety
+    envelope (:func:`priqn.env.measures.conflict_times_s`; inf = no conflict ahead).
+    0 when no conflict is due within ``conflict_time_safe_s``; -1 inside the envelope.
     """
-    c = np.clip(1.0 - np.asarray(clearance_m, float) / cfg.clearance_safe_m, 0.0, 1.0)
-    t = np.clip(1.0 - np.asarray(ttc_s, float) / cfg.ttc_safe_s, 0.0, 1.0)
-    return -float(np.mean(np.maximum(c, t)))
+    t = np.asarray(conflict_time_s, float)
+    return -float(np.mean(np.minimum(np.maximum(1.0 - t / cfg.conflict_time_safe_s, 0.0), 1.0)))
 
 
 def lane_keeping(
@@ -115,7 +129,7 @@ def progress(
     ``v*`` the target speed. Range [0, 1] (+ success_bonus): 0 standing still, 1 at v*.
     """
     v_star = float(target_speed_mps)
-    adv = float(np.clip(advance_m / (v_star * duration_s), 0.0, 1.0))
+    adv = min(max(float(advance_m) / (v_star * duration_s), 0.0), 1.0)
     v = np.asarray(speed_mps, float)
     adherence = float(np.mean(1.0 - np.minimum(np.abs(v - v_star) / v_star, 1.0)))
     w = cfg.advance_weight
@@ -139,67 +153,3 @@ def reward_vector(
     out = np.array([safety_r, risk_r, lane_r, progress_r, comfort_r], dtype=np.float32)
     assert out.shape == (len(OBJECTIVES),)
     return out
-
-
-def box_clearance_m(ego_corners_42: np.ndarray, corners_N42: np.ndarray) -> np.ndarray:
-    """Gap [m] between the ego box and each of N boxes (0 where they overlap or touch).
-
-    ``ego_corners_42`` is one box [4, 2] or one ego box per row [N, 4, 2].
-
-    Boxes are given by their 4 corners in order around the box. The gap between two
-    convex polygons that do not overlap is the smallest corner-to-edge distance, in
-    either direction; overlapping boxes (decided by the caller's collision test or by
-    a corner inside the other box) get 0.
-    """
-    corners_N42 = np.asarray(corners_N42, float).reshape(-1, 4, 2)
-    n = corners_N42.shape[0]
-    if n == 0:
-        return np.zeros(0)
-    ego = np.broadcast_to(np.asarray(ego_corners_42, float).reshape(-1, 4, 2), (n, 4, 2))
-    d1 = _points_to_edges(ego, corners_N42)
-    d2 = _points_to_edges(corners_N42, ego)
-    gap = np.minimum(d1, d2)
-    inside = _any_corner_inside(ego, corners_N42) | _any_corner_inside(corners_N42, ego)
-    return np.where(inside, 0.0, gap)
-
-
-def _points_to_edges(points_N42: np.ndarray, poly_N42: np.ndarray) -> np.ndarray:
-    a = poly_N42[:, None, :, :]  # [N,1,4,2] edge starts
-    b = np.roll(poly_N42, -1, axis=1)[:, None, :, :]
-    p = points_N42[:, :, None, :]  # [N,4,1,2]
-    ab = b - a
-    t = np.clip(np.sum((p - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
-    proj = a + t[..., None] * ab
-    return np.sqrt(np.sum((p - proj) ** 2, -1)).min(axis=(1, 2))
-
-
-def _any_corner_inside(points_N42: np.ndarray, poly_N42: np.ndarray) -> np.ndarray:
-    a = poly_N42[:, None, :, :]
-    b = np.roll(poly_N42, -1, axis=1)[:, None, :, :]
-    p = points_N42[:, :, None, :]
-    cross = (b[..., 0] - a[..., 0]) * (p[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (
-        p[..., 0] - a[..., 0]
-    )
-    inside = np.all(cross >= 0, axis=2) | np.all(cross <= 0, axis=2)
-    return inside.any(axis=1)
-
-
-def time_to_collision_s(
-    ego_xy: np.ndarray,
-    ego_vel_xy: np.ndarray,  # [2] or [N, 2]
-    actor_xy_N2: np.ndarray,
-    actor_vel_N2: np.ndarray,
-    clearance_N: np.ndarray,
-) -> np.ndarray:
-    """Constant-velocity time-to-collision [s] per actor: clearance / closing speed.
-
-    The closing speed is the rate at which the centre distance shrinks,
-    ``-(Δp·Δv)/|Δp|``; actors that are not closing get ``inf``.
-    """
-    dp = np.asarray(actor_xy_N2, float) - np.asarray(ego_xy, float)
-    dv = np.asarray(actor_vel_N2, float) - np.asarray(ego_vel_xy, float)
-    dist = np.maximum(np.linalg.norm(dp, axis=-1), 1e-6)
-    closing = -np.sum(dp * dv, axis=-1) / dist
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ttc = np.where(closing > 1e-3, np.asarray(clearance_N, float) / closing, np.inf)
-    return ttc

@@ -168,6 +168,11 @@ class Sensors:
         self._g_rk = (ray_i * len(self._tan_el) + np.tile(beam_k, cfg.lidar_rays))[inside]
         self._g_range = np.tile(ring, cfg.lidar_rays)[inside]
         self._g_cell = (np.floor(row[inside]) * n + np.floor(col[inside])).astype(np.intp)
+        # Ground returns per grid cell with nothing in the way, and the ground return (if
+        # any) of each (ray, beam): an observation then only subtracts the blocked ones.
+        self._g_count = np.bincount(self._g_cell, minlength=n * n)
+        self._rk_to_g = np.full(cfg.lidar_rays * len(self._tan_el), -1, np.intp)
+        self._rk_to_g[self._g_rk] = np.arange(len(self._g_rk))
         self._ego_mask_key: tuple[float, float] | None = None
         self._ego_mask = np.zeros(n * n, dtype=bool)
 
@@ -224,8 +229,9 @@ class Sensors:
         """
         bits = self._sample_map(map_raster, ego)
         ret = self._returns(bits, self._to_ego_frame(ego, actors)[0])
-        gi = self._g_ray[ret.ground]
-        rng = self._g_range[ret.ground]
+        ground = self._ground(bits, ret)
+        gi = self._g_ray[ground]
+        rng = self._g_range[ground]
         ground = np.stack([rng * self._ray_cos[gi], rng * self._ray_sin[gi], 0 * rng], axis=1)
         i, k = np.nonzero(ret.claimed)
         t, ray = ret.hit_t[i], ret.hit_ray[i]
@@ -387,7 +393,7 @@ class Sensors:
         """Trace every beam: which box face it hits first, or whether it reaches the road."""
         cfg = self.cfg
         rays, beams = cfg.lidar_rays, len(self._tan_el)
-        claimed_rk = np.zeros((rays, beams), dtype=bool)
+        blocked_rk = np.zeros(0, np.intp)
         hit_t = np.zeros(0)
         hit_ray = np.zeros(0, np.intp)
         claimed = np.zeros((0, beams), dtype=bool)
@@ -438,18 +444,27 @@ class Sensors:
                 base = cum[start - 1] * (start > 0)[:, None]
                 claimed = span & (cum - span == base)
                 ii, kk = np.nonzero(claimed)
-                claimed_rk[r_i[ii], kk] = True
+                blocked_rk = r_i[ii] * beams + kk
                 hit_t, hit_ray = t, r_i
-        ground = ~claimed_rk.ravel().take(self._g_rk)
-        ground &= (bits.take(self._g_cell) & DRIVABLE) != 0
-        return _Returns(ground, hit_t, hit_ray, claimed)
+        return _Returns(hit_t, hit_ray, claimed, blocked_rk)
+
+    def _ground(self, bits: np.ndarray, ret: _Returns) -> np.ndarray:
+        """bool [G]: which precomputed ground returns exist (on the road, not blocked)."""
+        free = np.ones(len(self._rk_to_g), dtype=bool)
+        free[ret.blocked_rk] = False
+        return free.take(self._g_rk) & ((bits.take(self._g_cell) & DRIVABLE) != 0)
 
     def _lidar_from(self, bits: np.ndarray, rel: Boxes) -> np.ndarray:
         cfg = self.cfg
         n = cfg.size_px
         hw = n * n
         ret = self._returns(bits, rel)
-        low = np.bincount(self._g_cell[ret.ground], minlength=hw)
+        # Ground returns: all of a drivable cell's, less those a face blocks.
+        drivable = (bits & DRIVABLE) != 0
+        low = self._g_count * drivable
+        g = self._rk_to_g[ret.blocked_rk]
+        blocked_cells = self._g_cell[g[g >= 0]]
+        low -= np.bincount(blocked_cells[drivable[blocked_cells]], minlength=hw)
         high = np.zeros(hw, np.int64)
         if len(ret.hit_t):
             # All beams of one (ray, face) hit land in the same cell: count them per hit.
@@ -474,14 +489,14 @@ class Sensors:
 
 @dataclass(frozen=True)
 class _Returns:
-    ground: np.ndarray
-    """bool [G]: which precomputed ground returns exist."""
     hit_t: np.ndarray
     """[n] range of each (ray, face) intersection, sorted by ray then range."""
     hit_ray: np.ndarray
     """[n] ray index of each intersection."""
     claimed: np.ndarray
     """bool [n, K]: beams (sorted by elevation) that stop on that face."""
+    blocked_rk: np.ndarray
+    """int: ``ray · K + beam`` of every beam that stops on a face (each at most once)."""
 
 
 # --------------------------------------------------------------------------- synthetic scene

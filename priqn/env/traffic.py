@@ -276,7 +276,7 @@ class Traffic:
                 done.append(vid)
                 continue
             to_end = length - sim.vehicle.getLanePosition(vid)
-            want = offset * float(np.clip((to_end - 2.0) / fade, 0.0, 1.0)) if fade > 0 else 0.0
+            want = offset * min(max((to_end - 2.0) / fade, 0.0), 1.0) if fade > 0 else 0.0
             now = sim.vehicle.getLateralLanePosition(vid)
             if abs(want - now) > 0.05:
                 sim.vehicle.changeSublane(vid, want - now)

@@ -11,19 +11,30 @@ Worker ``i``'s first episode is seeded with a child of
 ``numpy.random.SeedSequence(seed)``; later episodes draw their seeds from the
 worker's generator, so one integer fixes every episode of every worker.
 
-A worker that dies (e.g. SUMO crashed the process) or raises is reported as a
-one-line :class:`~priqn.errors.PriqnError` naming the worker, never waited on.
+A worker that dies (e.g. SUMO crashed the process, or it was killed) is reported as a
+one-line :class:`~priqn.errors.PriqnError` naming the worker and its exit code, also
+when it dies while the parent waits on it; a worker whose env raises a
+:class:`~priqn.errors.PriqnError` is reported as ``vector env worker <i>: <message>``
+(no traceback); any other exception keeps its type, gets the worker's name and its
+traceback is printed (an internal error). The vector env is closed either way.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.connection
+import sys
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
+from gymnasium.vector.async_vector_env import AsyncState
 
 from priqn.errors import PriqnError
+
+DEAD_WORKER_WAIT_S = 2.0
+"""How long a broken pipe waits for the OS to report which worker ended [s]."""
 
 
 class _EnvFactory:
@@ -63,11 +74,7 @@ class PriqnVectorEnv(AsyncVectorEnv):
         try:
             return fn(*args, **kwargs)
         except (EOFError, BrokenPipeError, ConnectionResetError) as exc:
-            dead = [
-                f"worker {i} (exit code {p.exitcode})"
-                for i, p in enumerate(self.processes)
-                if p.exitcode is not None
-            ]
+            dead = [f"worker {i} (exit code {code})" for i, code in self._dead_workers()]
             who = ", ".join(dead) if dead else "a worker"
             self._abandon()
             raise PriqnError(
@@ -82,6 +89,41 @@ class PriqnVectorEnv(AsyncVectorEnv):
             raise PriqnError(
                 f"vector env {what}: no answer from the workers within the timeout; closed them"
             ) from exc
+
+    def _dead_workers(self, wait_s: float = DEAD_WORKER_WAIT_S) -> list[tuple[int, int | None]]:
+        """``(index, exit code)`` of the workers that ended.
+
+        A broken pipe can be seen before the OS has reaped the process, so wait up to
+        ``wait_s`` for at least one worker to end.
+        """
+        sentinels = {p.sentinel: p for p in self.processes}
+        # A process's sentinel is ready when its files are closed, a moment before the
+        # OS can report its exit status: join those (a blocking wait for the status).
+        for sentinel in multiprocessing.connection.wait(list(sentinels), timeout=wait_s):
+            sentinels[sentinel].join(timeout=wait_s)
+        return [(i, p.exitcode) for i, p in enumerate(self.processes) if p.exitcode is not None]
+
+    def _raise_if_errors(self, successes: Iterable[bool]) -> None:
+        """Raise the workers' errors naming the worker (replaces gymnasium's, which logs tracebacks)."""
+        successes = list(successes)
+        if all(successes):
+            return
+        errors = []
+        for _ in range(len(successes) - sum(successes)):
+            index, exctype, value, trace = self.error_queue.get()
+            self.parent_pipes[index].close()
+            self.parent_pipes[index] = None
+            errors.append((index, exctype, value, trace))
+        self._state = AsyncState.DEFAULT
+        index, exctype, value, trace = min(errors, key=lambda e: e[0])
+        if issubclass(exctype, PriqnError):
+            raise PriqnError(f"vector env worker {index}: {value}")
+        sys.stderr.write(f"vector env worker {index} raised:\n{trace}")
+        try:
+            exc = exctype(f"vector env worker {index}: {value}")
+        except Exception:  # noqa: BLE001 - an exception type with an unusual constructor
+            exc = RuntimeError(f"vector env worker {index}: {exctype.__name__}: {value}")
+        raise exc
 
     def _abandon(self) -> None:
         """Kill the remaining workers without waiting on a dead pipe."""

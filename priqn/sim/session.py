@@ -183,6 +183,18 @@ class SumoSession:
         self.seed = int(seed)
         _ACTIVE = self
 
+    def close_after_failure(self) -> None:
+        """Close after a libsumo error mid-episode, so the next ``start`` begins afresh.
+
+        libsumo keeps pending ``moveToXY`` requests in process-wide state that survives
+        ``close`` and ``load``; the next simulation's first step then touches the removed
+        vehicle and crashes the process. One step (errors ignored) applies them first.
+        """
+        if self._open:
+            with contextlib.suppress(Exception):
+                _libsumo().simulationStep()
+        self.close()
+
     def close(self) -> None:
         """End the simulation (safe to call twice)."""
         global _ACTIVE

@@ -1,0 +1,207 @@
+"""The env's pool of nets and what it keeps per net: road map, rasters, routes, obstacle sites.
+
+A :class:`ScenePool` knows which nets ``reset`` may draw (the families of
+``EnvConfig.family`` under ``EnvConfig.nets_dir`` or the repository's ``sumo_nets/``)
+and builds a :class:`Scene` per net the first time it is used, then keeps it: parsing
+a net and rasterising its road takes 0.1-0.3 s, a reset afterwards only milliseconds.
+A scene also caches, per ego route, the cells of that route's bit
+(:meth:`Scene.route_raster`), so a reset on a known (net, route) draws nothing.
+
+Nothing here talks to SUMO: lane lengths and widths come from the parsed net.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from priqn.config import from_dict
+from priqn.env import geometry, planner
+from priqn.env.traffic import ObstacleSite
+from priqn.errors import PriqnError
+from priqn.io import read_json
+from priqn.sim.roadmap import EgoRoute, RoadMap
+from priqn.sim.scenario import TrafficSpec
+from priqn.sim.session import check_net
+
+FAMILIES: dict[str, tuple[str, ...]] = {
+    "tjunction": ("tjunction",),
+    "fourway": ("fourway",),
+    "all": ("tjunction", "fourway"),
+    "holdout": ("holdout",),
+}
+"""Net pools by ``EnvConfig.family``: 'all' joins both training pools."""
+
+SITE_END_MARGIN_M = 5.0
+"""Obstacle sites keep this far from the dead end / the start of an arm [m]."""
+SITE_MIN_LENGTH_M = 10.0
+"""A lane stretch shorter than this offers no obstacle site [m]."""
+
+
+@dataclasses.dataclass
+class Scene:
+    """Everything the env derives from one net, built once per process."""
+
+    net: str
+    """``"family/net_id"``."""
+    roadmap: RoadMap
+    """Lanes, routes, drivable area (sumolib)."""
+    raster: geometry.MapRaster
+    """Drivable area and lane markings, no route bit."""
+    references: dict[str, planner.ReferenceLine]
+    """Planner reference line per ego route name."""
+    traffic: TrafficSpec
+    """The family's traffic settings (from the manifest beside the net)."""
+    _route_cells: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    _sites: dict[float, list[ObstacleSite]] = dataclasses.field(default_factory=dict)
+
+    def route_raster(self, route: EgoRoute) -> geometry.MapRaster:
+        """A fresh copy of the map raster with ``route``'s bit set.
+
+        The route is drawn once per (net, route) and kept as the flat indices of its
+        cells (~0.1 MB per route instead of a whole raster); later calls copy the base
+        raster and set those cells, identical to ``raster.with_route(...)``.
+        """
+        cells = self._route_cells.get(route.name)
+        if cells is None:
+            drawn = self.raster.with_route(route.reference_xy, route.lane_width_m)
+            cells = np.flatnonzero(drawn.bits & geometry.ROUTE).astype(np.int32)
+            self._route_cells[route.name] = cells
+        bits = self.raster.bits.copy()
+        bits.ravel()[cells] |= geometry.ROUTE
+        return geometry.MapRaster(bits, self.raster.origin_xy, self.raster.resolution_m)
+
+    def prepare_routes(self) -> None:
+        """Draw every ego route now (so that no reset draws one)."""
+        for route in self.roadmap.ego_routes:
+            self.route_raster(route)
+
+    def obstacle_sites(self, route: EgoRoute, clearance_m: float) -> list[ObstacleSite]:
+        """Where obstacles may stand in an episode on ``route``.
+
+        The rightmost lane of every arm edge, at least ``clearance_m`` from the junction
+        (and :data:`SITE_END_MARGIN_M` from the arm's far end); on the ego's approach
+        edge also at least ``clearance_m`` ahead of the ego's start. Stretches shorter
+        than :data:`SITE_MIN_LENGTH_M` are dropped.
+        """
+        sites = self._sites.get(clearance_m)
+        if sites is None:
+            rm = self.roadmap
+            incoming = {r[0] for r in rm.npc_routes}
+            outgoing = {r[-1] for r in rm.npc_routes}
+            sites = []
+            for edge in sorted(incoming | outgoing):
+                lane = rm.lanes[f"{edge}_0"]
+                if edge in incoming:
+                    lo, hi = SITE_END_MARGIN_M, lane.length_m - clearance_m
+                else:
+                    lo, hi = clearance_m, lane.length_m - SITE_END_MARGIN_M
+                if hi - lo > SITE_MIN_LENGTH_M:
+                    sites.append(ObstacleSite(lane.lane_id, edge, 0, lo, hi, lane.width_m))
+            self._sites[clearance_m] = sites
+        out = []
+        for site in sites:
+            if site.edge_id == route.edges[0]:
+                lo = max(site.s_min_m, route.start_pos_m + clearance_m)
+                if site.s_max_m - lo <= SITE_MIN_LENGTH_M:
+                    continue
+                site = dataclasses.replace(site, s_min_m=lo)
+            out.append(site)
+        return out
+
+
+class ScenePool:
+    """The nets of a pool and their :class:`Scene` cache.
+
+    ``family``: a key of :data:`FAMILIES`; ``nets_dir``: folder holding
+    ``<family>/manifest.json`` and the nets ('' = the repository's ``sumo_nets/``);
+    ``marking_width_m``: width the lane markings are rasterised with.
+    """
+
+    def __init__(self, family: str, nets_dir: str, marking_width_m: float) -> None:
+        self.root: Path | None = Path(nets_dir) if nets_dir else None
+        """The nets folder given (None = the repository's)."""
+        self.marking_width_m = marking_width_m
+        self.refs: tuple[str, ...] = tuple(_pool_refs(FAMILIES[family], self.root))
+        """The nets ``reset`` draws from, ``"family/net_id"``, in manifest order."""
+        self._scenes: dict[str, Scene] = {}
+
+    def __len__(self) -> int:
+        return len(self.refs)
+
+    def net_file(self, net: str) -> Path:
+        """The ``.net.xml`` of ``"family/net_id"``; a one-line error if there is none."""
+        from priqn.sim.scenario import net_path
+
+        if self.root is None:
+            return net_path(net)
+        parts = Path(net).parts
+        if len(parts) != 2:
+            raise PriqnError(f"net {net!r}: expected 'family/net_id' (e.g. holdout/fourway_00)")
+        path = self.root / parts[0] / f"{parts[1]}.net.xml"
+        if not path.is_file():
+            raise PriqnError(
+                f"{path}: no such net (nets_dir {self.root}); pick one of: {', '.join(self.refs)}"
+            )
+        return path
+
+    def scene(self, net: str) -> Scene:
+        """The scene of ``"family/net_id"`` (parsed at the first call, then cached)."""
+        scene = self._scenes.get(net)
+        if scene is None:
+            path = self.net_file(net)
+            check_net(path)  # a malformed net would crash libsumo (and the process)
+            roadmap = RoadMap.load(path)
+            raster = geometry.MapRaster.from_roadmap(roadmap, marking_width_m=self.marking_width_m)
+            refs = {r.name: planner.ReferenceLine(r.reference_xy) for r in roadmap.ego_routes}
+            scene = Scene(net, roadmap, raster, refs, _traffic_spec(roadmap))
+            self._scenes[net] = scene
+        return scene
+
+    def preload(self) -> int:
+        """Build every scene of the pool and draw its routes now; returns how many scenes."""
+        for net in self.refs:
+            self.scene(net).prepare_routes()
+        return len(self.refs)
+
+
+def _pool_refs(families: Sequence[str], root: Path | None) -> list[str]:
+    """The nets of ``families``; a bad ``nets_dir`` is described as it is, in one line."""
+    from priqn.sim.scenario import family_net_refs, list_generated
+
+    if root is not None:
+        if not root.is_dir():
+            raise PriqnError(
+                f"env.nets_dir: {root} is not a folder; expected a folder with "
+                f"<family>/manifest.json for {', '.join(families)} (or '' for sumo_nets/)"
+            )
+        missing = [f for f in families if not (root / f / "manifest.json").is_file()]
+        if missing:
+            have = list_generated(root)
+            there = f"it holds {', '.join(have)}" if have else "it holds no family"
+            raise PriqnError(
+                f"env.nets_dir: {root} has no {missing[0]}/manifest.json ({there}); generate "
+                f"nets there with 'priqn scenario generate --family {missing[0]} --out {root}'"
+            )
+    pool: list[str] = []
+    for fam in families:
+        pool += family_net_refs(fam, root)
+    if not pool:
+        where = root / families[0] if root is not None else families[0]
+        raise PriqnError(f"{where}: the manifest lists no nets; regenerate the family")
+    return pool
+
+
+def _traffic_spec(roadmap: RoadMap) -> TrafficSpec:
+    """The family's TrafficSpec from the manifest beside the net (defaults if there is none)."""
+    manifest = roadmap.net_path.parent / "manifest.json"
+    if not manifest.is_file():
+        return TrafficSpec()
+    data = read_json(manifest)
+    traffic = data.get("traffic") if isinstance(data, dict) else None
+    if not traffic:
+        return TrafficSpec()
+    return from_dict(TrafficSpec, traffic, where=f"{manifest} [traffic]")
