@@ -129,10 +129,18 @@ def policy_order(episodes: pd.DataFrame) -> list[str]:
     return list(policy_configs(episodes))
 
 
-def config_cells(key: tuple) -> list[str]:
-    """The five configuration cells of a row, rendered like the paper."""
+def config_cells(key: tuple, label: str | None = None) -> list[str]:
+    """The five configuration cells of a row, rendered like the paper.
+
+    A label with words beyond the paper's columns (our rows: ``Pr-IQN QD ✓ 0.2 ✗ scaled``,
+    ``IQN hln-4``) shows them beside the policy name, so such rows stay distinguishable.
+    """
     agent, comparator, train_preorder, eps, partial = key
     policy = AGENT_DISPLAY.get(agent, str(agent))
+    if label is not None:
+        extra = label.split(" ")[5 if agent in PREORDER_AGENTS else 1 :]
+        if extra:
+            policy += f" ({' '.join(extra)})"
     if agent not in PREORDER_AGENTS:
         return [policy, DASH, DASH, DASH, DASH]
 
@@ -324,7 +332,7 @@ def to_markdown(table: Table) -> str:
         for label, key in table.configs.items():
             if not ((table.long["density"] == density) & (table.long["label"] == label)).any():
                 continue
-            row = config_cells(key)
+            row = config_cells(key, label)
             for text, mark, delta in _cells(table, density, label):
                 row.append(
                     f"**{text}**"
@@ -381,7 +389,7 @@ def to_latex(table: Table) -> str:
         for label, key in table.configs.items():
             if not ((table.long["density"] == density) & (table.long["label"] == label)).any():
                 continue
-            row = [_tex_escape(c) for c in config_cells(key)]
+            row = [_tex_escape(c) for c in config_cells(key, label)]
             for text, mark, delta in _cells(table, density, label):
                 t = _tex_escape(text)
                 row.append(

@@ -331,6 +331,8 @@ def policy_labels(cfg: TrainConfig) -> dict[str, Any]:
     labels["label"] = _label(labels)
     if labels["agent"] == "pr-iqn" and cfg.agent.normalisation != "zscore":
         labels["label"] += f" {cfg.agent.normalisation}"  # our scale-aware rows
+    if labels["agent"] != "pr-iqn" and cfg.agent.reward_scheme != AgentConfig.reward_scheme:
+        labels["label"] += f" {cfg.agent.reward_scheme}"  # a non-default weighted sum
     return labels
 
 
