@@ -31,15 +31,16 @@ def _fmt_ci(point: float, lo: float, hi: float) -> str:
     return f"{point:.3f} [{lo:.3f}, {hi:.3f}]"
 
 
-def _rliable_markdown(results: dict[str, Any], order: list[str]) -> str:
+def _rliable_markdown(aggregates: dict[str, Any], order: list[str]) -> str:
+    """IQM / optimality-gap table from ``{metric: aggregates DataFrame}``."""
     from analysis.stats import SCORE_METRICS
 
     heads = ["Policy"]
-    for metric in results:
+    for metric in aggregates:
         short = SCORE_METRICS[metric]
         heads += [f"IQM {short} ↑", f"Optimality gap {short} ↓"]
     lines = ["| " + " | ".join(heads) + " |", "|:--|" + "--:|" * (len(heads) - 1)]
-    aggs = {m: r.aggregates.set_index("label") for m, r in results.items()}
+    aggs = {m: a.set_index("label") for m, a in aggregates.items()}
     for label in order:
         row = [label]
         for agg in aggs.values():
@@ -88,7 +89,15 @@ def make_report(
 
     from analysis import figures, tables
     from analysis.load import check_seeds, find_run_dirs, load_evaluation, load_learning_curves
-    from analysis.stats import RUN_AXIS, SCORE_METRICS, TASK_AXIS, rliable_statistics
+    from analysis.stats import (
+        RUN_AXIS,
+        SCORE_METRICS,
+        SEED_AXIS,
+        TASK_AXIS,
+        aggregate_estimates,
+        rliable_statistics,
+        score_matrices,
+    )
 
     out = Path(out_dir)
     runs_root = Path(runs_dir)
@@ -115,10 +124,18 @@ def make_report(
         atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
 
     results = {m: rliable_statistics(episodes, m, order, reps, seed) for m in SCORE_METRICS}
+    seed_only = {
+        m: aggregate_estimates(score_matrices(episodes, m, order, SEED_AXIS)[0], reps, seed)
+        for m in SCORE_METRICS
+    }
     csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
     atomic_write_text(
         tdir / "rliable_aggregates.csv",
         pd.concat([r.aggregates.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+    )
+    atomic_write_text(
+        tdir / "rliable_aggregates_seeds.csv",
+        pd.concat([a.assign(metric=m) for m, a in seed_only.items()]).to_csv(**csv_kw),
     )
     atomic_write_text(
         tdir / "probability_of_improvement.csv",
@@ -172,7 +189,11 @@ def make_report(
         tables.to_markdown(t1),
         "## rliable",
         "",
-        _rliable_markdown(results, order),
+        _rliable_markdown({m: r.aggregates for m, r in results.items()}, order),
+        f"Over training seeds only (run = {' × '.join(SEED_AXIS)}; evaluation runs averaged "
+        "within a seed, so the CI reflects training-seed variation alone):",
+        "",
+        _rliable_markdown(seed_only, order),
         "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
         "",
         _poi_matrix_markdown(sr, order),

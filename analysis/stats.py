@@ -29,6 +29,10 @@ from priqn.errors import PriqnError
 
 RUN_AXIS: tuple[str, ...] = ("train_seed", "eval_run")
 """Columns whose combinations form rliable's run axis."""
+SEED_AXIS: tuple[str, ...] = ("train_seed",)
+"""Run axis of the seed-only statistics: evaluation runs averaged within a training seed,
+so the CI reflects only training-seed variation (the paper's axis also counts evaluation
+runs, which share one trained network and can make CIs look narrower than they are)."""
 TASK_AXIS: tuple[str, ...] = ("density", "net")
 """Columns whose combinations form rliable's task axis."""
 SCORE_METRICS: dict[str, str] = {"success": "SR", "route_progress": "RP"}
@@ -38,20 +42,24 @@ PAIR_SEPARATOR = ";;"
 
 
 def score_matrices(
-    episodes: pd.DataFrame, metric: str, order: list[str]
+    episodes: pd.DataFrame,
+    metric: str,
+    order: list[str],
+    run_axis: tuple[str, ...] = RUN_AXIS,
 ) -> tuple[dict[str, np.ndarray], list[tuple], list[tuple]]:
     """Per-policy ``scores_RT`` matrices of the episode mean of ``metric``.
 
     Returns ``(scores, runs, tasks)``. ``scores[label]`` has shape ``[R_label, T]``:
-    one row per (train_seed, eval_run) pair of that policy, sorted; one column per
+    one row per (train_seed, eval_run) pair of that policy (per ``run_axis`` value: with
+    :data:`SEED_AXIS`, per training seed, averaged over its episodes), sorted; one column per
     (density, net) task in the order of ``tasks``, shared by every policy. ``runs``
     is the sorted union of the (train_seed, eval_run) pairs over policies (policies
     may have different seeds). A policy lacking a task in some run raises.
     """
     cells = (
-        episodes.groupby(["label", *RUN_AXIS, *TASK_AXIS], sort=True)[metric].mean().astype(float)
+        episodes.groupby(["label", *run_axis, *TASK_AXIS], sort=True)[metric].mean().astype(float)
     )
-    tasks = sorted({k[len(RUN_AXIS) + 1 :] for k in cells.index})
+    tasks = sorted({k[len(run_axis) + 1 :] for k in cells.index})
     scores: dict[str, np.ndarray] = {}
     runs: set[tuple] = set()
     for label in order:

@@ -63,9 +63,13 @@ class MetricColumn:
     """Direction for best / second."""
     decimals: int
     """Printed decimals (ranking uses the printed value)."""
+    ranked: bool = True
+    """Mark best / second (False for descriptive columns such as episode length)."""
 
     @property
     def header(self) -> str:
+        if not self.ranked:
+            return self.name
         return f"{self.name} {'↑' if self.higher_is_better else '↓'}"
 
 
@@ -79,7 +83,17 @@ TABLE1_METRICS: tuple[MetricColumn, ...] = (
     MetricColumn("Safety", "return_safety", True, 2),
     MetricColumn("Risk", "return_risk", True, 2),
     MetricColumn("Lane keeping", "return_lane_keeping", True, 2),
+    # An early crash collects fewer risk and lane penalties: per-decision means and the
+    # episode length show whether a better episode return is only a shorter episode.
+    MetricColumn("Risk / decision", "risk_per_decision", True, 3),
+    MetricColumn("Lane / decision", "lane_keeping_per_decision", True, 3),
+    MetricColumn("Length", "steps", True, 1, ranked=False),
 )
+PER_DECISION: dict[str, str] = {
+    "risk_per_decision": "return_risk",
+    "lane_keeping_per_decision": "return_lane_keeping",
+}
+"""Derived Table I columns: episode return / episode length (decisions)."""
 CONFIG_HEADERS: tuple[str, ...] = (
     "Policy",
     "Comparison metric",
@@ -203,6 +217,8 @@ def summarise(
 
 def best_marks(means: np.ndarray, metric: MetricColumn) -> list[str]:
     """``"best"`` / ``"second"`` / ``""`` per entry (dense ranking of printed means)."""
+    if not metric.ranked:
+        return [""] * len(means)
     printed = [None if not np.isfinite(v) else round(float(v), metric.decimals) for v in means]
     distinct = sorted({v for v in printed if v is not None}, reverse=metric.higher_is_better)
     best = distinct[0] if distinct else None
@@ -260,12 +276,15 @@ def table2(episodes: pd.DataFrame) -> Table:
 
 
 def table1(episodes: pd.DataFrame) -> Table:
-    """Table I: safety / risk / lane-keeping episode returns with Δ% relative to IQN."""
+    """Table I: safety / risk / lane-keeping episode returns with Δ% relative to IQN,
+    per-decision risk and lane keeping, and the mean episode length."""
+    steps = episodes["steps"].where(episodes["steps"] > 0)  # -1: length not recorded
+    episodes = episodes.assign(**{k: episodes[v] / steps for k, v in PER_DECISION.items()})
     configs = policy_configs(episodes)
     long = add_delta(summarise(episodes, TABLE1_METRICS, list(configs)), reference_label(configs))
     return Table(
-        "Table I: episode returns per objective (mean ± sample std over training seeds × "
-        "evaluation runs) and Δ% relative to IQN",
+        "Table I: episode returns per objective, per-decision means and episode length "
+        "(mean ± sample std over training seeds × evaluation runs) and Δ% relative to IQN",
         long,
         TABLE1_METRICS,
         configs,

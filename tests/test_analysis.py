@@ -13,7 +13,12 @@ import pytest
 from analysis import tables
 from analysis.load import check_seeds, load_evaluation
 from analysis.report import make_report
-from analysis.stats import aggregate_estimates, probability_of_improvement, score_matrices
+from analysis.stats import (
+    SEED_AXIS,
+    aggregate_estimates,
+    probability_of_improvement,
+    score_matrices,
+)
 from priqn.errors import PriqnError
 from priqn.evaluate import EPISODE_COLUMNS
 from priqn.objectives import OBJECTIVES
@@ -208,6 +213,17 @@ def test_table1_delta_relative_to_iqn(runs) -> None:
     assert lane["std"] == pytest.approx(math.sqrt(4 * 0.25 / 3))  # units 1, 1, 2, 2
 
 
+def test_table1_per_decision_and_length(runs) -> None:
+    long = tables.table1(load_evaluation(runs).episodes).long.set_index(
+        ["density", "label", "metric"]
+    )
+    # Every episode has 10 steps: per-decision = return / 10; IQN risk -2 -> -0.2.
+    assert long.loc[(0.5, "IQN", "Risk / decision"), "mean"] == pytest.approx(-0.2)
+    assert long.loc[(0.5, "Pr-IQN QD ✓ 0.2 ✗", "Lane / decision"), "mean"] == pytest.approx(0.15)
+    assert long.loc[(0.5, "IQN", "Length"), "mean"] == pytest.approx(10.0)
+    assert (long.xs("Length", level="metric")["mark"] == "").all()  # descriptive, not ranked
+
+
 def test_renderings(runs) -> None:
     t2 = tables.table2(load_evaluation(runs).episodes)
     md, tex, csv = tables.to_markdown(t2), tables.to_latex(t2), tables.to_csv(t2)
@@ -252,6 +268,10 @@ def test_score_matrices_axes(runs) -> None:
     assert scores["IQN"].shape == (4, 4)  # (2 seeds x 2 eval runs) x (2 densities x 2 nets)
     assert tasks[0] == (0.5, "holdout/a") and runs_idx[0] == (0, 0)
     np.testing.assert_allclose(scores["IQN"][:, 0], [0.0, 0.5, 0.5, 1.0])
+    # Seed-only axis: evaluation runs averaged within a seed: (0 + .5)/2, (.5 + 1)/2.
+    seeds, seed_idx, _ = score_matrices(episodes, "success", ["IQN"], run_axis=SEED_AXIS)
+    assert seeds["IQN"].shape == (2, 4) and seed_idx == [0, 1]
+    np.testing.assert_allclose(seeds["IQN"][:, 0], [0.25, 0.75])
 
 
 def test_report_files_and_reproducibility(runs, tmp_path) -> None:
