@@ -316,3 +316,15 @@ def test_cli_generate_to_folder_and_check(tmp_path):
     res = _priqn("scenario", "generate", "--family", str(fam), "--out", str(out), "--check")
     assert res.returncode == 2
     assert "fourway_00.net.xml: SHA-256 differs from the manifest" in res.stderr
+
+
+def test_missing_manifest_lists_the_families_of_that_folder(tmp_path):
+    from priqn.errors import PriqnError
+    from priqn.sim.scenario import load_manifest
+
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "manifest.json").write_text('{"nets": []}')
+    with pytest.raises(PriqnError, match=r"generated families: mine\)"):
+        load_manifest("tjunction", tmp_path)
+    with pytest.raises(PriqnError, match=r"generated families: none\)"):
+        load_manifest("tjunction", tmp_path / "mine")

@@ -228,7 +228,7 @@ def load_manifest(family: str, root: Path | None = None) -> dict[str, Any]:
     """Read ``sumo_nets/<family>/manifest.json`` (or under ``root``)."""
     path = (root if root is not None else nets_dir()) / family / "manifest.json"
     if not path.is_file():
-        have = ", ".join(list_generated()) or "none"
+        have = ", ".join(list_generated(root)) or "none"
         raise PriqnError(
             f"{path}: no manifest for family {family!r}; run 'priqn scenario generate "
             f"--family {family}' (generated families: {have})"
