@@ -281,6 +281,39 @@ def test_scaled_normalisation_learns_its_scale_and_logs_subset_sizes():
     assert plain.subsets.scale is None and plain.state_dict() == {}
 
 
+def test_own_tau_group_takes_each_heads_block():
+    from priqn.agents.learner import _own_group
+
+    q = torch.zeros(1, 2, 6, 1)  # [B, H, G*T, A] with G = H = 2, T = 3
+    q[0, :, :, 0] = torch.arange(6.0) + 100 * torch.arange(2.0)[:, None]
+    out = _own_group(q, 2)
+    assert out[0, :, :, 0].tolist() == [[0.0, 1.0, 2.0], [103.0, 104.0, 105.0]]
+    assert _own_group(q, 1) is q
+
+
+def test_ensemble_heads_see_their_own_taus():
+    agent = make_agent("ensemble-iqn", AgentConfig(ensemble_heads=3))
+    net = small_net(agent.num_heads)
+    seen = []
+    forward = net.forward
+    net.forward = lambda obs, taus: seen.append(taus.shape) or forward(obs, taus)
+    cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=5, num_quantiles=2)
+    learner = Learner(net, agent, cfg, torch.device("cpu"), tau_seed=0)
+    learner.target.forward = net.forward  # record the target pass too
+    rng = np.random.default_rng(0)
+    batch = {
+        "obs": random_obs(rng, 2),
+        "next_obs": random_obs(rng, 2),
+        "action": rng.integers(0, A, 2),
+        "reward": rng.normal(size=(2, 5)).astype(np.float32),
+        "discount": np.full(2, 0.9, dtype=np.float32),
+    }
+    learner.update(batch)
+    # target: 3 heads x 5 own tau' + the K = 2 grid; online: 3 heads x 4 own tau
+    assert seen == [(2, 3 * 5 + 2), (2, 3 * 4)]
+    assert make_agent("iqn").spec.own_taus is False and agent.spec.own_taus is True
+
+
 def test_learner_state_roundtrip_continues_identically():
     agent = make_agent("ma-iqn")
     cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
@@ -299,3 +332,22 @@ def test_learner_state_roundtrip_continues_identically():
     b.load_state_dict({k: (v if k != "tau_generator" else v.clone()) for k, v in state.items()})
     assert a.update(batch)["loss"] == b.update(batch)["loss"]
     assert OBJECTIVES[0] == "safety"
+
+
+def test_parameter_counts_in_the_docs():
+    """docs/implementation-details.md states every agent's parameter count: keep it true."""
+    from pathlib import Path
+
+    from priqn.bench.train import _obs_space
+    from priqn.train import build_network, resolve_config
+
+    doc = (Path(__file__).parents[1] / "docs" / "implementation-details.md").read_text()
+    names = {"iqn": "IQN", "ensemble-iqn": "Ensemble-IQN", "ma-iqn": "MA-IQN", "pr-iqn": "Pr-IQN"}
+    for agent, shown in names.items():
+        counts = []
+        for preset in ("default", "paper"):
+            cfg = resolve_config(preset=preset, agent=agent)
+            space, n = _obs_space(cfg)
+            counts.append(sum(p.numel() for p in build_network(cfg, space, n, 0).parameters()))
+        heads = 1 if agent == "iqn" else 5
+        assert f"| {shown} | {heads} | {counts[0]:,} | {counts[1]:,} |" in doc, (agent, counts)

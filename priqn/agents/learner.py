@@ -33,6 +33,19 @@ def make_adam(params: Any, lr: float, eps: float, device: torch.device) -> torch
         return torch.optim.Adam(params, lr=lr, eps=eps)
 
 
+def _own_group(quantiles_BHTA: torch.Tensor, groups: int) -> torch.Tensor:
+    """Head h's quantiles at its own τ group: ``[B, H, G·T, A]`` → ``[B, H, T, A]``.
+
+    With one group every head already sees the same τ; with G = H the network was
+    evaluated at every head's τ and head h keeps block h (the diagonal).
+    """
+    if groups == 1:
+        return quantiles_BHTA
+    B, H, GT, A = quantiles_BHTA.shape
+    blocks = quantiles_BHTA.view(B, H, groups, GT // groups, A)
+    return torch.diagonal(blocks, dim1=1, dim2=2).permute(0, 3, 1, 2)
+
+
 class Learner:
     """Online + target network, Adam, and one IQN update per :meth:`update` call."""
 
@@ -71,15 +84,19 @@ class Learner:
             discount_B5 = discount_B5[:, None].expand(-1, reward_B5.shape[1])
         B, H = action_B.shape[0], self.agent.num_heads
         N, Np, K = cfg.num_tau_samples, cfg.num_tau_prime_samples, cfg.num_quantiles
-        taus_BN = torch.rand(B, N, generator=self.tau_generator, device=dev)
-        taus_prime_BNp = torch.rand(B, Np, generator=self.tau_generator, device=dev)
+        # τ groups: one shared set for every head, or one per head (Ensemble-IQN's heads
+        # each see their own τ samples, so they are not copies of one estimator).
+        G = H if self.agent.spec.own_taus else 1
+        taus_BGN = torch.rand(B, G, N, generator=self.tau_generator, device=dev)
+        taus_prime_BGNp = torch.rand(B, G, Np, generator=self.tau_generator, device=dev)
 
         with torch.no_grad(), self._autocast():
             # One target-network pass: N' sampled τ' for the loss + the fixed K grid for
             # the target rule (argmax / optimal subsets); the encoder runs once.
-            taus_next = torch.cat([taus_prime_BNp, self.grid_K.expand(B, K)], dim=1)
+            taus_next = torch.cat([taus_prime_BGNp.reshape(B, G * Np), self.grid_K.expand(B, K)], 1)
             next_BHTA = self.target(next_obs, taus_next).float()
-            next_BHNpA, next_grid_BHKA = next_BHTA[:, :, :Np], next_BHTA[:, :, Np:]
+            next_BHNpA = _own_group(next_BHTA[:, :, : G * Np], G)
+            next_grid_BHKA = next_BHTA[:, :, G * Np :]
             subsets = self.agent.subsets
             if subsets is not None:
                 subsets.observe(next_grid_BHKA)  # running scale (scaled normalisation)
@@ -91,12 +108,11 @@ class Learner:
             target_BHNp = reward_BH[:, :, None] + discount_BH[:, :, None] * next_BHNp
 
         with self._autocast():
-            quantiles_BHNA = self.online(obs, taus_BN).float()
+            quantiles_BHNA = _own_group(self.online(obs, taus_BGN.reshape(B, G * N)).float(), G)
         pred_BHN = quantiles_BHNA.gather(3, action_B[:, None, None, None].expand(B, H, N, 1))
         pred_BHN = pred_BHN.squeeze(3)
-        loss_BH = quantile_huber_loss(
-            pred_BHN, target_BHNp, taus_BN[:, None, :].expand(B, H, N), cfg.kappa
-        )
+        taus_BHN = taus_BGN.expand(B, H, N)
+        loss_BH = quantile_huber_loss(pred_BHN, target_BHNp, taus_BHN, cfg.kappa)
         # Heads are independent learners on one encoder: sum over heads, mean over batch.
         loss = loss_BH.mean(dim=0).sum()
 

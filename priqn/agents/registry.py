@@ -35,6 +35,8 @@ class AgentSpec:
     reward_rule: str
     acting_rule: str
     target_rule: str
+    own_taus: bool = False
+    """Each head draws its own τ samples in the loss (Ensemble-IQN), not one shared set."""
 
     @property
     def uses_preorder(self) -> bool:
@@ -44,7 +46,7 @@ class AgentSpec:
 AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
     "iqn": lambda c: AgentSpec(1, "weighted-sum", "argmax", "own-argmax"),
     "ensemble-iqn": lambda c: AgentSpec(
-        c.ensemble_heads, "weighted-sum", "argmax-mean-of-heads", "own-argmax"
+        c.ensemble_heads, "weighted-sum", "argmax-mean-of-heads", "own-argmax", own_taus=True
     ),
     "ma-iqn": lambda c: AgentSpec(
         NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
