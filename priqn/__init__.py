@@ -17,6 +17,8 @@ if "priqn/Intersection-v0" not in gymnasium.registry:
     gymnasium.register(
         id="priqn/Intersection-v0",
         entry_point="priqn.env.intersection:IntersectionEnv",
+        # gymnasium.make_vec(...) builds worker processes (libsumo: one SUMO per process).
+        vector_entry_point="priqn.env.vector:make_vec",
         # The reward is a 5-vector by design; gymnasium's passive checker would warn
         # that it is not a float on every make(). tests/test_env.py runs check_env.
         disable_env_checker=True,

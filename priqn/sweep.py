@@ -1022,13 +1022,19 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
 
 
 def _sigterm_as_interrupt() -> None:
-    """SIGTERM (a batch scheduler, ``kill``) stops the sweep like Ctrl-C: cells stopped cleanly."""
+    """SIGTERM (a batch scheduler, ``kill``) stops the sweep like Ctrl-C: cells stopped cleanly.
+
+    SIGINT gets Python's KeyboardInterrupt handler even when it was inherited as ignored
+    (a shell starts ``cmd &`` with SIGINT ignored, and Python then leaves it so), so
+    ``kill -INT`` stops a background sweep too.
+    """
 
     def handler(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def validate(exp: Experiment) -> None:

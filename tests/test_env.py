@@ -296,6 +296,26 @@ def _two_envs_one_process() -> tuple[bool, bool, str]:
         second.close()
 
 
+def _unseeded_first_episodes() -> tuple[list[str], tuple[str, str]]:
+    """Scene keys of the first reset of three fresh envs without a seed, and of two
+    fresh envs built with seed=5 (each closed before the next: one SUMO per process)."""
+
+    def key(env: Any) -> str:
+        _, info = env.reset()
+        return f"{info['net']} {info['command']} {env.np_random.integers(1 << 30)}"
+
+    from priqn.env.intersection import EnvConfig, IntersectionEnv
+
+    fresh, fixed = [], []
+    for seed, out in ((None, fresh), (None, fresh), (None, fresh), (5, fixed), (5, fixed)):
+        env = IntersectionEnv(EnvConfig(obs_size_px=32), seed=seed)
+        try:
+            out.append(key(env))
+        finally:
+            env.close()
+    return fresh, (fixed[0], fixed[1])
+
+
 # --------------------------------------------------------------------------- tests
 
 
@@ -442,3 +462,9 @@ def test_second_env_in_one_process_takes_sumo_over_cleanly(worker) -> None:
     is_open, taken_over, msg = run_in(worker, _two_envs_one_process)
     assert not is_open and taken_over
     assert "taken over by another env" in msg and "\n" not in msg
+
+
+def test_reset_without_seed_draws_fresh_entropy(worker) -> None:
+    fresh, fixed = run_in(worker, _unseeded_first_episodes)
+    assert len(set(fresh)) == 3  # gymnasium's convention: no seed, fresh entropy
+    assert fixed[0] == fixed[1]  # a constructor seed still fixes the first episode

@@ -123,3 +123,42 @@ def test_an_error_in_a_worker_names_it_without_a_traceback(capfd) -> None:
         assert "Traceback" not in capfd.readouterr().err
     finally:
         venv.close()
+
+
+def test_gymnasium_make_vec_builds_the_process_isolated_env() -> None:
+    import gymnasium
+
+    import priqn  # noqa: F401  (registers the env)
+
+    venv = gymnasium.make_vec(
+        "priqn/Intersection-v0", num_envs=2, obs_size_px=32, max_episode_steps=4, seed=3
+    )
+    try:
+        assert type(venv).__name__ == "PriqnVectorEnv" and venv.num_envs == 2
+        venv.reset()
+        ended = 0
+        for _ in range(6):  # past the 4-decision limit: the autoreset keeps vector rewards
+            _, rewards, term, trunc, _ = venv.step(np.array([12, 12]))
+            assert rewards.shape == (2, 5)
+            ended += int((term | trunc).sum())
+        assert ended >= 2
+    finally:
+        venv.close()
+
+
+def test_env_config_from_dict_and_keywords_and_reward_space() -> None:
+    import gymnasium
+
+    import priqn  # noqa: F401
+
+    env = gymnasium.make(
+        "priqn/Intersection-v0", config={"family": "fourway", "obs_size_px": 32}, densities=[0.5]
+    )
+    cfg = env.unwrapped.config
+    assert (cfg.family, cfg.obs_size_px, cfg.densities) == ("fourway", 32, (0.5,))
+    space = env.unwrapped.reward_space
+    assert space.shape == (5,) and space.low.tolist() == [-10, -1, -1, 0, -1]
+    assert space.high.tolist() == [0, 0, 0, 2, 0]  # progress <= 1 per decision + bonus 1
+    with pytest.raises(PriqnError, match=r"env config: unknown key 'colour' \(valid: "):
+        gymnasium.make("priqn/Intersection-v0", colour="red")
+    env.close()

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from numbers import Real
 from typing import Any
 
@@ -293,17 +293,21 @@ class IntersectionEnv(gymnasium.Env):
 
     def __init__(
         self,
-        config: EnvConfig | None = None,
+        config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
         seed: int | None = None,
+        **overrides: Any,
     ) -> None:
-        self.config = cfg = config if config is not None else EnvConfig()
-        if not isinstance(cfg, EnvConfig):
-            raise PriqnError(f"config: expected an EnvConfig, got {type(cfg).__name__}")
+        """``config``: an :class:`EnvConfig`, a dict of its fields (nested ``reward``
+        too), or None; keyword ``overrides`` replace fields on top, e.g.
+        ``gymnasium.make("priqn/Intersection-v0", family="fourway", obs_size_px=64)``.
+        ``seed`` fixes the first ``reset()`` without a seed (the vector env passes one per
+        worker); without it a fresh env draws fresh entropy, as gymnasium's envs do."""
+        self.config = cfg = make_config(config, overrides)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise PriqnError(f"render_mode: expected 'rgb_array' or None, got {render_mode!r}")
         self.render_mode = render_mode
-        self._default_seed = 0 if seed is None else int(seed)
+        self._default_seed = None if seed is None else int(seed)
         self._seeded = False
 
         self._speeds = np.linspace(0.0, cfg.max_speed_mps, cfg.n_speeds)
@@ -316,6 +320,17 @@ class IntersectionEnv(gymnasium.Env):
             np.meshgrid(self._speeds, self._offsets, indexing="ij"), axis=-1
         ).reshape(-1, 2)
         self.action_space = spaces.Discrete(len(self._table))
+        rc = cfg.reward
+        # Per-decision bounds of the reward vector (OBJECTIVES order; docs/environment.md),
+        # for multi-objective libraries (MO-Gymnasium reads env.unwrapped.reward_space).
+        self.reward_space = spaces.Box(
+            low=np.array(
+                [-max(rc.collision_penalty, rc.off_road_penalty), -1.0, -1.0, 0.0, -1.0],
+                np.float32,
+            ),
+            high=np.array([0.0, 0.0, 0.0, 1.0 + rc.success_bonus, 0.0], np.float32),
+            dtype=np.float32,
+        )
 
         self._sensors = sensors.Sensors(cfg.sensor_config())
         self.observation_space = spaces.Dict(
@@ -468,8 +483,9 @@ class IntersectionEnv(gymnasium.Env):
         if not self._session.is_open:
             raise PriqnError(
                 "this env's SUMO simulation was taken over by another env in this process "
-                "(libsumo runs one per process): reset() this env, or use "
-                "priqn.env.vector.make_vector_env for several envs"
+                "(libsumo runs one per process): reset() this env, or for several envs use "
+                "gymnasium.make_vec('priqn/Intersection-v0', num_envs=N) (worker processes; "
+                "not vectorization_mode='sync')"
             )
         return ep
 
@@ -706,6 +722,34 @@ class IntersectionEnv(gymnasium.Env):
             "returns": ep.returns.copy(),
             "episode_steps": int(ep.steps),
         }
+
+
+def make_config(
+    config: EnvConfig | Mapping[str, Any] | None, overrides: Mapping[str, Any]
+) -> EnvConfig:
+    """An :class:`EnvConfig` from an EnvConfig, a dict of fields or None, plus overrides.
+
+    Unknown or mistyped fields are one-line errors listing the valid keys.
+    """
+    from priqn.config import from_dict, to_dict
+
+    if config is None:
+        base: dict[str, Any] = {}
+    elif isinstance(config, EnvConfig):
+        if not overrides:
+            return config
+        base = to_dict(config)
+    elif isinstance(config, Mapping):
+        base = dict(config)
+    else:
+        raise PriqnError(
+            f"config: expected an EnvConfig, a dict of its fields or None, got {type(config).__name__}"
+        )
+    merged = {**base, **overrides}
+    try:
+        return from_dict(EnvConfig, merged, "env config")
+    except ValueError as exc:  # __post_init__ checks
+        raise PriqnError(f"env config: {exc}") from None
 
 
 def _sumo_errors() -> tuple[type[BaseException], ...]:

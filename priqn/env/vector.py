@@ -173,3 +173,24 @@ def make_vector_env(
         daemon=True,
         shared_memory=True,
     )
+
+
+def make_vec(
+    num_envs: int = 2,
+    config: Any = None,
+    seed: int = 0,
+    render_mode: str | None = None,
+    **overrides: Any,
+) -> PriqnVectorEnv:
+    """``gymnasium.make_vec("priqn/Intersection-v0", num_envs=N, ...)`` (vector entry point).
+
+    The process-isolated vector env of :func:`make_vector_env`: libsumo runs one
+    simulation per process, so gymnasium's ``"sync"`` mode cannot work (the second env
+    takes the simulation over and the first refuses to step), and ``"async"`` needs
+    ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}`` (gymnasium's default
+    NEXT_STEP mode mixes a scalar 0 into the 5-vector rewards). ``config`` and keyword
+    overrides are as for the single env; ``seed`` derives every worker's seeds.
+    """
+    from priqn.env.intersection import make_config  # pure-python; no SUMO import
+
+    return make_vector_env(make_config(config, overrides), num_envs, seed, render_mode)

@@ -1,0 +1,81 @@
+"""Wrappers for single-objective RL libraries: the 5-vector reward as one number.
+
+>>> import gymnasium, priqn
+>>> from priqn.wrappers import ScalarizeReward
+>>> env = ScalarizeReward(gymnasium.make("priqn/Intersection-v0", obs_size_px=64))  # hln-2
+>>> env = ScalarizeReward(env, weights=(1, 0.1, 0.05, 0.02, 0.01))  # your own weights
+
+The reward becomes ``Σ_i w_i r_i`` (OBJECTIVES order: safety, risk, lane keeping,
+progress, comfort) and the vector stays available as ``info["reward_vector"]``.
+``weights`` is a scheme name of :mod:`priqn.agents.scalarise` (default ``"hln-2"``, whose
+crash margin keeps crashing from ever paying; docs/implementation-details.md) or five
+numbers. :class:`ScalarizeVectorReward` does the same for a vector env
+(``gymnasium.make_vec``), returning ``float32 [num_envs]`` rewards.
+MO-Gymnasium users need no wrapper: the env has ``reward_space`` (Box, 5).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from priqn.agents.scalarise import scheme_weights
+from priqn.errors import PriqnError
+from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+
+
+def resolve_weights(weights: str | Sequence[float]) -> np.ndarray:
+    """A scheme name or five numbers → ``float64 [5]`` (one-line errors)."""
+    if isinstance(weights, str):
+        return np.asarray(scheme_weights(weights), dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (NUM_OBJECTIVES,) or not np.isfinite(w).all():
+        raise PriqnError(
+            f"weights: expected a scheme name or {NUM_OBJECTIVES} finite numbers "
+            f"({', '.join(OBJECTIVES)}), got {weights!r}"
+        )
+    return w
+
+
+class ScalarizeReward(gymnasium.Wrapper):
+    """Single env: reward ``Σ_i w_i r_i`` (float); the vector in ``info["reward_vector"]``."""
+
+    def __init__(self, env: gymnasium.Env, weights: str | Sequence[float] = "hln-2") -> None:
+        super().__init__(env)
+        self.weights_5 = resolve_weights(weights)
+        low, high = _bounds(env, self.weights_5)
+        self.reward_range = (low, high)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward_5, terminated, truncated, info = self.env.step(action)
+        reward_5 = np.asarray(reward_5, dtype=np.float64)
+        info = {**info, "reward_vector": reward_5}
+        return obs, float(reward_5 @ self.weights_5), terminated, truncated, info
+
+
+class ScalarizeVectorReward(gymnasium.vector.VectorWrapper):
+    """Vector env: rewards ``float32 [num_envs]``; vectors in ``infos["reward_vector"]``."""
+
+    def __init__(
+        self, env: gymnasium.vector.VectorEnv, weights: str | Sequence[float] = "hln-2"
+    ) -> None:
+        super().__init__(env)
+        self.weights_5 = resolve_weights(weights)
+
+    def step(self, actions: Any) -> tuple[Any, np.ndarray, Any, Any, dict[str, Any]]:
+        obs, rewards_E5, terminated, truncated, infos = self.env.step(actions)
+        rewards_E5 = np.asarray(rewards_E5, dtype=np.float64)
+        infos = {**infos, "reward_vector": rewards_E5}
+        return obs, (rewards_E5 @ self.weights_5).astype(np.float32), terminated, truncated, infos
+
+
+def _bounds(env: gymnasium.Env, w_5: np.ndarray) -> tuple[float, float]:
+    """Range of the scalar reward from the env's ``reward_space`` (±inf without one)."""
+    space = getattr(env.unwrapped, "reward_space", None)
+    if space is None:
+        return -np.inf, np.inf
+    lo, hi = np.asarray(space.low, np.float64), np.asarray(space.high, np.float64)
+    return float(np.minimum(w_5 * lo, w_5 * hi).sum()), float(np.maximum(w_5 * lo, w_5 * hi).sum())
