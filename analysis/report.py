@@ -24,6 +24,8 @@ from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
 
 DEFAULT_REPS = 2000
+MIN_SEEDS_FOR_STATISTICS = 2
+"""Fewer training seeds per policy: no best/second marks and no CIs in the report."""
 """Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
 
 
@@ -113,7 +115,19 @@ def make_report(
             + ", ".join(f"{k}: {v}" for k, v in seeds_per_policy.sort_index().items())
         )
 
-    t2, t1 = tables.table2(episodes), tables.table1(episodes)
+    # Ranking or bootstrapping one training seed per policy would dress noise up as a
+    # result: with fewer than 2 seeds the tables carry no marks and no CIs are printed.
+    seeds_min = int(seeds_per_policy.min())
+    ranked = seeds_min >= MIN_SEEDS_FOR_STATISTICS
+    if not ranked:
+        short = seeds_per_policy[seeds_per_policy < MIN_SEEDS_FOR_STATISTICS]
+        unranked_why = (
+            f"No best/second marks and no confidence intervals: {short.index[0]!r} has "
+            f"{int(short.iloc[0])} training seed(s) (at least {MIN_SEEDS_FOR_STATISTICS} per "
+            "policy are needed to rank policies or bootstrap over runs)."
+        )
+        notes.append(unranked_why)
+    t2, t1 = tables.table2(episodes, ranked), tables.table1(episodes, ranked)
     order = list(t2.configs)
     if tables.reference_label(t2.configs) is None:
         notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
@@ -123,35 +137,39 @@ def make_report(
         atomic_write_text(tdir / f"{name}.tex", tables.to_latex(table))
         atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
 
-    results = {m: rliable_statistics(episodes, m, order, reps, seed) for m in SCORE_METRICS}
-    seed_only = {
-        m: aggregate_estimates(score_matrices(episodes, m, order, SEED_AXIS)[0], reps, seed)
-        for m in SCORE_METRICS
-    }
-    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
-    atomic_write_text(
-        tdir / "rliable_aggregates.csv",
-        pd.concat([r.aggregates.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
-    )
-    atomic_write_text(
-        tdir / "rliable_aggregates_seeds.csv",
-        pd.concat([a.assign(metric=m) for m, a in seed_only.items()]).to_csv(**csv_kw),
-    )
-    atomic_write_text(
-        tdir / "probability_of_improvement.csv",
-        pd.concat([r.improvement.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
-    )
-    atomic_write_text(
-        tdir / "performance_profiles.csv",
-        pd.concat([r.profiles.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
-    )
+    results: dict[str, Any] = {}
+    if ranked:
+        results = {m: rliable_statistics(episodes, m, order, reps, seed) for m in SCORE_METRICS}
+        seed_only = {
+            m: aggregate_estimates(score_matrices(episodes, m, order, SEED_AXIS)[0], reps, seed)
+            for m in SCORE_METRICS
+        }
+        csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+        atomic_write_text(
+            tdir / "rliable_aggregates.csv",
+            pd.concat([r.aggregates.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+        )
+        atomic_write_text(
+            tdir / "rliable_aggregates_seeds.csv",
+            pd.concat([a.assign(metric=m) for m, a in seed_only.items()]).to_csv(**csv_kw),
+        )
+        atomic_write_text(
+            tdir / "probability_of_improvement.csv",
+            pd.concat([r.improvement.assign(metric=m) for m, r in results.items()]).to_csv(
+                **csv_kw
+            ),
+        )
+        atomic_write_text(
+            tdir / "performance_profiles.csv",
+            pd.concat([r.profiles.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
+        )
 
-    sr = results["success"]
-    figures.save_figure(
-        figures.probability_of_improvement_figure(sr), fdir, "probability_of_improvement"
-    )
-    figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
-    figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
+        sr = results["success"]
+        figures.save_figure(
+            figures.probability_of_improvement_figure(sr), fdir, "probability_of_improvement"
+        )
+        figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
+        figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
     curves, curve_notes = load_learning_curves(find_run_dirs(runs_root), evaluation)
     if len(curves):
         figures.save_figure(figures.learning_curves_figure(curves, order), fdir, "learning_curves")
@@ -162,7 +180,31 @@ def make_report(
         or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
     )
     ec = evaluation.eval_config
-    n_runs, n_tasks = len(next(iter(sr.scores.values()))), len(sr.tasks)
+    if ranked:
+        n_runs, n_tasks = len(next(iter(sr.scores.values()))), len(sr.tasks)
+        axes = f"e.g. {n_runs} runs × {n_tasks} tasks for {order[0]}. "
+        rliable_md = [
+            "## rliable",
+            "",
+            _rliable_markdown({m: r.aggregates for m, r in results.items()}, order),
+            f"Over training seeds only (run = {' × '.join(SEED_AXIS)}; evaluation runs averaged "
+            "within a seed, so the CI reflects training-seed variation alone):",
+            "",
+            _rliable_markdown(seed_only, order),
+            "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
+            "",
+            _poi_matrix_markdown(sr, order),
+            "![P(X > Y)](figures/probability_of_improvement.png) "
+            "([pdf](figures/probability_of_improvement.pdf))",
+            "",
+            "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
+            "",
+            "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
+            "",
+        ]
+    else:
+        axes = ""
+        rliable_md = ["## rliable", "", f"Not computed. {unranked_why}", ""]
     md = [
         "# priqn evaluation report",
         "",
@@ -176,7 +218,7 @@ def make_report(
         f"- **Statistics seed**: `np.random.seed({seed})` before every rliable call; "
         f"{reps} bootstrap replications, 95% percentile CIs.",
         f"- **rliable axes**: run = ({' × '.join(RUN_AXIS)}), task = ({' × '.join(TASK_AXIS)}); "
-        f"e.g. {n_runs} runs × {n_tasks} tasks for {order[0]}. Scores: success rate (SR) and mean "
+        f"{axes}Scores: success rate (SR) and mean "
         "route progress (RP) per cell; optimality-gap threshold 1.",
         "- **Tables**: mean ± sample std (ddof=1) over training seeds × evaluation runs; "
         "**best** / <u>second</u> per column and density on the printed means (ties share).",
@@ -187,23 +229,7 @@ def make_report(
         "## Table I — objective returns",
         "",
         tables.to_markdown(t1),
-        "## rliable",
-        "",
-        _rliable_markdown({m: r.aggregates for m, r in results.items()}, order),
-        f"Over training seeds only (run = {' × '.join(SEED_AXIS)}; evaluation runs averaged "
-        "within a seed, so the CI reflects training-seed variation alone):",
-        "",
-        _rliable_markdown(seed_only, order),
-        "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
-        "",
-        _poi_matrix_markdown(sr, order),
-        "![P(X > Y)](figures/probability_of_improvement.png) "
-        "([pdf](figures/probability_of_improvement.pdf))",
-        "",
-        "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
-        "",
-        "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
-        "",
+        *rliable_md,
         "## Learning curves",
         "",
         (

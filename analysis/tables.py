@@ -184,9 +184,15 @@ def unit_values(episodes: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
 
 
 def summarise(
-    episodes: pd.DataFrame, metrics: Sequence[MetricColumn], order: Sequence[str]
+    episodes: pd.DataFrame,
+    metrics: Sequence[MetricColumn],
+    order: Sequence[str],
+    ranked: bool = True,
 ) -> pd.DataFrame:
-    """Long table: one row per (density, label, metric) with mean, std (ddof=1), n, mark."""
+    """Long table: one row per (density, label, metric) with mean, std (ddof=1), n, mark.
+
+    ``ranked=False`` leaves every mark empty (too few training seeds to rank policies).
+    """
     units = unit_values(episodes, [m.column for m in metrics])
     grouped = units.groupby(level=["density", "label"], sort=True)
     mean, std, n = grouped.mean(), grouped.std(ddof=1), grouped.count()
@@ -208,7 +214,7 @@ def summarise(
                 )
     long = pd.DataFrame(rows, columns=["density", "label", "metric", "mean", "std", "n"])
     long["mark"] = ""
-    for m in metrics:
+    for m in metrics if ranked else ():
         for density in long["density"].unique():
             sel = (long["metric"] == m.name) & (long["density"] == density)
             long.loc[sel, "mark"] = best_marks(long.loc[sel, "mean"].to_numpy(), m)
@@ -264,24 +270,26 @@ class Table:
     """Show Δ% next to every value (Table I)."""
 
 
-def table2(episodes: pd.DataFrame) -> Table:
+def table2(episodes: pd.DataFrame, ranked: bool = True) -> Table:
     """Table II: CR, OR, SR, RP per density and policy configuration."""
     configs = policy_configs(episodes)
     return Table(
         "Table II: driving metrics (mean ± sample std over training seeds × evaluation runs)",
-        summarise(episodes, TABLE2_METRICS, list(configs)),
+        summarise(episodes, TABLE2_METRICS, list(configs), ranked),
         TABLE2_METRICS,
         configs,
     )
 
 
-def table1(episodes: pd.DataFrame) -> Table:
+def table1(episodes: pd.DataFrame, ranked: bool = True) -> Table:
     """Table I: safety / risk / lane-keeping episode returns with Δ% relative to IQN,
     per-decision risk and lane keeping, and the mean episode length."""
     steps = episodes["steps"].where(episodes["steps"] > 0)  # -1: length not recorded
     episodes = episodes.assign(**{k: episodes[v] / steps for k, v in PER_DECISION.items()})
     configs = policy_configs(episodes)
-    long = add_delta(summarise(episodes, TABLE1_METRICS, list(configs)), reference_label(configs))
+    long = add_delta(
+        summarise(episodes, TABLE1_METRICS, list(configs), ranked), reference_label(configs)
+    )
     return Table(
         "Table I: episode returns per objective, per-decision means and episode length "
         "(mean ± sample std over training seeds × evaluation runs) and Δ% relative to IQN",

@@ -415,3 +415,19 @@ def test_config_cells_and_order() -> None:
     ]
     ordered = sorted(keys, key=tables.policy_sort_key)
     assert ordered == [keys[5], keys[4], keys[3], keys[2], keys[1], keys[0]]
+
+
+def test_one_seed_report_ranks_nothing_and_prints_no_ci(tmp_path) -> None:
+    root = tmp_path / "runs"
+    write_run(root, "iqn_s0", "IQN", IQN, 0, iqn_value)
+    write_run(root, "pr_s0", "Pr-IQN QD ✓ 0.2 ✗", PR, 0, pr_value)
+    report = make_report(root, tmp_path / "out", seed=0, reps=20).read_text()
+    assert (
+        "No best/second marks and no confidence intervals: 'IQN' has 1 training seed(s)" in report
+    )
+    for table in ("table2", "table1"):  # the caption is bold; no value is
+        lines = (tmp_path / "out" / "tables" / f"{table}.md").read_text().splitlines()
+        assert not any("**" in line or "<u>" in line for line in lines if line.startswith("|"))
+    assert not (tmp_path / "out" / "tables" / "rliable_aggregates.csv").exists()
+    t2 = tables.table2(load_evaluation(root).episodes, ranked=False)
+    assert (t2.long["mark"] == "").all()
