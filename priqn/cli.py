@@ -21,6 +21,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("priqn.evaluate", "evaluate trained runs on the hold-out nets"),
     "report": ("analysis.report", "tables, rliable statistics and figures from evaluated runs"),
     "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),
+    "inspect": (
+        "priqn.inspector",
+        "why a policy acted: per-objective quantiles and optimal subsets",
+    ),
     "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
 }
 

@@ -303,7 +303,7 @@ def run_scenes(
         for i, scene in enumerate(slot):
             if scene is not None:
                 actions[i] = int(np.asarray(policy.act(_select(obs, i), rngs[i])).reshape(-1)[0])
-                sizes.add(getattr(policy, "last_subset_sizes", None), rows=i)
+                sizes.add(getattr(policy, "last_subset_sizes", None), rows=slice(i, i + 1))
         obs, _, terminated, truncated, infos = vec_env.step(actions)
         for i in range(num_envs):
             if slot[i] is None or not (terminated[i] or truncated[i]):

@@ -1,0 +1,488 @@
+"""``priqn inspect``: why a policy chose each action, decision by decision.
+
+Re-runs a trained policy greedily on evaluation scenes (the scene seeds of ``priqn
+evaluate``, so an inspected episode is the evaluated one) in its own loop — nothing is
+added to the training or evaluation hot path — and writes into ``--out``:
+
+- ``index.html``: one self-contained page (frames beside it in ``frames/``; no server,
+  no network) with a slider and a play button. Each frame shows the BEV + LiDAR view,
+  the action grid (v_f × d_f) as a heat map per head with each preorder level's optimal
+  subset S_r outlined, the leaf set and the chosen action, a quantile fan of the chosen
+  action and of the best action the preorder removed, and the reward terms and running
+  returns; every agent gets its comparable view (IQN: its head; Ensemble: each head and
+  their mean; MA-IQN: each objective and the weighted sum it acts on; Pr-IQN: subsets).
+- ``episode.gif``: the same frames as an animation.
+- ``decisions.csv``: per decision the action, the reward vector and running returns,
+  |S_r| per level and, for every objective's head, the level that removed its greedy action.
+- ``quantiles.npz``: the fixed-grid quantiles ``[T, H, K, A]`` behind every frame, and the
+  subsets ``[T, N, A]`` / leaf ``[T, A]`` the page shows (for checks and your own plots).
+- ``summary.png``: how often each level was the one that pruned, and mean |S_r| per level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import html
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_bytes, atomic_write_text
+from priqn.objectives import OBJECTIVES
+
+KEPT = ""
+"""``pruned_by_<objective>`` when the head's greedy action survives to the leaf."""
+
+
+@dataclasses.dataclass(frozen=True)
+class InspectConfig:
+    """Which evaluation scenes to inspect."""
+
+    net: str = ""
+    """Net ``"<family>/<net_id>"`` ('' = the first net of the evaluation family)."""
+    density: float = 0.0
+    """Traffic density (0 = the first evaluation density)."""
+    command: str = ""
+    """Override the scene's route command (left / straight / right; '' = the scene's own;
+    an override changes the scene, so it is no longer the evaluated episode)."""
+    seed: int | None = None
+    """Evaluation seed (None = the run's own evaluation seed, or EvalConfig's default)."""
+    eval_run: int = 0
+    """Evaluation run whose scenes are inspected (0-based)."""
+    episodes: int = 1
+    """Episodes of the (eval run, net, density) cell to inspect, from the first."""
+    frame_dpi: int = 60
+    """Resolution of the frame images [dots per inch]."""
+
+
+@dataclasses.dataclass
+class Decision:
+    """Everything the page shows about one decision."""
+
+    episode: int
+    step: int
+    action: int
+    quantiles_HKA: np.ndarray
+    subsets_NA: np.ndarray | None
+    leaf_A: np.ndarray | None
+    reward_5: np.ndarray
+    returns_5: np.ndarray
+    frame: np.ndarray
+
+
+# ----------------------------------------------------------------------------- scenes
+
+
+def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any]:
+    """The evaluation scenes to inspect, and the EvalConfig they come from."""
+    from priqn.evaluate import EvalConfig, make_scenes
+    from priqn.io import read_json
+    from priqn.sim.scenario import load_manifest
+
+    eval_meta = run_dir / "eval" / "meta.json"
+    fields: dict[str, Any] = {}
+    if eval_meta.is_file():  # the scenes the run was evaluated on
+        fields = dict(read_json(eval_meta).get("eval_config") or {})
+    base = EvalConfig()
+    known = {f.name for f in dataclasses.fields(EvalConfig)}
+    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in fields.items() if k in known}
+    if cfg.seed is not None:
+        kw["seed"] = cfg.seed
+    family = cfg.net.split("/")[0] if cfg.net else kw.get("family", base.family)
+    kw["family"] = family
+    kw["eval_runs"] = max(int(kw.get("eval_runs", base.eval_runs)), cfg.eval_run + 1)
+    kw["episodes_per_cell"] = max(int(kw.get("episodes_per_cell", 1)), cfg.episodes)
+    densities = tuple(kw.get("densities", base.densities))
+    if cfg.density and cfg.density not in densities:
+        densities = (*densities, float(cfg.density))
+    kw["densities"] = densities
+    eval_cfg = EvalConfig(**kw)
+    net_ids = sorted(n["id"] for n in load_manifest(family)["nets"])
+    net = cfg.net or f"{family}/{net_ids[0]}"
+    if net.split("/", 1)[-1] not in net_ids:
+        raise PriqnError(
+            f"--net: {net!r} is not a net of family {family!r} "
+            f"(valid: {', '.join(f'{family}/{n}' for n in net_ids)})"
+        )
+    density = float(cfg.density or densities[0])
+    scenes = [
+        s
+        for s in make_scenes(eval_cfg, net_ids)
+        if s.net == net and s.density == density and s.eval_run == cfg.eval_run
+    ][: cfg.episodes]
+    if cfg.command:
+        scenes = [dataclasses.replace(s, command=cfg.command) for s in scenes]
+    return scenes, eval_cfg
+
+
+# ----------------------------------------------------------------------------- rollout
+
+
+def rollout(policy: Any, env: Any, scenes: list[Any]) -> list[Decision]:
+    """Play each scene greedily exactly as ``priqn evaluate`` does, recording every decision."""
+    import torch
+    from tqdm import tqdm
+
+    decisions: list[Decision] = []
+    subsets = policy.agent.subsets
+    for episode, scene in enumerate(tqdm(scenes, desc="inspect", unit="episode", disable=None)):
+        rng = np.random.default_rng(scene.act_seed)
+        obs, _ = env.reset(seed=scene.reset_seed, options=scene.reset_options())
+        returns = np.zeros(len(OBJECTIVES))
+        done, step = False, 0
+        while not done:
+            batch = {k: np.asarray(v)[None] for k, v in obs.items()}
+            q_HKA = policy.quantiles(batch)[0]
+            action = int(policy.act(batch, rng)[0])  # the same acting call as evaluate
+            per_obj = leaf = None
+            if subsets is not None:  # the subsets the acting rule just used
+                per_obj = subsets.last.per_objective[0].cpu().numpy()
+                leaf = subsets.last.leaf[0].cpu().numpy()
+            frame = env.render()
+            obs, reward, terminated, truncated, _ = env.step(action)
+            reward = np.asarray(reward, dtype=np.float64)
+            returns = returns + reward
+            decisions.append(
+                Decision(
+                    episode,
+                    step,
+                    action,
+                    q_HKA.float().cpu().numpy() if isinstance(q_HKA, torch.Tensor) else q_HKA,
+                    per_obj,
+                    leaf,
+                    reward,
+                    returns.copy(),
+                    frame,
+                )
+            )
+            step += 1
+            done = bool(terminated or truncated)
+    return decisions
+
+
+# ----------------------------------------------------------------------------- analysis
+
+
+def head_names(agent: Any) -> list[str]:
+    """What each head of ``agent`` estimates."""
+    if agent.spec.reward_rule == "per-objective":
+        return list(OBJECTIVES)
+    if agent.num_heads == 1:
+        return ["weighted sum"]
+    return [f"head {h} (weighted sum)" for h in range(agent.num_heads)]
+
+
+def pruned_by(d: Decision, preorder: Any) -> dict[str, str]:
+    """For each objective's head: the first level (topological order) whose optimal
+    subset does not contain that head's greedy action ('' = it survives to the leaf)."""
+    out: dict[str, str] = {}
+    if d.subsets_NA is None:
+        return out
+    means_NA = d.quantiles_HKA.mean(axis=1)
+    order = [preorder.index(o) for o in preorder.topological_order()]
+    for n, name in enumerate(preorder.objectives):
+        greedy = int(np.argmax(means_NA[n]))
+        level = next((preorder.objectives[r] for r in order if not d.subsets_NA[r, greedy]), None)
+        if level is None and d.leaf_A is not None and not d.leaf_A[greedy]:
+            level = "leaf"
+        out[name] = level or KEPT
+    return out
+
+
+def decision_rows(decisions: list[Decision], agent: Any, table: np.ndarray) -> list[dict]:
+    """``decisions.csv`` rows."""
+    preorder = None if agent.subsets is None else agent.subsets.preorder
+    rows = []
+    for d in decisions:
+        row: dict[str, Any] = {
+            "episode": d.episode,
+            "decision": d.step,
+            "action": d.action,
+            "v_f_mps": round(float(table[d.action, 0]), 4),
+            "d_f_m": round(float(table[d.action, 1]), 4),
+        }
+        for i, o in enumerate(OBJECTIVES):
+            row[f"reward_{o}"] = round(float(d.reward_5[i]), 6)
+        for i, o in enumerate(OBJECTIVES):
+            row[f"return_{o}"] = round(float(d.returns_5[i]), 6)
+        if preorder is not None:
+            for n, o in enumerate(preorder.objectives):
+                row[f"size_{o}"] = int(d.subsets_NA[n].sum())
+            row["size_leaf"] = int(d.leaf_A.sum())
+            for o, level in pruned_by(d, preorder).items():
+                row[f"pruned_by_{o}"] = level
+        rows.append(row)
+    return rows
+
+
+# ----------------------------------------------------------------------------- pictures
+
+
+def _panel_values(d: Decision, agent: Any) -> list[tuple[str, np.ndarray]]:
+    """(title, values [A]) of every heat map: each head, plus the acting rule's view."""
+    means_HA = d.quantiles_HKA.mean(axis=1)
+    names = head_names(agent)
+    panels = [(names[h], means_HA[h]) for h in range(means_HA.shape[0])]
+    if agent.spec.acting_rule == "argmax-mean-of-heads":
+        panels.append(("acting: mean of heads", means_HA.mean(axis=0)))
+    elif agent.spec.acting_rule == "argmax-sum-of-heads":
+        w = agent.reward_weights_5.cpu().numpy()
+        panels.append(("acting: weighted sum", (w[:, None] * means_HA).sum(axis=0)))
+    return panels
+
+
+def frame_figure(
+    d: Decision, agent: Any, table_A2: np.ndarray, shape_VD: tuple[int, int], dpi: int
+) -> bytes:
+    """One decision as a PNG: view, heat maps with subsets, quantile fans, rewards."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    panels = _panel_values(d, agent)
+    n_v, n_d = shape_VD
+    cols = max(len(panels), 3)
+    fig = plt.figure(figsize=(2.3 * cols, 7.2), dpi=dpi)
+    grid = fig.add_gridspec(3, cols, height_ratios=[1.25, 1.0, 0.9])
+    ax = fig.add_subplot(grid[0, : cols // 2 + 1])
+    ax.imshow(d.frame)
+    ax.set_axis_off()
+    ax.set_title(f"episode {d.episode}, decision {d.step}: BEV | LiDAR", fontsize=9)
+    ax = fig.add_subplot(grid[0, cols // 2 + 1 :])
+    ax.set_axis_off()
+    lines = [f"{'':<13}{'reward':>9}{'return':>9}"] + [
+        f"{o:<13}{d.reward_5[i]:>9.3f}{d.returns_5[i]:>9.2f}" for i, o in enumerate(OBJECTIVES)
+    ]
+    ax.text(0, 0.95, "\n".join(lines), family="monospace", fontsize=8, va="top")
+    for c, (title, values_A) in enumerate(panels):
+        ax = fig.add_subplot(grid[1, c])
+        ax.imshow(values_A.reshape(n_v, n_d), cmap="viridis", origin="lower", aspect="auto")
+        ax.set_title(title, fontsize=8)
+        ax.set_xticks(range(n_d), [f"{x:g}" for x in table_A2[:n_d, 1]])
+        ax.set_yticks(range(n_v), [f"{x:g}" for x in table_A2[::n_d, 0]])
+        ax.set_xlabel("lateral offset d_f [m]", fontsize=7)
+        ax.set_ylabel("target speed v_f [m/s]", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if d.subsets_NA is not None and c < d.subsets_NA.shape[0]:
+            for a in np.flatnonzero(d.subsets_NA[c]):
+                v, k = divmod(int(a), n_d)
+                ax.add_patch(Rectangle((k - 0.5, v - 0.5), 1, 1, fill=False, ec="cyan", lw=1.2))
+        if d.leaf_A is not None:
+            for a in np.flatnonzero(d.leaf_A):
+                v, k = divmod(int(a), n_d)
+                ax.plot(k, v, marker=".", color="orange", ms=3)
+        v, k = divmod(d.action, n_d)
+        ax.add_patch(Rectangle((k - 0.5, v - 0.5), 1, 1, fill=False, ec="red", lw=2))
+    # Quantile fans: the chosen action vs the best action (by mean) the preorder removed.
+    taus = (np.arange(d.quantiles_HKA.shape[1]) + 0.5) / d.quantiles_HKA.shape[1]
+    removed = None if d.leaf_A is None else ~d.leaf_A
+    for c in range(min(d.quantiles_HKA.shape[0], cols)):
+        ax = fig.add_subplot(grid[2, c])
+        q_KA = d.quantiles_HKA[c]
+        ax.plot(taus, q_KA[:, d.action], color="red", lw=1.5, label="chosen")
+        if removed is not None and removed.any():
+            means = np.where(removed, q_KA.mean(axis=0), -np.inf)
+            best = int(np.argmax(means))
+            ax.plot(taus, q_KA[:, best], color="grey", lw=1, ls="--", label="best removed")
+        ax.set_title(panels[c][0], fontsize=8)
+        ax.set_xlabel("τ", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if c == 0:
+            ax.legend(fontsize=6)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def summary_figure(rows: list[dict], preorder: Any, path: Path) -> None:
+    """How often each level pruned a head's greedy action, and mean |S_r| per level."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    if preorder is None:
+        for ax in axes:
+            ax.text(0.5, 0.5, "no preorder: this agent has no optimal subsets", ha="center")
+            ax.set_axis_off()
+    else:
+        levels = [*preorder.topological_order(), "leaf"]
+        counts = {lv: 0 for lv in levels}
+        for r in rows:
+            for o in preorder.objectives:
+                lv = r.get(f"pruned_by_{o}", KEPT)
+                if lv:
+                    counts[lv] += 1
+        axes[0].bar(levels, [counts[lv] for lv in levels], color="tab:red")
+        axes[0].set_title("level that removed a head's greedy action (count)")
+        sizes = [np.mean([r[f"size_{lv}"] for r in rows]) for lv in levels]
+        axes[1].bar(levels, sizes, color="tab:blue")
+        axes[1].set_title("mean optimal-subset size |S_r|")
+        for ax in axes:
+            ax.tick_params(axis="x", rotation=30, labelsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def gif_bytes(pngs: list[bytes], frame_ms: int = 400) -> bytes:
+    """An animated GIF of PNG frames (Pillow, which matplotlib already needs)."""
+    from PIL import Image
+
+    images = [Image.open(io.BytesIO(p)).convert("RGB") for p in pngs]
+    buf = io.BytesIO()
+    images[0].save(
+        buf, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0
+    )
+    return buf.getvalue()
+
+
+PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>priqn inspect: {title}</title>
+<style>body{{font-family:sans-serif;margin:1em}} #frame{{max-width:100%}}
+table{{border-collapse:collapse;font-size:13px}} td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style>
+</head><body>
+<h2>priqn inspect — {title}</h2>
+<p>{about}</p>
+<p><button id="play">play</button>
+<input id="slider" type="range" min="0" max="{last}" value="0" style="width:60%">
+<span id="label"></span></p>
+<img id="frame" src="frames/0000.png" alt="decision frame">
+<table id="facts"></table>
+<p><img src="summary.png" alt="pruning summary" style="max-width:100%"></p>
+<script id="decisions" type="application/json">{data}</script>
+<script>
+const rows = JSON.parse(document.getElementById("decisions").textContent);
+const slider = document.getElementById("slider"), img = document.getElementById("frame");
+const label = document.getElementById("label"), facts = document.getElementById("facts");
+function show(i) {{
+  slider.value = i;
+  img.src = "frames/" + String(i).padStart(4, "0") + ".png";
+  const r = rows[i];
+  label.textContent = "decision " + (i + 1) + " / " + rows.length;
+  facts.innerHTML = Object.entries(r).map(([k, v]) => "<tr><th>" + k + "</th><td>" +
+    (Array.isArray(v) ? v.map(x => (x ? 1 : 0)).join("") : v) + "</td></tr>").join("");
+}}
+slider.addEventListener("input", () => show(Number(slider.value)));
+let timer = null;
+document.getElementById("play").addEventListener("click", () => {{
+  if (timer) {{ clearInterval(timer); timer = null; return; }}
+  timer = setInterval(() => show((Number(slider.value) + 1) % rows.length), 400);
+}});
+show(0);
+</script></body></html>
+"""
+
+
+def _page_rows(rows: list[dict], decisions: list[Decision]) -> list[dict]:
+    out = []
+    for r, d in zip(rows, decisions, strict=True):
+        r = dict(r)
+        if d.subsets_NA is not None:
+            r["subsets"] = [[bool(x) for x in s] for s in d.subsets_NA]
+            r["leaf"] = [bool(x) for x in d.leaf_A]
+        out.append(r)
+    return out
+
+
+# ----------------------------------------------------------------------------- entry
+
+
+def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) -> Path:
+    """Inspect ``run_dir`` on the configured scenes; returns ``out_dir/index.html``."""
+    import pandas as pd
+
+    from priqn.env.intersection import IntersectionEnv
+    from priqn.train import load_policy
+
+    run_dir, out = Path(run_dir), Path(out_dir)
+    if not (run_dir / "config.toml").is_file():
+        raise PriqnError(f"{run_dir}: not a run folder (no config.toml)")
+    scenes, eval_cfg = inspection_scenes(run_dir, cfg)
+    policy = load_policy(run_dir, device="cpu")
+    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family)
+    if eval_cfg.max_episode_steps:
+        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
+    env = IntersectionEnv(env_cfg, render_mode="rgb_array")
+    try:
+        decisions = rollout(policy, env, scenes)
+        table = env.action_table()
+    finally:
+        env.close()
+
+    agent = policy.agent
+    rows = decision_rows(decisions, agent, table)
+    atomic_write_text(out / "decisions.csv", pd.DataFrame(rows).to_csv(index=False))
+    arrays: dict[str, np.ndarray] = {
+        "quantiles_THKA": np.stack([d.quantiles_HKA for d in decisions]),
+        "actions_T": np.array([d.action for d in decisions]),
+    }
+    if agent.subsets is not None:
+        arrays["subsets_TNA"] = np.stack([d.subsets_NA for d in decisions])
+        arrays["leaf_TA"] = np.stack([d.leaf_A for d in decisions])
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write_bytes(out / "quantiles.npz", buf.getvalue())
+
+    shape = (env_cfg.n_speeds, env_cfg.n_offsets)
+    pngs = []
+    for i, d in enumerate(decisions):
+        png = frame_figure(d, agent, table, shape, cfg.frame_dpi)
+        atomic_write_bytes(out / "frames" / f"{i:04d}.png", png)
+        pngs.append(png)
+    atomic_write_bytes(out / "episode.gif", gif_bytes(pngs))
+    preorder = None if agent.subsets is None else agent.subsets.preorder
+    summary_figure(rows, preorder, out / "summary.png")
+
+    labels = policy.labels
+    title = html.escape(f"{labels.get('label', run_dir.name)} — {scenes[0].net}")
+    about = html.escape(
+        f"run {run_dir.name}; {len(scenes)} episode(s) of evaluation run {cfg.eval_run}, "
+        f"density {scenes[0].density:g}, evaluation seed {eval_cfg.seed}; "
+        f"{len(decisions)} decisions. Heat maps: mean of each head's K quantiles over the "
+        "action grid (rows v_f, columns d_f); cyan boxes: that level's optimal subset; "
+        "orange dots: the leaf set; red box: the chosen action."
+    )
+    data = json.dumps(_page_rows(rows, decisions)).replace("</", "<\\/")
+    page = PAGE.format(title=title, about=about, last=len(decisions) - 1, data=data)
+    atomic_write_text(out / "index.html", page)
+    return out / "index.html"
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="a run folder made by 'priqn train'")
+    parser.add_argument("--out", required=True, help="output folder (index.html, frames, ...)")
+    parser.add_argument("--net", default="", help="net '<family>/<net_id>' (default: first)")
+    parser.add_argument("--density", type=float, default=0.0, help="traffic density")
+    parser.add_argument("--command", default="", choices=["", "left", "straight", "right"])
+    parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
+    parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
+    parser.add_argument("--episodes", type=int, default=1, help="episodes to inspect")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.episodes < 1:
+        raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
+    cfg = InspectConfig(
+        net=args.net,
+        density=args.density,
+        command=args.command,
+        seed=args.seed,
+        eval_run=args.eval_run,
+        episodes=args.episodes,
+    )
+    page = inspect_run(args.run, args.out, cfg)
+    print(f"priqn inspect: wrote {page} (open it in a browser)")
+    return 0
