@@ -56,7 +56,7 @@ class InspectConfig:
     """Evaluation run whose scenes are inspected (0-based)."""
     episodes: int = 1
     """Episodes of the (eval run, net, density) cell to inspect, from the first."""
-    frame_dpi: int = 60
+    frame_dpi: int = 80
     """Resolution of the frame images [dots per inch]."""
 
 
@@ -351,7 +351,7 @@ def gif_bytes(pngs: list[bytes], frame_ms: int = 400) -> bytes:
 
 PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>priqn inspect: {title}</title>
-<style>body{{font-family:sans-serif;margin:1em}} #frame{{max-width:100%}}
+<style>body{{font-family:sans-serif;margin:1em}} #frame{{width:min(100%,1200px)}}
 table{{border-collapse:collapse;font-size:13px}} td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}</style>
 </head><body>
 <h2>priqn inspect — {title}</h2>
