@@ -41,7 +41,7 @@ from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
-from priqn.io import atomic_open, atomic_write_json, atomic_write_text, read_json
+from priqn.io import atomic_open, atomic_torch_save, atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 from priqn.timing import SectionClock
 
@@ -453,6 +453,10 @@ def _prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool, force: bool)
 # ============================================================================ metrics
 
 
+POLICY_FILE = "policy.pt"
+"""Final online-network weights of a complete run (``load_policy`` falls back to it)."""
+
+
 METRIC_COLUMNS: tuple[str, ...] = (
     "kind",
     "step",
@@ -657,8 +661,6 @@ def _save_checkpoint(run_dir: Path, state: dict[str, Any], replay: Any, save_rep
     consistent (latest.pt, replay file) pair.
     """
     import torch
-
-    from priqn.io import atomic_torch_save
 
     ckpt_dir, latest = _checkpoint_paths(run_dir)
     replay_name = None
@@ -936,6 +938,18 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             clock.add("checkpoint", time.perf_counter() - t_ckpt)
         bar.close()
         writer.close()
+        # The final policy alone (online weights + the agent's learned state, a few MB):
+        # what a committed result folder keeps instead of checkpoints and replay.
+        atomic_torch_save(
+            {
+                "online": learner.online.state_dict(),
+                "agent": learner.agent.state_dict(),
+                "obs_shapes": obs_shapes,
+                "num_actions": num_actions,
+                "step": step,
+            },
+            run_dir / POLICY_FILE,
+        )
         time_s = clock.totals()
         if agent.subsets is not None:  # inside "act" and "update"
             time_s["algorithm1"] = round(agent.subsets.seconds, 4)
@@ -1000,18 +1014,24 @@ def load_policy(run_dir: str | Path, device: str = "cpu") -> Any:
     run_dir = Path(run_dir)
     cfg = load_run_config(run_dir)
     latest = run_dir / "checkpoints" / "latest.pt"
-    if not latest.is_file():
-        raise PriqnError(f"{run_dir}: no checkpoints/latest.pt to load a policy from")
+    final = run_dir / POLICY_FILE
+    if not latest.is_file() and not final.is_file():
+        raise PriqnError(
+            f"{run_dir}: no checkpoints/latest.pt or {POLICY_FILE} to load a policy from"
+        )
     dev = _select_device(device)
-    state = torch.load(latest, map_location=dev, weights_only=False)
+    # The latest checkpoint when present (a run in progress, or resumable); else the
+    # final policy file, which is all a committed result folder keeps.
+    state = torch.load(latest if latest.is_file() else final, map_location=dev, weights_only=False)
+    learned = state["learner"] if "learner" in state else state
     shapes = state["obs_shapes"]
     agent = make_agent(cfg.agent.name, cfg.agent)
     space = _observation_space(cfg, shapes)
     num_actions = int(state["num_actions"])
     network = build_network(cfg, space, num_actions, seed=0)
-    network.load_state_dict(state["learner"]["online"])
+    network.load_state_dict(learned["online"])
     network.eval()
-    agent.load_state_dict(state["learner"].get("agent", {}))  # the running scale, if any
+    agent.load_state_dict(learned.get("agent", {}))  # the running scale, if any
     labels = policy_labels(cfg)
     return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
 

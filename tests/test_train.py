@@ -224,6 +224,16 @@ def test_smoke_baselines_write_a_complete_run_folder(tmp_path, agent):
     assert out.returncode == 0, out.stderr
     meta = assert_complete_run_folder(tmp_path / agent, 120)
     assert meta["labels"]["agent"] == agent
+    # A committed result keeps policy.pt, not checkpoints: the same greedy policy loads.
+    import shutil
+
+    import torch
+
+    with_ckpt = load_policy(tmp_path / agent).network.state_dict()
+    shutil.rmtree(tmp_path / agent / "checkpoints")
+    only_policy = load_policy(tmp_path / agent).network.state_dict()
+    assert with_ckpt.keys() == only_policy.keys()
+    assert all(torch.equal(v, only_policy[k]) for k, v in with_ckpt.items())
 
 
 @pytest.mark.slow
