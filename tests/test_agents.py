@@ -149,6 +149,17 @@ def small_net(heads: int, size: int = 32) -> QuantileNetwork:
     return QuantileNetwork(shapes, {"bev": 1 / 255, "lidar": 1 / 255}, A, heads, cfg)
 
 
+def random_batch(rng: np.random.Generator, b: int, discount: float) -> dict[str, object]:
+    """A learner batch of ``b`` random transitions with one discount for every objective."""
+    return {
+        "obs": random_obs(rng, b),
+        "next_obs": random_obs(rng, b),
+        "action": rng.integers(0, A, b),
+        "reward": rng.normal(size=(b, 5)).astype(np.float32),
+        "discount": np.full(b, discount, dtype=np.float32),
+    }
+
+
 def random_obs(rng: np.random.Generator, b: int, size: int = 32) -> dict[str, np.ndarray]:
     return {
         "bev": rng.integers(0, 256, (b, 4, size, size), dtype=np.uint8),
@@ -238,13 +249,7 @@ def test_learner_fits_a_fixed_batch(name):
     cfg = LearnerConfig(lr=1e-3, num_tau_samples=8, num_tau_prime_samples=8, num_quantiles=8)
     learner = Learner(net, agent, cfg, torch.device("cpu"), tau_seed=0)
     rng = np.random.default_rng(0)
-    batch = {
-        "obs": random_obs(rng, 16),
-        "next_obs": random_obs(rng, 16),
-        "action": rng.integers(0, A, 16),
-        "reward": rng.normal(size=(16, 5)).astype(np.float32),
-        "discount": np.zeros(16, dtype=np.float32),  # terminal: targets are the rewards
-    }
+    batch = random_batch(rng, 16, discount=0.0)  # terminal: targets are the rewards
     first = [learner.update(batch)["loss"] for _ in range(5)]
     for _ in range(150):
         last = learner.update(batch)["loss"]
@@ -259,13 +264,7 @@ def test_scaled_normalisation_learns_its_scale_and_logs_subset_sizes():
     cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
     learner = Learner(small_net(agent.num_heads), agent, cfg, torch.device("cpu"), tau_seed=0)
     rng = np.random.default_rng(0)
-    batch = {
-        "obs": random_obs(rng, 6),
-        "next_obs": random_obs(rng, 6),
-        "action": rng.integers(0, A, 6),
-        "reward": rng.normal(size=(6, 5)).astype(np.float32),
-        "discount": np.full(6, 0.9, dtype=np.float32),
-    }
+    batch = random_batch(rng, 6, discount=0.9)
     assert agent.subsets.scale.count == 0
     stats = learner.update(batch)
     assert agent.subsets.scale.count == 1 and (agent.subsets.scale.floor() > 0).all()
@@ -301,13 +300,7 @@ def test_ensemble_heads_see_their_own_taus():
     learner = Learner(net, agent, cfg, torch.device("cpu"), tau_seed=0)
     learner.target.forward = net.forward  # record the target pass too
     rng = np.random.default_rng(0)
-    batch = {
-        "obs": random_obs(rng, 2),
-        "next_obs": random_obs(rng, 2),
-        "action": rng.integers(0, A, 2),
-        "reward": rng.normal(size=(2, 5)).astype(np.float32),
-        "discount": np.full(2, 0.9, dtype=np.float32),
-    }
+    batch = random_batch(rng, 2, discount=0.9)
     learner.update(batch)
     # target: 3 heads x 5 own tau' + the K = 2 grid; online: 3 heads x 4 own tau
     assert seen == [(2, 3 * 5 + 2), (2, 3 * 4)]
@@ -318,13 +311,7 @@ def test_learner_state_roundtrip_continues_identically():
     agent = make_agent("ma-iqn")
     cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
     rng = np.random.default_rng(0)
-    batch = {
-        "obs": random_obs(rng, 4),
-        "next_obs": random_obs(rng, 4),
-        "action": rng.integers(0, A, 4),
-        "reward": rng.normal(size=(4, 5)).astype(np.float32),
-        "discount": np.full(4, 0.9, dtype=np.float32),
-    }
+    batch = random_batch(rng, 4, discount=0.9)
     a = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=3)
     a.update(batch)
     state = a.state_dict()
