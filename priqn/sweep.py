@@ -29,6 +29,7 @@ import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -449,7 +450,11 @@ def _cell_main(spec_json: str) -> int:
     module_name, _, fn_name = spec.get("cell_fn", DEFAULT_CELL_FN).partition(":")
     fn = getattr(importlib.import_module(module_name), fn_name)
     cell = Cell.from_spec(spec)
-    print(f"priqn sweep: cell {cell.name} (attempt {spec.get('attempt', 1)}) pid {os.getpid()}")
+    where = f" on Ray node {spec['ray_node']}" if spec.get("ray_node") else ""
+    print(
+        f"priqn sweep: cell {cell.name} (attempt {spec.get('attempt', 1)}) pid {os.getpid()}"
+        f" host {socket.gethostname()}{where}"
+    )
     sys.stdout.flush()
     try:
         fn(cell)

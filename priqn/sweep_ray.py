@@ -61,7 +61,12 @@ def ray_cell(spec: dict[str, Any], log_path: str) -> tuple[int, str, bool]:
     Cancelling the task (Ctrl-C in the driver) raises KeyboardInterrupt here, which
     stops the child's process group before the task ends.
     """
-    return run_cell_process(spec, Path(log_path))
+    import ray
+
+    # The cell's log names the node that ran it (results from many nodes land in one
+    # runs folder; docs/sweeps.md).
+    node = ray.get_runtime_context().get_node_id()
+    return run_cell_process({**spec, "ray_node": node}, Path(log_path))
 
 
 class RayBackend:

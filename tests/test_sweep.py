@@ -72,6 +72,8 @@ def fake(cell):
 
         child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
         atomic_write_text(cell.run_dir / "orphan_pid", str(child.pid))
+    if p.startswith("nap"):
+        time.sleep(8)  # long enough that two cells overlap
     if p.startswith("sleepy"):
         _meta(cell, "running")
         atomic_write_text(cell.run_dir / "pid", str(os.getpid()))
@@ -626,3 +628,70 @@ def test_connects_to_an_existing_ray_cluster(tmp_path: Path, fake_cells: str) ->
     finally:
         head.send_signal(signal.SIGTERM)  # `ray start --block` stops the processes it started
         head.wait(timeout=120)
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_two_node_ray_cluster_runs_cells_on_both_nodes(tmp_path: Path, fake_cells: str) -> None:
+    """A head and a worker node (1 CPU each) on this machine; two 1-CPU cells that overlap
+    must run on different nodes, into the one runs folder."""
+    import re
+    import secrets
+    import socket
+
+    pytest.importorskip("ray")
+    ray_bin = Path(sys.executable).with_name("ray")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
+    common = ["--num-cpus=1", "--block", "--disable-usage-stats"]
+    nodes = [
+        subprocess.Popen(
+            [str(ray_bin), "start", "--head", f"--port={port}", "--include-dashboard=false"]
+            + common,
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        )
+    ]  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.2)
+        nodes.append(
+            subprocess.Popen(
+                [str(ray_bin), "start", f"--address=127.0.0.1:{port}", *common],
+                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                start_new_session=True,
+            )
+        )  # fmt: skip
+        probe = (
+            f"import ray, time; ray.init(address='127.0.0.1:{port}', log_to_driver=False)\n"
+            "t = time.time()\n"
+            "while len([n for n in ray.nodes() if n['Alive']]) < 2 and time.time() - t < 120:\n"
+            "    time.sleep(0.5)\n"
+            "print(len([n for n in ray.nodes() if n['Alive']]))"
+        )
+        alive = subprocess.run(
+            [sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=200
+        )
+        assert alive.stdout.strip().endswith("2"), alive.stderr[-2000:]
+        exp_path = write_experiment(tmp_path, ["nap-a", "nap-b"], [0])
+        out = subprocess.run(
+            _sweep_cli(exp_path, "--cell-fn", fake_cells, "--ray", f"127.0.0.1:{port}"),
+            env=env, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        runs = tmp_path / "runs" / "fake"
+        assert is_complete(runs / "nap-a__seed0") and is_complete(runs / "nap-b__seed0")
+        logs = " ".join(p.read_text() for p in (runs / ".sweep" / "logs").glob("*.log"))
+        ran_on = set(re.findall(r"on Ray node (\w+)", logs))
+        assert len(ran_on) == 2, logs
+    finally:
+        for proc in reversed(nodes):
+            proc.send_signal(signal.SIGTERM)  # `ray start --block` stops what it started
+        for proc in reversed(nodes):
+            proc.wait(timeout=120)
