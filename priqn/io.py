@@ -74,12 +74,57 @@ def read_json(path: str | os.PathLike) -> Any:
         raise PriqnError(f"{path}: cannot read JSON ({exc})") from exc
 
 
+CHECKSUM_SUFFIX = ".sha256"
+"""Sidecar of a torch file: the SHA-256 of its bytes (torch.load does not verify them)."""
+
+
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
-    """``torch.save`` through a temp file and rename (checkpoints survive kill -9)."""
+    """``torch.save`` through a temp file and rename (checkpoints survive kill -9), with a
+    ``<file>.sha256`` sidecar so :func:`torch_load` detects flipped bits."""
+    import hashlib
+    import io as _io
+
     import torch
 
-    with atomic_open(path, "wb") as fh:
-        torch.save(obj, fh)
+    buf = _io.BytesIO()
+    torch.save(obj, buf)
+    data = buf.getvalue()
+    atomic_write_text(str(path) + CHECKSUM_SUFFIX, hashlib.sha256(data).hexdigest() + "\n")
+    atomic_write_bytes(path, data)
+
+
+def torch_load(path: str | os.PathLike, what: str, remedy: str, map_location: Any = "cpu") -> Any:
+    """``torch.load`` whose failure on a damaged file (truncated, bit-flipped, empty) is a
+    one-line :class:`PriqnError` naming the file, what it is and what to do."""
+    import hashlib
+    import pickle
+    import zipfile
+
+    import torch
+
+    sidecar = Path(str(path) + CHECKSUM_SUFFIX)
+    if sidecar.is_file():
+        try:
+            want = sidecar.read_text(encoding="utf-8").strip()
+            have = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        except OSError as exc:
+            raise PriqnError(
+                f"{path}: cannot read {what} ({exc.strerror or exc}); {remedy}"
+            ) from None
+        if want != have:
+            raise PriqnError(
+                f"{path}: damaged or unreadable {what} (its SHA-256 does not match "
+                f"{sidecar.name}); {remedy}"
+            )
+    try:
+        return torch.load(path, map_location=map_location, weights_only=False)
+    except (RuntimeError, EOFError, OSError, ValueError, KeyError, zipfile.BadZipFile,
+            pickle.UnpicklingError) as exc:  # fmt: skip
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise PriqnError(
+            f"{path}: damaged or unreadable {what} ({type(exc).__name__}"
+            f"{': ' + first[:120] if first else ''}); {remedy}"
+        ) from None
 
 
 def _as_user_error(exc: OSError, target: Path) -> PriqnError:

@@ -28,6 +28,7 @@ import socket
 import subprocess
 import sys
 import time
+import zipfile
 from collections import deque
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
@@ -41,7 +42,14 @@ from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
-from priqn.io import atomic_open, atomic_torch_save, atomic_write_json, atomic_write_text, read_json
+from priqn.io import (
+    atomic_open,
+    atomic_torch_save,
+    atomic_write_json,
+    atomic_write_text,
+    read_json,
+    torch_load,
+)
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 from priqn.timing import SectionClock
 
@@ -692,15 +700,22 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     when the budget is spent, ``failed`` (with the error) otherwise.
     """
     run_dir = Path(run_dir)
+    meta_path = run_dir / "meta.json"
+    was_complete = (
+        resume and meta_path.is_file() and read_json(meta_path).get("status") == "complete"
+    )
     _prepare_run_dir(cfg, run_dir, resume, force)
+    # A resume that fails never turns a finished run into a failed one: its status goes
+    # back to complete and the error is kept beside it.
+    failed_status = "complete" if was_complete else "failed"
     try:
         _train_loop(cfg, run_dir, resume)
     except KeyboardInterrupt:
-        _update_meta(run_dir, status="failed", error="interrupted (continue with --resume)")
+        _update_meta(run_dir, status=failed_status, error="interrupted (continue with --resume)")
         raise
     except BaseException as exc:
         try:
-            _update_meta(run_dir, status="failed", error=f"{type(exc).__name__}: {exc}")
+            _update_meta(run_dir, status=failed_status, error=f"{type(exc).__name__}: {exc}")
         except Exception:  # noqa: BLE001 - e.g. the disk is full; the original error matters
             pass
         raise
@@ -761,13 +776,26 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
         ckpt_dir, latest = _checkpoint_paths(run_dir)
         resume_obs = None
         if resume:
-            state = torch.load(latest, map_location=device, weights_only=False)
+            state = torch_load(
+                latest,
+                "checkpoint",
+                "delete the run folder's checkpoints/ and train again with --force",
+                device,
+            )
             learner.load_state_dict(state["learner"])
             rng_replay.bit_generator.state = state["rng_replay"]
             rng_act.bit_generator.state = state["rng_act"]
             step, episodes, wall_before = state["step"], state["episodes"], state["wall_s"]
             if state.get("replay_file"):
-                replay.load_state_file(ckpt_dir / state["replay_file"])
+                replay_file = ckpt_dir / state["replay_file"]
+                try:
+                    replay.load_state_file(replay_file)
+                except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+                    raise PriqnError(
+                        f"{replay_file}: damaged or unreadable replay buffer "
+                        f"({type(exc).__name__}); the run cannot resume exactly: "
+                        "train it again with --force"
+                    ) from None
                 resume_obs = state["obs"]
             metrics = _read_metrics(run_dir / "metrics.csv", step)
 
@@ -1006,7 +1034,6 @@ def _evaluate(
 
 def load_policy(run_dir: str | Path, device: str = "cpu") -> Any:
     """Greedy :class:`priqn.agents.policy.Policy` of a trained run (ARCHITECTURE.md)."""
-    import torch
 
     from priqn.agents.policy import Policy
     from priqn.agents.registry import make_agent
@@ -1022,7 +1049,13 @@ def load_policy(run_dir: str | Path, device: str = "cpu") -> Any:
     dev = _select_device(device)
     # The latest checkpoint when present (a run in progress, or resumable); else the
     # final policy file, which is all a committed result folder keeps.
-    state = torch.load(latest if latest.is_file() else final, map_location=dev, weights_only=False)
+    source = latest if latest.is_file() else final
+    state = torch_load(
+        source,
+        "checkpoint" if source == latest else "policy file",
+        "restore it from git or re-train the run (priqn train --force)",
+        dev,
+    )
     learned = state["learner"] if "learner" in state else state
     shapes = state["obs_shapes"]
     agent = make_agent(cfg.agent.name, cfg.agent)

@@ -293,3 +293,27 @@ def test_default_pr_iqn_learns_tjunction_density_05(tmp_path):
     random = success_rate(env_cfg, lambda obs, rng: rng.integers(0, n, 1), 60, seed=1234)
     print(f"learning check: greedy success {learned:.3f} vs random {random:.3f} (60 episodes each)")
     assert learned >= random + 0.2, (learned, random)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "zero", "flip"])
+def test_damaged_checkpoint_is_one_line_and_a_complete_run_stays_complete(tmp_path, damage):
+    out = cli("--agent", "iqn", "--steps", "80", "--num-envs", "1", "--runs-dir", str(tmp_path),
+              "--name", "run", "--set", "evaluation.interval_steps=0", *TINY)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    run = tmp_path / "run"
+    ckpt = run / "checkpoints" / "latest.pt"
+    data = bytearray(ckpt.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) // 2]
+    elif damage == "zero":
+        data = bytearray()
+    else:
+        data[len(data) // 3 : len(data) // 3 + 64] = bytes(64)
+    ckpt.write_bytes(bytes(data))
+    res = cli("--resume", str(run), "--steps", "160")
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().count("\n") == 0, res.stderr
+    assert f"{ckpt}: damaged or unreadable checkpoint" in res.stderr
+    assert json.loads((run / "meta.json").read_text())["status"] == "complete"
+    with pytest.raises(PriqnError, match=r"damaged or unreadable checkpoint"):
+        load_policy(run)
