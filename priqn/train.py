@@ -167,16 +167,6 @@ class TrainConfig:
                 f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
                 "so it needs one discount (per-objective values are for ma-iqn and pr-iqn)"
             )
-        if self.agent.reward_weights is None:  # the scheme, for this run's episodes
-            weights = scheme_weights(
-                self.agent.reward_scheme,
-                self.safety_penalty,
-                self.env.max_episode_steps,
-                max(self.learner.gamma_5),  # the longest horizon: the margin holds for all
-            )
-            object.__setattr__(
-                self, "agent", dataclasses.replace(self.agent, reward_weights=weights)
-            )
 
     @property
     def safety_penalty(self) -> float:
@@ -184,10 +174,28 @@ class TrainConfig:
         return min(self.env.reward.collision_penalty, self.env.reward.off_road_penalty)
 
     @property
+    def reward_weights(self) -> tuple[float, ...]:
+        """The weighted-sum weights this run uses: ``agent.reward_weights`` when given, else
+        ``agent.reward_scheme`` resolved for this run's episode length, γ and safety penalty."""
+        if self.agent.reward_weights is not None:
+            return tuple(self.agent.reward_weights)
+        return scheme_weights(
+            self.agent.reward_scheme,
+            self.safety_penalty,
+            self.env.max_episode_steps,
+            max(self.learner.gamma_5),  # the longest horizon: the margin holds for all
+        )
+
+    @property
+    def agent_config(self) -> AgentConfig:
+        """``agent`` with its weights resolved (what every agent of this run is built from)."""
+        return dataclasses.replace(self.agent, reward_weights=self.reward_weights)
+
+    @property
     def crash_margin(self) -> float:
         """Safety event cost over the worst accumulable lower-level penalty (> 1: crashing never pays)."""
         return crash_margin(
-            self.agent.reward_weights,
+            self.reward_weights,
             self.safety_penalty,
             self.env.max_episode_steps,
             self.learner.gamma_5,
@@ -254,7 +262,7 @@ def _validate_names(cfg: TrainConfig) -> None:
     """Unknown agent / comparator / preorder → one line before anything starts."""
     from priqn.agents.registry import make_agent
 
-    make_agent(cfg.agent.name, cfg.agent)
+    make_agent(cfg.agent.name, cfg.agent_config)
 
 
 # ============================================================================ run folder
@@ -334,7 +342,7 @@ def policy_labels(cfg: TrainConfig) -> dict[str, Any]:
     """Table II labels of a run: agent, comparator, train_preorder, eps, partial_order, seed, label."""
     from priqn.agents.registry import make_agent
 
-    labels = make_agent(cfg.agent.name, cfg.agent).labels
+    labels = make_agent(cfg.agent.name, cfg.agent_config).labels
     labels["train_seed"] = cfg.seed
     labels["label"] = _label(labels)
     if labels["agent"] == "pr-iqn" and cfg.agent.normalisation != "zscore":
@@ -640,7 +648,7 @@ def build_network(cfg: TrainConfig, obs_space: Any, num_actions: int, seed: int)
     from priqn.agents.network import QuantileNetwork
     from priqn.agents.registry import make_agent
 
-    heads = make_agent(cfg.agent.name, cfg.agent).num_heads
+    heads = make_agent(cfg.agent.name, cfg.agent_config).num_heads
     spec = _obs_spec(obs_space)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
@@ -740,7 +748,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
         torch.set_num_threads(cfg.torch_threads)
     device = _select_device(cfg.device)
     E = cfg.num_envs
-    weights = cfg.agent.reward_weights
+    weights = cfg.reward_weights
 
     # --- env, agent, learner, replay -------------------------------------------------
     envs = make_vector_env(cfg.env, E, seed=seeds["env"])
@@ -752,7 +760,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             k: (list(obs_space[k].shape), str(obs_space[k].dtype), float(np.max(obs_space[k].high)))
             for k in _obs_spec(obs_space)
         }
-        agent = make_agent(cfg.agent.name, cfg.agent)
+        agent = make_agent(cfg.agent.name, cfg.agent_config)
         network = build_network(cfg, obs_space, num_actions, seeds["torch_init"])
         learner = Learner(network, agent, cfg.learner, device, tau_seed=seeds["tau"])
         policy = Policy(learner.online, agent, cfg.learner.num_quantiles, device)
@@ -769,7 +777,7 @@ def _train_loop(cfg: TrainConfig, run_dir: Path, resume: bool) -> None:  # noqa:
             replay_bytes_total=replay.nbytes(),
             device=str(device),
             num_params=sum(p.numel() for p in learner.online.parameters()),
-            reward_weights=list(cfg.agent.reward_weights),
+            reward_weights=list(cfg.reward_weights),
             crash_margin=round(cfg.crash_margin, 4),
         )
 
@@ -1058,7 +1066,7 @@ def load_policy(run_dir: str | Path, device: str = "cpu") -> Any:
     )
     learned = state["learner"] if "learner" in state else state
     shapes = state["obs_shapes"]
-    agent = make_agent(cfg.agent.name, cfg.agent)
+    agent = make_agent(cfg.agent.name, cfg.agent_config)
     space = _observation_space(cfg, shapes)
     num_actions = int(state["num_actions"])
     network = build_network(cfg, space, num_actions, seed=0)

@@ -53,12 +53,13 @@ def test_progress_does_not_enter_the_bound():
 
 def test_train_config_resolves_the_scheme_for_its_own_episodes():
     default = TrainConfig()
-    assert default.agent.reward_weights == pytest.approx(scheme_weights("hln-2"))
+    assert default.agent.reward_weights is None  # resolved per run, never frozen in
+    assert default.reward_weights == pytest.approx(scheme_weights("hln-2"))
     assert default.crash_margin == pytest.approx(2.0)
     # Longer episodes: the scheme rescales so the margin still holds.
     long = TrainConfig(env=EnvConfig(obs_size_px=64, max_episode_steps=300))
     assert long.crash_margin == pytest.approx(2.0)
-    assert long.agent.reward_weights[1] < default.agent.reward_weights[1]
+    assert long.reward_weights[1] < default.reward_weights[1]
     # Explicit weights are kept as given; the margin reports what they mean.
     old = TrainConfig(agent=AgentConfig(reward_weights=(1.0, 0.5, 0.25, 0.125, 0.0625)))
     assert old.crash_margin < 1
@@ -79,3 +80,15 @@ def test_per_objective_discounts():
         TrainConfig(agent=AgentConfig(name="iqn"), learner=LearnerConfig(gamma=gammas))
     cfg = TrainConfig(agent=AgentConfig(name="pr-iqn"), learner=LearnerConfig(gamma=gammas))
     assert cfg.crash_margin >= 2.0  # the scheme uses the longest horizon
+
+
+def test_a_scheme_override_changes_the_weights():
+    # The sensitivity grid sets agent.reward_scheme on top of a preset: the weights must
+    # follow it (they once stayed those of the default scheme).
+    from priqn.train import resolve_config
+
+    cfg = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=hln-4"])
+    assert cfg.reward_weights == pytest.approx(scheme_weights("hln-4"))
+    assert cfg.agent_config.reward_weights == pytest.approx(scheme_weights("hln-4"))
+    old = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=halving"])
+    assert old.reward_weights == (1.0, 0.5, 0.25, 0.125, 0.0625) and old.crash_margin < 1
