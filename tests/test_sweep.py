@@ -584,35 +584,50 @@ def test_bad_ray_address_fails_fast(tmp_path: Path, address: str, message: str) 
         run_sweep(exp, use_ray=True, ray_address=address, report=False, progress=False)
 
 
-@pytest.mark.slow
-@pytest.mark.ray
-def test_connects_to_an_existing_ray_cluster(tmp_path: Path, fake_cells: str) -> None:
-    """`ray start --head` (token auth), then `priqn sweep --ray HOST:PORT`."""
-    import secrets
+def _free_port() -> int:
     import socket
 
-    pytest.importorskip("ray")
-    ray_bin = Path(sys.executable).with_name("ray")
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
-    head = subprocess.Popen(
-        [str(ray_bin), "start", "--head", f"--port={port}", "--num-cpus=2", "--block"]
-        + ["--include-dashboard=false", "--disable-usage-stats"],
+        return s.getsockname()[1]
+
+
+def _ray_node(env: dict[str, str], *args: str) -> subprocess.Popen:
+    """``ray start ... --block`` in its own session (SIGTERM stops what it started)."""
+    ray_bin = Path(sys.executable).with_name("ray")
+    return subprocess.Popen(
+        [str(ray_bin), "start", *args, "--block", "--disable-usage-stats"],
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,
     )
+
+
+def _wait_for_port(port: int, timeout_s: float = 120) -> None:
+    import socket
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_connects_to_an_existing_ray_cluster(tmp_path: Path, fake_cells: str) -> None:
+    """`ray start --head` (token auth), then `priqn sweep --ray HOST:PORT`."""
+    import secrets
+
+    pytest.importorskip("ray")
+    port = _free_port()
+    env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
+    head = _ray_node(env, "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false")
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                time.sleep(0.2)
+        _wait_for_port(port)
         exp_path = write_experiment(tmp_path, ["ok", "boom"], [0])
         out = subprocess.run(
             _sweep_cli(exp_path, "--cell-fn", fake_cells, "--ray", f"127.0.0.1:{port}"),
@@ -637,37 +652,16 @@ def test_two_node_ray_cluster_runs_cells_on_both_nodes(tmp_path: Path, fake_cell
     must run on different nodes, into the one runs folder."""
     import re
     import secrets
-    import socket
 
     pytest.importorskip("ray")
-    ray_bin = Path(sys.executable).with_name("ray")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = _free_port()
     env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
-    common = ["--num-cpus=1", "--block", "--disable-usage-stats"]
     nodes = [
-        subprocess.Popen(
-            [str(ray_bin), "start", "--head", f"--port={port}", "--include-dashboard=false"]
-            + common,
-            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-        )
-    ]  # fmt: skip
+        _ray_node(env, "--head", f"--port={port}", "--num-cpus=1", "--include-dashboard=false")
+    ]
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                time.sleep(0.2)
-        nodes.append(
-            subprocess.Popen(
-                [str(ray_bin), "start", f"--address=127.0.0.1:{port}", *common],
-                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                start_new_session=True,
-            )
-        )  # fmt: skip
+        _wait_for_port(port)
+        nodes.append(_ray_node(env, f"--address=127.0.0.1:{port}", "--num-cpus=1"))
         probe = (
             f"import ray, time; ray.init(address='127.0.0.1:{port}', log_to_driver=False)\n"
             "t = time.time()\n"
