@@ -74,3 +74,52 @@ def test_scalarize_vector_env():
     _, r, _, _, infos = envs.step(np.zeros(2, np.int64))
     assert r.dtype == np.float32 and r.tolist() == [4.0, 4.0]
     assert infos["reward_vector"].shape == (2, 5)
+
+
+# --------------------------------------------------------------------------- other libraries
+# Optional: `pip install -e ".[compat]"`; skipped when the packages are absent. Each runs
+# SUMO in a subprocess (libsumo: one simulation per process).
+
+MO_GYM = """
+import gymnasium, mo_gymnasium as mo_gym, numpy as np, priqn
+env = gymnasium.make("priqn/Intersection-v0", obs_size_px=32, max_episode_steps=6)
+env = mo_gym.wrappers.MORecordEpisodeStatistics(env, gamma=0.99)
+env = mo_gym.wrappers.LinearReward(env, weight=np.array([1.0, 0.5, 0.25, 0.125, 0.0625]))
+env.reset(seed=0)
+done = False
+while not done:
+    obs, r, term, trunc, info = env.step(12)
+    done = term or trunc
+assert np.isscalar(r) or np.ndim(r) == 0, r
+assert info["vector_reward"].shape == (5,), info
+assert info["episode"]["r"].shape == (5,), info["episode"]
+print("ok", float(r))
+"""
+
+SB3 = """
+import gymnasium, priqn
+from stable_baselines3 import DQN
+from priqn.wrappers import ScalarizeReward
+env = ScalarizeReward(gymnasium.make("priqn/Intersection-v0", obs_size_px=64, max_episode_steps=20))
+model = DQN("MultiInputPolicy", env, learning_starts=50, buffer_size=500, batch_size=16,
+            train_freq=4, seed=0, verbose=0, device="cpu")
+model.learn(total_timesteps=300)
+action, _ = model.predict(env.reset(seed=1)[0], deterministic=True)
+assert 0 <= int(action) < 25
+print("ok")
+"""
+
+
+@pytest.mark.parametrize(
+    ("module", "script"), [("mo_gymnasium", MO_GYM), ("stable_baselines3", SB3)]
+)
+def test_other_libraries_drive_the_env(module, script):
+    import subprocess
+    import sys
+
+    pytest.importorskip(module)
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.startswith("ok")
