@@ -415,7 +415,9 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family)
     if eval_cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
-    env = IntersectionEnv(env_cfg, render_mode="rgb_array")
+    # Frames for people at 128 px or more, whatever the observation size.
+    view_cfg = dataclasses.replace(env_cfg, render_size_px=max(128, env_cfg.obs_size_px))
+    env = IntersectionEnv(view_cfg, render_mode="rgb_array")
     try:
         decisions = rollout(policy, env, scenes)
         table = env.action_table()

@@ -316,6 +316,19 @@ def _unseeded_first_episodes() -> tuple[list[str], tuple[str, str]]:
     return fresh, (fixed[0], fixed[1])
 
 
+def _render_sizes() -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+    from priqn.env.intersection import EnvConfig, IntersectionEnv
+
+    env = IntersectionEnv(EnvConfig(obs_size_px=32, render_size_px=96), render_mode="rgb_array")
+    try:
+        obs, _ = env.reset(seed=0)
+        first = env.render().shape
+        obs, *_ = env.step(12)
+        return obs["bev"].shape, first, env.render().shape
+    finally:
+        env.close()
+
+
 # --------------------------------------------------------------------------- tests
 
 
@@ -468,3 +481,9 @@ def test_reset_without_seed_draws_fresh_entropy(worker) -> None:
     fresh, fixed = run_in(worker, _unseeded_first_episodes)
     assert len(set(fresh)) == 3  # gymnasium's convention: no seed, fresh entropy
     assert fixed[0] == fixed[1]  # a constructor seed still fixes the first episode
+
+
+def test_render_size_is_separate_from_the_observation_size(worker) -> None:
+    bev, first, after = run_in(worker, _render_sizes)
+    assert bev == (4, 32, 32)
+    assert first == after == (96, 192, 3)  # BEV | LiDAR side by side at 96 px

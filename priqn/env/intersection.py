@@ -66,6 +66,9 @@ class EnvConfig:
     """Folder holding ``<family>/manifest.json`` and the nets ('' = the repository's sumo_nets/)."""
     obs_size_px: int = 128
     """Side of the square BEV and LiDAR grids [px] (the paper uses 128)."""
+    render_size_px: int = 0
+    """Side of the grids ``render()`` draws [px] (0 = obs_size_px); the same area and
+    scene, sampled at this resolution for people (the observation is unchanged)."""
     bev_range_m: float = 64.0
     """Side of the square area the BEV and LiDAR grids cover [m] (ego heading up)."""
     bev_behind_m: float = 16.0
@@ -114,6 +117,8 @@ class EnvConfig:
             raise ValueError(f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})")
         if self.obs_size_px < 16:
             raise ValueError(f"obs_size_px: expected >= 16, got {self.obs_size_px}")
+        if self.render_size_px and self.render_size_px < 16:
+            raise ValueError(f"render_size_px: expected 0 or >= 16, got {self.render_size_px}")
         if not self.bev_range_m > 0 or not 0 <= self.bev_behind_m <= self.bev_range_m:
             raise ValueError(
                 f"bev_range_m / bev_behind_m: expected bev_range_m > 0 and 0 <= bev_behind_m "
@@ -333,6 +338,11 @@ class IntersectionEnv(gymnasium.Env):
         )
 
         self._sensors = sensors.Sensors(cfg.sensor_config())
+        self._render_sensors = self._sensors
+        if render_mode == "rgb_array" and cfg.render_size_px not in (0, cfg.obs_size_px):
+            self._render_sensors = sensors.Sensors(
+                dataclasses.replace(cfg.sensor_config(), size_px=cfg.render_size_px)
+            )
         self.observation_space = spaces.Dict(
             {
                 "bev": spaces.Box(0, 255, self._sensors.bev_shape, np.uint8),
@@ -454,7 +464,10 @@ class IntersectionEnv(gymnasium.Env):
             return None
         if self._last_obs is None:
             raise PriqnError("render() before reset(): call env.reset() first")
-        return self._sensors.render_rgb(self._last_obs["bev"], self._last_obs["lidar"])
+        if self._render_sensors is self._sensors or self._episode is None:
+            return self._sensors.render_rgb(self._last_obs["bev"], self._last_obs["lidar"])
+        bev, lidar = self._sense(self._render_sensors)
+        return self._render_sensors.render_rgb(bev, lidar)
 
     def close(self) -> None:
         self._session.close()
@@ -686,10 +699,15 @@ class IntersectionEnv(gymnasium.Env):
             R.comfort(m.jerk_mps3, m.lateral_accel_mps2, rc),
         )
 
-    def _observe(self) -> dict[str, np.ndarray]:
+    def _sense(self, sensor: sensors.Sensors) -> tuple[np.ndarray, np.ndarray]:
+        """BEV and LiDAR grids of the current state from ``sensor`` (its resolution)."""
         cfg, ep = self.config, self._episode
         ego = ep.ego.box(cfg.ego_length_m, cfg.ego_width_m, EGO_HEIGHT_M)
-        bev, lidar = self._sensors.observe(ep.raster, ego, ep.actors.boxes, ep.actors.speed_mps)
+        return sensor.observe(ep.raster, ego, ep.actors.boxes, ep.actors.speed_mps)
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        ep = self._episode
+        bev, lidar = self._sense(self._sensors)
         command = np.zeros(len(COMMANDS), np.float32)
         command[COMMANDS.index(ep.command)] = 1.0
         obs = {
