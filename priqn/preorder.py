@@ -1,7 +1,7 @@
 """Preorders over objectives, distribution comparators and Algorithm 1 (optimal subsets).
 
 This is the decision core of Pr-IQN: every acting step and every TD target calls
-:func:`optimal_subsets`. It implements DESIGN.md §3 exactly; ``docs/preorder.md``
+:func:`optimal_subsets`. It implements our reading of Algorithm 1; ``docs/preorder.md``
 explains the method and records the benchmark.
 
 Shapes (glossary): ``B`` states, ``N`` objectives (in ``Preorder.objectives`` order),
@@ -36,7 +36,7 @@ PRESETS: tuple[str, ...] = ("total", "partial")
 """Names accepted by :meth:`Preorder.preset` (TOML files in ``priqn/presets/``)."""
 
 SELECT_RULES: tuple[str, ...] = ("top-scc", "plain")
-"""``top-scc``: DESIGN.md §3 (never empty); ``plain``: Alg. 1 line 23 literally."""
+"""``top-scc``: docs/preorder.md (never empty); ``plain``: Alg. 1 line 23 literally."""
 
 
 # ============================================================================ preorder
@@ -753,7 +753,7 @@ def optimal_subsets(
     N in ``po.objectives`` order; ``[N, K, A]`` gives outputs without the B axis.
     ``eps`` is the tolerance ε ≥ 0: one number, one per objective, or ``{name: ε}``.
     ``mv_lambda`` / ``cvar_alpha`` are read by the ``mv`` / ``cvar`` comparators only.
-    ``select_rule`` is ``"top-scc"`` (DESIGN.md §3, never empty) or ``"plain"``
+    ``select_rule`` is ``"top-scc"`` (docs/preorder.md, never empty) or ``"plain"``
     (Alg. 1 line 23 literally; can be empty in deep DAGs). ``check_finite`` rejects
     NaN/inf quantiles (one device sync). ``spread_floor`` (``[N]``, e.g.
     :meth:`RunningScale.floor`) selects the scale-aware normalisation; None is the

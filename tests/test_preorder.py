@@ -1,4 +1,4 @@
-"""Tests of priqn.preorder: preorders, comparators and Algorithm 1 (DESIGN.md §3)."""
+"""Tests of priqn.preorder: preorders, comparators and Algorithm 1 (docs/preorder.md)."""
 
 from __future__ import annotations
 

@@ -68,7 +68,7 @@ class NetworkConfig:
     vector_hidden: int = 64
     """Width of the MLP layer on the vector inputs (command one-hot + kinematics)."""
     latent_dim: int = 256
-    """Width of the fused latent the cosine embedding multiplies (DESIGN.md §4: 256-512)."""
+    """Width of the fused latent the cosine embedding multiplies (256-512 keeps the product cheap; docs/implementation-details.md §2)."""
     num_cosines: int = 64
     """Cosines in the τ embedding cos(π i τ), i = 1..num_cosines."""
     hidden_dim: int = 256

@@ -1,4 +1,4 @@
-"""Named agents: each is a choice of heads and three rules (DESIGN.md §2).
+"""Named agents: each is a choice of heads and three rules (docs/implementation-details.md §1).
 
 | agent | heads | reward rule | acting rule | target rule |
 |---|---|---|---|---|

@@ -1,4 +1,4 @@
-"""The three rules that make the four agents of DESIGN.md §2 out of one IQN learner.
+"""The three rules that make the four agents out of one IQN learner (docs/implementation-details.md §1).
 
 Every agent is the same network with ``H`` heads. Agents differ only in
 

@@ -74,7 +74,7 @@ def reference_optimal_subsets(
 
     The straightforward implementation: loops over states and objectives, z-scored
     quantiles and comparator scores per objective, relation matrices ``Dom``/``DomBy``
-    as in the paper, and select() with the top-SCC rule of DESIGN.md §3 (closure by
+    as in the paper, and select() with the top-SCC rule of docs/preorder.md (closure by
     repeated boolean matrix products, stopping when it no longer changes).
     """
     import numpy as np

@@ -7,7 +7,7 @@ ships the binaries under ``sumo.SUMO_HOME/bin``. The user never has to set
 their schemas and type maps (and do not warn about it).
 
 Also here: :func:`simulation_args`, the ``sumo`` command-line options this project
-measured to work for an ego driven with ``moveToXY`` (DESIGN.md §4), so the
+measured to work for an ego driven with ``moveToXY`` (docs/environment.md), so the
 environment starts every simulation the same way.
 """
 
@@ -86,7 +86,7 @@ def simulation_args(
     lateral_resolution_m: float | None = None,
     extra: Sequence[str] = (),
 ) -> list[str]:
-    """Command line for ``libsumo.start`` / ``sumo`` on one net (DESIGN.md §4).
+    """Command line for ``libsumo.start`` / ``sumo`` on one net (docs/environment.md).
 
     Teleports off, collisions only warned about (the environment runs its own
     oriented-box test), junction collisions checked, no warnings on stderr.
