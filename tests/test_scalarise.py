@@ -63,7 +63,7 @@ def test_train_config_resolves_the_scheme_for_its_own_episodes():
     # Explicit weights are kept as given; the margin reports what they mean.
     old = TrainConfig(agent=AgentConfig(reward_weights=(1.0, 0.5, 0.25, 0.125, 0.0625)))
     assert old.crash_margin < 1
-    assert set(SCHEMES) == {"hln-2", "hln-4", "halving"}
+    assert set(SCHEMES) == {"hln-2", "hln-4", "hln-2-task", "halving"}
 
 
 def test_unknown_scheme_is_one_line():
@@ -92,3 +92,14 @@ def test_a_scheme_override_changes_the_weights():
     assert cfg.agent_config.reward_weights == pytest.approx(scheme_weights("hln-4"))
     old = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=halving"])
     assert old.reward_weights == (1.0, 0.5, 0.25, 0.125, 0.0625) and old.crash_margin < 1
+
+
+def test_hln2_task_keeps_the_penalties_and_makes_progress_the_task_reward():
+    # Progress weight: a whole episode of full progress = one safety event:
+    # w_p * 63.397 = 10 -> w_p = 0.15774. Penalties and crash margin as hln-2.
+    w, base = scheme_weights("hln-2-task"), scheme_weights("hln-2")
+    assert w[3] == pytest.approx(10 / horizon(100, 0.99)) and w[3] == pytest.approx(
+        0.15774, abs=1e-5
+    )
+    assert [w[i] for i in (0, 1, 2, 4)] == pytest.approx([base[i] for i in (0, 1, 2, 4)])
+    assert crash_margin(w) == pytest.approx(2.0)

@@ -89,6 +89,25 @@ def hierarchy_weights(
     return (1.0,) + tuple(c * ratio ** -(i - 1) for i in range(1, len(OBJECTIVES)))
 
 
+def task_progress_weights(
+    ratio: float,
+    margin: float,
+    episode_share: float,
+    safety_penalty: float = DEFAULT_SAFETY_PENALTY,
+    max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+    gamma: float = DEFAULT_GAMMA,
+) -> tuple[float, ...]:
+    """:func:`hierarchy_weights` for the penalising levels, and a progress weight such
+    that a whole episode of full progress is worth ``episode_share`` safety events:
+    ``w_progress · H_T = episode_share · P``. Progress is ≥ 0, so it cannot make crashing
+    cheap (the crash margin is that of the penalties alone)."""
+    w = list(hierarchy_weights(ratio, margin, safety_penalty, max_episode_steps, gamma))
+    w[OBJECTIVES.index("progress")] = (
+        episode_share * safety_penalty / horizon(max_episode_steps, gamma)
+    )
+    return tuple(w)
+
+
 @dataclasses.dataclass(frozen=True)
 class Scheme:
     """A named weighting rule."""
@@ -101,6 +120,9 @@ class Scheme:
     """Required crash margin m (None: fixed ``weights``)."""
     weights: tuple[float, ...] | None = None
     """Fixed weights (the pre-fairness default)."""
+    progress_share: float | None = None
+    """If set: the progress weight makes a whole episode of full progress worth this many
+    safety events (:func:`task_progress_weights`) instead of following the ratio."""
 
     def resolve(
         self,
@@ -111,6 +133,15 @@ class Scheme:
         if self.weights is not None:
             return self.weights
         assert self.ratio is not None and self.margin is not None
+        if self.progress_share is not None:
+            return task_progress_weights(
+                self.ratio,
+                self.margin,
+                self.progress_share,
+                safety_penalty,
+                max_episode_steps,
+                gamma,
+            )
         return hierarchy_weights(self.ratio, self.margin, safety_penalty, max_episode_steps, gamma)
 
 
@@ -120,6 +151,13 @@ SCHEMES: dict[str, Scheme] = {
     ),
     "hln-4": Scheme(
         "hierarchy-level normalisation, weights quarter per level, crash margin 2", 4.0, 2.0
+    ),
+    "hln-2-task": Scheme(
+        "hln-2's penalties (crash margin 2) with progress as the task reward: a whole "
+        "episode of full progress is worth one safety event",
+        2.0,
+        2.0,
+        progress_share=1.0,
     ),
     "halving": Scheme(
         "the pre-fairness weights (1, .5, .25, .125, .0625): crashing can be cheaper than "
