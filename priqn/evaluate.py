@@ -581,6 +581,11 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
             values = [float(x) for x in args.densities.split(",") if x.strip()]
         except ValueError as exc:
             raise PriqnError(f"--densities {args.densities!r}: expected e.g. 0.5,0.75,1.0") from exc
+        if not values or any(not 0.0 < v <= 1.0 for v in values):
+            raise PriqnError(
+                f"--densities {args.densities}: each density must be in (0, 1] "
+                "(active actors / maximum actors), e.g. 0.5,0.75,1.0"
+            )
         sets.append(f"densities=[{', '.join(repr(v) for v in values)}]")
     return apply_overrides(cfg, sets) if sets else cfg
 

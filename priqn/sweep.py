@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from priqn.agents.config import AGENT_SPECS
 from priqn.config import from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json
@@ -219,6 +220,10 @@ def load_experiment(
         where = f"{p} [[policy]] {label}"
         pol = from_dict(PolicySpec, raw, where=where)
         _check_name(pol.name, f"{where}.name")
+        if pol.agent not in AGENT_SPECS:
+            raise PriqnError(
+                f"{where}.agent: unknown agent {pol.agent!r} (valid: {', '.join(AGENT_SPECS)})"
+            )
         if pol.name in seen:
             raise PriqnError(f"{where}.name: duplicate policy name {pol.name!r}")
         seen.add(pol.name)

@@ -323,3 +323,16 @@ def test_end_to_end_train_evaluate_report(tiny_runs) -> None:
     assert not missing, missing
     report = (out / "report.md").read_text()
     assert "| IQN |" in report and "Pr-IQN" in report
+
+
+def test_densities_flag_out_of_range_blames_the_flag(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "evaluate", str(tmp_path), "--densities", "1.5"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "--densities 1.5: each density must be in (0, 1]" in out.stderr
+    assert "--set" not in out.stderr

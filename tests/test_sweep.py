@@ -689,3 +689,17 @@ def test_two_node_ray_cluster_runs_cells_on_both_nodes(tmp_path: Path, fake_cell
             proc.send_signal(signal.SIGTERM)  # `ray start --block` stops what it started
         for proc in reversed(nodes):
             proc.wait(timeout=120)
+
+
+def test_unknown_agent_names_the_file_and_the_policy(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        '[experiment]\nname = "bad"\nseeds = [0]\n[[policy]]\nname = "x"\nagent = "dqn"\n'
+    )
+    with pytest.raises(PriqnError, match=rf"{path} \[\[policy\]\] x.agent: unknown agent 'dqn'"):
+        load_experiment(path)
+    out = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "sweep", str(path), "--list"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2 and "new" not in out.stdout  # no cell listed as if it were fine

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
 
@@ -138,3 +139,37 @@ class LearnerConfig:
         if isinstance(self.gamma, tuple):
             return tuple(float(g) for g in self.gamma)
         return (float(self.gamma),) * NUM_OBJECTIVES
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentSpec:
+    """The heads and the three rule names of one agent."""
+
+    num_heads: int
+    reward_rule: str
+    acting_rule: str
+    target_rule: str
+    own_taus: bool = False
+    """Each head draws its own τ samples in the loss (Ensemble-IQN), not one shared set."""
+
+    @property
+    def uses_preorder(self) -> bool:
+        return "leaf-uniform" == self.acting_rule or "optimal-subset" == self.target_rule
+
+
+AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
+    "iqn": lambda c: AgentSpec(1, "weighted-sum", "argmax", "own-argmax"),
+    "ensemble-iqn": lambda c: AgentSpec(
+        c.ensemble_heads, "weighted-sum", "argmax-mean-of-heads", "own-argmax", own_taus=True
+    ),
+    "ma-iqn": lambda c: AgentSpec(
+        NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
+    ),
+    "pr-iqn": lambda c: AgentSpec(
+        NUM_OBJECTIVES,
+        "per-objective",
+        "leaf-uniform",
+        "optimal-subset" if c.train_preorder else "own-argmax",
+    ),
+}
+"""Agent name → its :class:`AgentSpec` given the config."""
