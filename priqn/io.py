@@ -49,6 +49,21 @@ def atomic_open(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO[Any]]:
         raise
 
 
+def remove_stale_temp_files(folder: str | os.PathLike) -> int:
+    """Delete temp files a killed :func:`atomic_open` left under ``folder`` (recursively).
+
+    Only names of :func:`atomic_open`'s form (``.<target>.<random>.tmp``) are removed.
+    Call it only where no other writer can be active (a run folder being opened by its
+    one trainer). Returns how many were removed.
+    """
+    removed = 0
+    for tmp in Path(folder).rglob(".*.tmp"):
+        if tmp.is_file():
+            tmp.unlink(missing_ok=True)
+            removed += 1
+    return removed
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with atomic_open(path, "wb") as fh:

@@ -48,6 +48,7 @@ from priqn.io import (
     atomic_write_json,
     atomic_write_text,
     read_json,
+    remove_stale_temp_files,
     torch_load,
 )
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
@@ -427,6 +428,7 @@ def _prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool, force: bool)
         if diff:
             raise PriqnError(f"{run_dir}: --resume with a different config ({diff})")
         meta = read_json(run_dir / "meta.json")
+        remove_stale_temp_files(run_dir)  # left by a killed write of the last session
     else:
         if run_dir.exists() and any(run_dir.iterdir()):
             if not force:

@@ -134,3 +134,15 @@ def test_optional_literal_error_lists_allowed_values():
     assert from_dict(WithLiteral, {"stat": "iqm"}, "w").stat == "iqm"
     with pytest.raises(PriqnError, match=r"w.stat: expected one of 'mean', 'iqm', got 'median'"):
         from_dict(WithLiteral, {"stat": "median"}, "w")
+
+
+def test_stale_temp_files_of_killed_writes_are_removed(tmp_path):
+    from priqn.io import atomic_write_text, remove_stale_temp_files
+
+    atomic_write_text(tmp_path / "meta.json", "{}")
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / ".meta.json.k3j2x9.tmp").write_bytes(b"")  # what kill -9 mid-write leaves
+    (tmp_path / "checkpoints" / ".latest.pt.a81bq0.tmp").write_bytes(b"partial")
+    (tmp_path / "notes.tmp").write_text("a user's file, not ours")
+    assert remove_stale_temp_files(tmp_path) == 2
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["checkpoints", "meta.json", "notes.tmp"]
