@@ -46,6 +46,7 @@ from priqn.config import from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json
 from priqn.paths import experiments_dir
+from priqn.runs import run_status
 
 DEFAULT_CELL_FN = "priqn.sweep:train_and_evaluate"
 """Import path of the function a cell's child process runs (tests substitute fast ones)."""
@@ -382,12 +383,15 @@ def _status(meta_path: Path) -> str | None:
 
 
 def cell_state(run_dir: Path) -> str:
-    """``complete`` | ``trained`` (eval missing) | ``running`` | ``failed`` | ``new``.
+    """``complete`` | ``trained`` (eval missing) | ``running`` | ``interrupted`` (its trainer
+    died) | ``failed`` | ``new``.
 
     Read from the run folder only: ``meta.json`` and ``eval/meta.json`` statuses.
     ``running`` may also be a run whose sweep was killed; the next sweep resumes it.
     """
     run = _status(run_dir / "meta.json")
+    if run == "running" and run_status(run_dir) == "interrupted":
+        return "interrupted"  # its trainer died (kill -9, crash): the next sweep resumes it
     if run == "complete":
         return "complete" if _status(run_dir / "eval" / "meta.json") == "complete" else "trained"
     if run in ("running", "failed"):

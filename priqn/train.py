@@ -52,6 +52,7 @@ from priqn.io import (
     torch_load,
 )
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
+from priqn.runs import live_trainer
 from priqn.timing import SectionClock
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
@@ -112,7 +113,13 @@ class CheckpointConfig:
     interval_steps: int = 10_000
     """Env decisions between checkpoints (one more is written at the end)."""
     save_replay: bool = True
-    """Save the replay buffer with each checkpoint, so a resume continues exactly."""
+    """Save the replay buffer with each checkpoint. A resume then restores the networks,
+    Adam, the replay buffer, the τ / replay / exploration generators and the step count;
+    it does not restore the episodes in flight (they end as truncated) nor the env
+    workers' generators (reseeded from the env seed and the session number), so the
+    episodes after a resume differ from an uninterrupted run's. Without the buffer the
+    resume refills it before learning again. meta.json lists every session and the step
+    it resumed from."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -420,6 +427,12 @@ def _prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool, force: bool)
     hashes = _manifest_hashes(families, cfg.env.nets_dir)
     labels = policy_labels(cfg)
     ckpt = run_dir / "checkpoints" / "latest.pt"
+    owner = live_trainer(run_dir)
+    if owner is not None and (resume or force):
+        raise PriqnError(
+            f"{run_dir}: still being trained by {owner} (meta.json status running); "
+            "stop that process first (a run folder has one writer)"
+        )
     if resume:
         if not ckpt.is_file():
             raise PriqnError(f"{run_dir}: nothing to resume (no checkpoints/latest.pt)")
@@ -458,11 +471,16 @@ def _prepare_run_dir(cfg: TrainConfig, run_dir: Path, resume: bool, force: bool)
             "labels": labels,
             "total_steps": cfg.total_steps,
             "host": socket.gethostname(),
+            "pid": os.getpid(),
         }
     )
     meta.setdefault("steps_done", 0)
     meta["sessions"].append(
-        {"started": datetime.now(UTC).isoformat(timespec="seconds"), "resume": resume}
+        {
+            "started": datetime.now(UTC).isoformat(timespec="seconds"),
+            "resume": resume,
+            "from_step": int(meta.get("steps_done", 0)) if resume else 0,
+        }
     )
     atomic_write_json(run_dir / "meta.json", meta)
     return meta

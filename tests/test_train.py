@@ -317,3 +317,38 @@ def test_damaged_checkpoint_is_one_line_and_a_complete_run_stays_complete(tmp_pa
     assert json.loads((run / "meta.json").read_text())["status"] == "complete"
     with pytest.raises(PriqnError, match=r"damaged or unreadable checkpoint"):
         load_policy(run)
+
+
+def test_one_writer_per_run_folder_and_a_killed_run_shows_interrupted(tmp_path):
+    import os
+    import signal
+    import time
+
+    from priqn.runs import live_trainer, run_status
+    from priqn.sweep import cell_state
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "priqn.cli", "train", "--agent", "iqn", "--steps", "100000",
+         "--num-envs", "1", "--runs-dir", str(tmp_path), "--name", "run",
+         "--set", "evaluation.interval_steps=0", *TINY],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    run = tmp_path / "run"
+    try:
+        deadline = time.monotonic() + 120
+        while live_trainer(run) is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert live_trainer(run) == f"pid {proc.pid} on host {__import__('socket').gethostname()}"
+        force = ("--agent", "iqn", "--runs-dir", str(tmp_path), "--name", "run", "--force", *TINY)
+        for args in (("--resume", str(run)), force):
+            out = cli(*args)
+            assert out.returncode == 2, out.stderr
+            assert f"still being trained by pid {proc.pid}" in out.stderr
+            assert len(out.stderr.strip().splitlines()) == 1
+        assert run_status(run) == "running" and cell_state(run) == "running"
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    assert json.loads((run / "meta.json").read_text())["status"] == "running"  # never updated
+    assert run_status(run) == "interrupted" and cell_state(run) == "interrupted"
+    assert live_trainer(run) is None
