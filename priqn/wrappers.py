@@ -7,8 +7,8 @@
 
 The reward becomes ``Σ_i w_i r_i`` (OBJECTIVES order: safety, risk, lane keeping,
 progress, comfort) and the vector stays available as ``info["reward_vector"]``.
-``weights`` is a scheme name of :mod:`priqn.agents.scalarise` (default ``"hln-2"``, whose
-crash margin keeps crashing from ever paying; docs/implementation-details.md) or five
+``weights`` is a scheme name of :mod:`priqn.agents.scalarise` (default ``"hln-2-task"``, the
+agents' default, whose crash margin keeps crashing from ever paying; docs/implementation-details.md) or five
 numbers. :class:`ScalarizeVectorReward` does the same for a vector env
 (``gymnasium.make_vec``), returning ``float32 [num_envs]`` rewards.
 MO-Gymnasium users need no wrapper: the env has ``reward_space`` (Box, 5).
@@ -22,9 +22,13 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from priqn.agents.config import AgentConfig
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+
+DEFAULT_SCHEME: str = AgentConfig.reward_scheme
+"""The agents' default weighted-sum scheme, also the wrappers' default."""
 
 
 def resolve_weights(weights: str | Sequence[float]) -> np.ndarray:
@@ -43,7 +47,7 @@ def resolve_weights(weights: str | Sequence[float]) -> np.ndarray:
 class ScalarizeReward(gymnasium.Wrapper):
     """Single env: reward ``Σ_i w_i r_i`` (float); the vector in ``info["reward_vector"]``."""
 
-    def __init__(self, env: gymnasium.Env, weights: str | Sequence[float] = "hln-2") -> None:
+    def __init__(self, env: gymnasium.Env, weights: str | Sequence[float] = DEFAULT_SCHEME) -> None:
         super().__init__(env)
         self.weights_5 = resolve_weights(weights)
         low, high = _bounds(env, self.weights_5)
@@ -60,7 +64,7 @@ class ScalarizeVectorReward(gymnasium.vector.VectorWrapper):
     """Vector env: rewards ``float32 [num_envs]``; vectors in ``infos["reward_vector"]``."""
 
     def __init__(
-        self, env: gymnasium.vector.VectorEnv, weights: str | Sequence[float] = "hln-2"
+        self, env: gymnasium.vector.VectorEnv, weights: str | Sequence[float] = DEFAULT_SCHEME
     ) -> None:
         super().__init__(env)
         self.weights_5 = resolve_weights(weights)

@@ -91,7 +91,7 @@ def test_pr_iqn_acts_only_inside_the_leaf_set():
 def test_baseline_acting_rules_by_hand():
     q = flat([[1, 0, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0, 0.6, 0, 0, 0, 0], [0] * 6, [0] * 6])
     u = torch.zeros(1)
-    # MA-IQN acts on the IQN scheme's weighted sum of head means (hln-2 by default):
+    # MA-IQN acts on the IQN scheme's weighted sum of head means (hln-2-task by default):
     # action 0: 1 * w_safety = 1; action 1: 0.6 * (w_risk + w_lane) = 0.6 * 0.0728 = 0.044.
     assert make_agent("ma-iqn").act(q, u).item() == 0
     # With equal weights it is the plain sum: 1.2 > 1.

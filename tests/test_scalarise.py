@@ -54,7 +54,7 @@ def test_progress_does_not_enter_the_bound():
 def test_train_config_resolves_the_scheme_for_its_own_episodes():
     default = TrainConfig()
     assert default.agent.reward_weights is None  # resolved per run, never frozen in
-    assert default.reward_weights == pytest.approx(scheme_weights("hln-2"))
+    assert default.reward_weights == pytest.approx(scheme_weights("hln-2-task"))
     assert default.crash_margin == pytest.approx(2.0)
     # Longer episodes: the scheme rescales so the margin still holds.
     long = TrainConfig(env=EnvConfig(obs_size_px=64, max_episode_steps=300))

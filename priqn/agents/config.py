@@ -31,8 +31,8 @@ class AgentConfig:
     """Pr-IQN preorder: 'total' (chain safety>risk>lane>progress>comfort), 'partial', or a TOML file."""
     train_preorder: bool = True
     """Pr-IQN Eq. 6: head h bootstraps from argmax over its optimal subset S_h (off: all actions)."""
-    reward_scheme: str = "hln-2"
-    """Weighted-sum scheme of IQN / Ensemble / MA-IQN: hln-2, hln-4 or halving (priqn.agents.scalarise; docs/implementation-details.md)."""
+    reward_scheme: str = "hln-2-task"
+    """Weighted-sum scheme of IQN / Ensemble / MA-IQN: hln-2-task (the sensitivity check's best), hln-2, hln-4 or halving (priqn.agents.scalarise; docs/implementation-details.md)."""
     reward_weights: tuple[float, ...] | None = None
     """Explicit weights Σ w_i r_i in OBJECTIVES order, overriding reward_scheme (unset = the scheme's, resolved for the run's episode length, discount and safety penalty)."""
     ensemble_heads: int = 5

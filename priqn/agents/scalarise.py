@@ -165,7 +165,7 @@ SCHEMES: dict[str, Scheme] = {
         weights=(1.0, 0.5, 0.25, 0.125, 0.0625),
     ),
 }
-"""Scheme name → rule. ``hln-2`` is the default; the sensitivity check compares them."""
+"""Scheme name → rule. ``hln-2-task`` is the agents' default (the sensitivity check's best)."""
 
 
 def scheme_weights(
