@@ -716,13 +716,15 @@ def test_property_rows_do_not_depend_on_the_batch(problem):
 # ============================================================================ benchmark
 
 
-def test_bench_smoke():
+@pytest.mark.parametrize("comparator", ["qd", "fsd"])
+def test_bench_smoke(comparator):
     code = (
         "import argparse, sys\n"
         "from priqn.bench import preorder as m\n"
         "p = argparse.ArgumentParser(); m.configure_parser(p)\n"
         "sys.exit(m.run(p.parse_args(['-B', '8', '-K', '8', '-A', '6', '--repeats', '2',"
-        " '--reference-repeats', '1', '--obs-size', '64', '--threads', '1', '--preorder', 'partial'])))\n"
+        " '--reference-repeats', '1', '--obs-size', '64', '--threads', '1', '--preorder', 'partial',"
+        f" '--comparator', '{comparator}'])))\n"
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr + res.stdout

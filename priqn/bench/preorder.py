@@ -27,7 +27,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         default="total",
         help="'total', 'partial' or a TOML file with a [preorder] table (default total)",
     )
-    parser.add_argument("--comparator", default="qd", help="qd | mv | cvar (default qd)")
+    parser.add_argument("--comparator", default="qd", help="qd | mv | cvar | fsd (default qd)")
     parser.add_argument("--eps", type=float, default=0.2, help="tolerance for every objective")
     parser.add_argument(
         "--repeats", type=int, default=50, help="timed calls of the batched version"
@@ -83,9 +83,12 @@ def reference_optimal_subsets(
     b_count, n, k, a = q.shape
     tail = sum(1 for i in range(k) if (i + 0.5) / k <= cvar_alpha)
 
+    def normalised(z: np.ndarray) -> np.ndarray:  # z: [K, A]
+        return (z - z.mean()) / max(z.std(), 1e-6)
+
     def score(z: np.ndarray) -> np.ndarray:  # z: [K, A]
-        zt = (z - z.mean()) / max(z.std(), 1e-6)
-        if comparator == "qd":
+        zt = normalised(z)
+        if comparator in ("qd", "fsd"):  # fsd's shown score is the mean; QD's differs by a constant
             ideal = zt.max(axis=1)
             return -np.abs(zt - ideal[:, None]).mean(axis=0)
         if comparator == "mv":
@@ -114,6 +117,11 @@ def reference_optimal_subsets(
             sc = score(q[b, r])
             diff = sc[:, None] - sc[None, :]
             dom_qd, domby_qd = diff > eps[r], diff < -eps[r]
+            if comparator == "fsd":  # pairwise: min_k d >= -eps and mean_k d > eps
+                zt = normalised(q[b, r])
+                d = zt[:, :, None] - zt[:, None, :]  # [K, a, b]
+                dom_qd = (d.min(axis=0) >= -eps[r]) & (d.mean(axis=0) > eps[r])
+                domby_qd = dom_qd.T
             if not parents[r]:
                 s_up = np.ones(a, dtype=bool)
                 dom_up = np.zeros((a, a), dtype=bool)
