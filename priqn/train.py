@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
+from priqn.agents.config import AGENT_SPECS, AgentConfig, LearnerConfig, NetworkConfig
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
@@ -169,7 +169,8 @@ class TrainConfig:
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
-        scalar_heads = self.agent.name in ("iqn", "ensemble-iqn")
+        spec = AGENT_SPECS.get(self.agent.name)  # unknown names: one line in _validate_names
+        scalar_heads = spec is not None and spec(self.agent).reward_rule == "weighted-sum"
         if scalar_heads and len(set(self.learner.gamma_5)) > 1:
             raise ValueError(
                 f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
