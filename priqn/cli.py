@@ -19,7 +19,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenario": ("priqn.sim.cli", "generate SUMO nets from scenario families; draw a net"),
     "train": ("priqn.train", "train one agent into runs/<name>/"),
     "evaluate": ("priqn.evaluate", "evaluate trained runs on the hold-out nets"),
-    "report": ("analysis.report", "tables, rliable statistics and figures from evaluated runs"),
+    "report": (
+        "priqn.analysis.report",
+        "tables, rliable statistics and figures from evaluated runs",
+    ),
     "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),
     "inspect": (
         "priqn.inspector",

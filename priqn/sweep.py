@@ -41,11 +41,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from priqn import paths
 from priqn.agents.config import AGENT_SPECS
 from priqn.config import from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json
-from priqn.paths import experiments_dir
 from priqn.runs import run_status
 
 DEFAULT_CELL_FN = "priqn.sweep:train_and_evaluate"
@@ -162,17 +162,18 @@ class Experiment:
 
 
 def resolve_experiment_path(name_or_path: str | os.PathLike) -> Path:
-    """A path, or a bare name found in ``experiments/`` (``table2`` -> ``experiments/table2.toml``)."""
+    """A path, or a bare name: ``table2`` -> ``./experiments/table2.toml``, else the shipped one."""
     p = Path(name_or_path)
     if p.is_file():
         return p
     if p.suffix == "" and len(p.parts) == 1:
-        candidate = experiments_dir() / f"{p.name}.toml"
-        if candidate.is_file():
-            return candidate
-        known = sorted(q.stem for q in experiments_dir().glob("*.toml"))
+        dirs = paths.search_path(paths.EXPERIMENTS)
+        for d in dirs:
+            if (d / f"{p.name}.toml").is_file():
+                return d / f"{p.name}.toml"
+        known = sorted({q.stem for d in dirs for q in d.glob("*.toml")})
         raise PriqnError(
-            f"{p}: no such experiment file (known in {experiments_dir()}: {', '.join(known) or 'none'})"
+            f"{p}: no such experiment file (known in ./experiments/ and shipped: {', '.join(known) or 'none'})"
         )
     raise PriqnError(f"{p}: file not found")
 
@@ -872,7 +873,7 @@ def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> N
 
 def _run_report(exp: Experiment, say: Callable[[str], None]) -> Path | None:
     try:
-        from analysis.report import make_report
+        from priqn.analysis.report import make_report
     except ModuleNotFoundError as exc:
         say(f"priqn sweep: report skipped ({exc.name} is not installed)")
         return None
@@ -892,7 +893,8 @@ def _run_report(exp: Experiment, say: Callable[[str], None]) -> Path | None:
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """``priqn sweep EXPERIMENT [--jobs N | --ray [ADDRESS]] ...``."""
     parser.add_argument(
-        "experiment", help="experiment file, or a name in experiments/ (e.g. table2, smoke)"
+        "experiment",
+        help="experiment file, or a name: ./experiments/NAME.toml, else shipped (table2, smoke)",
     )
     parser.add_argument(
         "--jobs",

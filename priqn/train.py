@@ -295,15 +295,19 @@ def _env_reset_seed(env_seed: int, session: int) -> int | None:
 
 
 def _git_sha() -> str:
-    from priqn.paths import REPO_ROOT
+    """priqn's git commit (``-dirty`` if changed) in a checkout; "not a checkout" if installed."""
+    from priqn.paths import PACKAGE_DIR
 
+    root = PACKAGE_DIR.parent
+    if not (root / ".git").exists():
+        return "not a checkout"
     try:
         sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True, timeout=10
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
         ).stdout.strip()
         dirty = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=REPO_ROOT,
+            cwd=root,
             capture_output=True,
             text=True,
             timeout=10,

@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import tables
-from analysis.load import check_seeds, load_evaluation
-from analysis.report import make_report
-from analysis.stats import (
+from priqn.analysis import tables
+from priqn.analysis.load import check_seeds, load_evaluation
+from priqn.analysis.report import make_report
+from priqn.analysis.stats import (
     SEED_AXIS,
     aggregate_estimates,
     probability_of_improvement,
@@ -368,7 +368,7 @@ def test_cli_report(runs, tmp_path, capsys) -> None:
 def test_vectorised_improvement_equals_rliable() -> None:
     from rliable import metrics
 
-    from analysis.stats import mann_whitney_improvement
+    from priqn.analysis.stats import mann_whitney_improvement
 
     rng = np.random.default_rng(3)
     for _ in range(20):
@@ -380,7 +380,7 @@ def test_vectorised_improvement_equals_rliable() -> None:
 
 
 def test_learning_curve_from_priqn_metrics() -> None:
-    from analysis.load import EVAL_SUCCESS_CURVE, learning_curves_of
+    from priqn.analysis.load import EVAL_SUCCESS_CURVE, learning_curves_of
 
     metrics = pd.DataFrame(
         {

@@ -21,7 +21,7 @@ import pytest
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
-from priqn.paths import REPO_ROOT
+from priqn.paths import experiments_dir
 from priqn.sweep import (
     Cell,
     _sweep_lock,
@@ -135,7 +135,7 @@ TABLE2 = [
 
 
 def test_table2_expands_to_the_papers_33_cells(tmp_path: Path) -> None:
-    exp = load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path)
+    exp = load_experiment(experiments_dir() / "table2.toml", runs_dir=tmp_path)
     cells = expand(exp)
     assert len(cells) == 33
     assert len({c.name for c in cells}) == 33 and len({c.run_dir for c in cells}) == 33
@@ -184,7 +184,7 @@ def test_table2_cells_train_the_papers_rows(tmp_path: Path) -> None:
     from priqn.sweep import build_train_config
     from priqn.train import policy_labels
 
-    cells = expand(load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path))
+    cells = expand(load_experiment(experiments_dir() / "table2.toml", runs_dir=tmp_path))
     labels = [policy_labels(build_train_config(c))["label"] for c in cells[::3]]
     assert labels == PAPER_ROW_LABELS
     seeds = {(c.policy, build_train_config(c).seed) for c in cells[:6]}
@@ -199,14 +199,14 @@ def test_table2_cells_train_the_papers_rows(tmp_path: Path) -> None:
 
 
 def test_cell_spec_round_trips_through_json(tmp_path: Path) -> None:
-    cell = expand(load_experiment(REPO_ROOT / "experiments" / "table2.toml", runs_dir=tmp_path))[-1]
+    cell = expand(load_experiment(experiments_dir() / "table2.toml", runs_dir=tmp_path))[-1]
     spec = json.loads(json.dumps(cell.to_spec()))
     assert spec["name"] == "table2/pr-iqn-qd-tp-eps0.2-partial__seed2"
     assert Cell.from_spec(spec) == cell
 
 
 def test_smoke_grid_is_small(tmp_path: Path) -> None:
-    exp = load_experiment(REPO_ROOT / "experiments" / "smoke.toml", runs_dir=tmp_path)
+    exp = load_experiment(experiments_dir() / "smoke.toml", runs_dir=tmp_path)
     cells = expand(exp)
     assert 1 <= len(cells) <= 4
     assert {c.agent for c in cells} >= {"iqn", "pr-iqn"}
@@ -535,7 +535,7 @@ def _complete_cells(runs_dir: Path) -> list[str]:
 @pytest.mark.slow
 def test_smoke_grid_end_to_end_locally_then_on_ray(tmp_path: Path) -> None:
     """experiments/smoke.toml for real: train, evaluate, report; re-run does nothing; Ray agrees."""
-    smoke = REPO_ROOT / "experiments" / "smoke.toml"
+    smoke = experiments_dir() / "smoke.toml"
     expected = sorted(c.run_dir.name for c in expand(load_experiment(smoke, runs_dir=tmp_path)))
     env = dict(os.environ, MPLBACKEND="Agg")
     cmd = [sys.executable, "-m", "priqn.cli", "sweep", str(smoke)]

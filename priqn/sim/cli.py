@@ -2,8 +2,8 @@
 
 Examples::
 
-    priqn scenario generate                     # every family in scenarios/
-    priqn scenario generate --family holdout --check   # verify committed nets
+    priqn scenario generate                     # every family, into ./sumo_nets/
+    priqn scenario generate --family holdout --check   # verify the nets in use
     priqn scenario list
     priqn scenario show holdout/fourway_00 --out fourway_00.png
 """
@@ -21,26 +21,29 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     gen = sub.add_parser(
         "generate",
-        help="generate sumo_nets/<family>/ from scenarios/<family>.toml",
-        description="Write nod/edg XML, run netconvert and write manifest.json per family.",
+        help="generate ./sumo_nets/<family>/ from the scenario families",
+        description="Write nod/edg XML, run netconvert and write manifest.json per family. "
+        "Families are read from ./scenarios/<name>.toml or the ones shipped with priqn; nets go "
+        "to ./sumo_nets/ (or --out), which priqn then uses instead of the shipped nets.",
     )
     gen.add_argument(
         "--family",
         action="append",
         metavar="NAME",
-        help="family name or TOML path (repeatable; default: every scenarios/*.toml)",
+        help="family name or TOML path (repeatable; default: every family priqn knows)",
     )
     gen.add_argument(
         "--check",
         action="store_true",
-        help="regenerate into a temp folder and compare SHA-256 with the committed manifest",
+        help="regenerate into a temp folder and compare SHA-256 with the manifest of the nets "
+        "in use (--out, ./sumo_nets or shipped); writes nothing",
     )
     gen.add_argument(
         "--out",
         type=Path,
         default=None,
         metavar="DIR",
-        help="write families under DIR instead of sumo_nets/",
+        help="write families under DIR instead of ./sumo_nets/",
     )
     sub.add_parser("list", help="list scenario families and generated nets")
     show = sub.add_parser("show", help="draw a net (lanes, junction, ego routes) as a PNG")
@@ -64,26 +67,26 @@ def run(args: argparse.Namespace) -> int:
 def _generate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from priqn import paths
     from priqn.errors import PriqnError
-    from priqn.paths import nets_dir
     from priqn.sim import netgen
     from priqn.sim.scenario import list_families, load_family, load_manifest
 
     names = args.family or list_families()
     if not names:
-        raise PriqnError("scenarios/: no scenario families (*.toml) found")
+        raise PriqnError("no scenario families (*.toml) in ./scenarios/ or shipped with priqn")
     families = [load_family(n) for n in names]  # validate all before writing any
     total = sum(f.n_nets for f in families)
     failures = []
     with tempfile.TemporaryDirectory(prefix="priqn-check-") as tmp:
-        root = Path(tmp) if args.check else (args.out or nets_dir())
+        root = Path(tmp) if args.check else (args.out or paths.generate_dir())
         with tqdm(total=total, unit="net", disable=not sys.stderr.isatty()) as bar:
             for fam in families:
                 bar.set_description(fam.name)
                 netgen.generate_family(fam, root, progress=lambda _id: bar.update(1))
                 if not args.check:
                     continue
-                committed_root = args.out or nets_dir()
+                committed_root = args.out or paths.nets_root_for(fam.name)
                 committed = load_manifest(fam.name, committed_root)
                 fresh = load_manifest(fam.name, root)
                 problems = _compare(committed, fresh)
@@ -124,6 +127,7 @@ def _compare(committed: dict, fresh: dict) -> list[str]:
 
 
 def _list(args: argparse.Namespace) -> int:
+    from priqn import paths
     from priqn.errors import PriqnError
     from priqn.sim.scenario import list_families, list_generated, load_manifest, manifest_hash
 
@@ -132,14 +136,18 @@ def _list(args: argparse.Namespace) -> int:
         if name in generated:
             m = load_manifest(name)
             ids = ", ".join(n["id"] for n in m["nets"])
-            print(f"{name}: {len(m['nets'])} nets, manifest {manifest_hash(name)[:12]} [{ids}]")
+            root = paths.nets_root_for(name)
+            where = "shipped" if root == paths.nets_dir() else str(root)
+            print(
+                f"{name}: {len(m['nets'])} nets ({where}), manifest {manifest_hash(name)[:12]} [{ids}]"
+            )
         else:
             print(f"{name}: not generated (run 'priqn scenario generate --family {name}')")
     orphans = sorted(generated - set(list_families()))
     for name in orphans:
-        print(f"{name}: generated, but scenarios/{name}.toml is missing")
+        print(f"{name}: generated, but there is no scenario family {name}.toml")
     if not list_families() and not generated:
-        raise PriqnError("scenarios/: no scenario families and no generated nets")
+        raise PriqnError("no scenario families and no generated nets (./scenarios, ./sumo_nets)")
     return 0
 
 

@@ -6,7 +6,8 @@ loaded into :class:`ScenarioFamily`: a master seed, how many nets, their kind
 (:class:`GeometrySpec`) and the traffic the environment puts on it
 (:class:`TrafficSpec`). Ranges are ``[lo, hi]`` pairs, sampled uniformly.
 
-Generated nets live in ``sumo_nets/<family>/`` with a ``manifest.json``;
+Generated nets live in ``sumo_nets/<family>/`` with a ``manifest.json`` (shipped in
+``priqn/data/``, or generated below the working directory: :mod:`priqn.paths`);
 :func:`load_manifest`, :func:`manifest_hash` and :func:`net_path` read them.
 """
 
@@ -18,9 +19,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from priqn import paths
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
-from priqn.paths import nets_dir, scenarios_dir
 
 KINDS: tuple[str, ...] = ("tjunction", "fourway")
 """Net kinds: a T-junction has 3 arms, a four-way 4."""
@@ -181,17 +182,18 @@ class ScenarioFamily:
 
 
 def family_toml(name_or_path: str | Path) -> Path:
-    """Path of a family's TOML: an existing file path, or a name under ``scenarios/``."""
+    """Path of a family's TOML: an existing file path, or a name in ``./scenarios/`` or shipped."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.is_file() or len(p.parts) > 1:
         if not p.is_file():
             raise PriqnError(f"{p}: scenario file not found")
         return p
-    candidate = scenarios_dir() / f"{p.name}.toml"
-    if not candidate.is_file():
-        known = ", ".join(list_families()) or "none"
-        raise PriqnError(f"unknown scenario family {str(name_or_path)!r} (available: {known})")
-    return candidate
+    for d in paths.search_path(paths.SCENARIOS):
+        candidate = d / f"{p.name}.toml"
+        if candidate.is_file():
+            return candidate
+    known = ", ".join(list_families()) or "none"
+    raise PriqnError(f"unknown scenario family {str(name_or_path)!r} (available: {known})")
 
 
 def load_family(name_or_path: str | Path) -> ScenarioFamily:
@@ -214,19 +216,19 @@ def load_family(name_or_path: str | Path) -> ScenarioFamily:
 
 
 def list_families() -> list[str]:
-    """Names of the families in ``scenarios/`` (sorted)."""
-    d = scenarios_dir()
-    return sorted(p.name.removesuffix(".toml") for p in d.glob("*.toml")) if d.is_dir() else []
-
-
-def family_dir(family: str) -> Path:
-    """Folder of a family's generated nets: ``sumo_nets/<family>/``."""
-    return nets_dir() / family
+    """Names of the families in ``./scenarios/`` and shipped (sorted)."""
+    return sorted(
+        {
+            p.name.removesuffix(".toml")
+            for d in paths.search_path(paths.SCENARIOS)
+            for p in d.glob("*.toml")
+        }
+    )
 
 
 def load_manifest(family: str, root: Path | None = None) -> dict[str, Any]:
-    """Read ``sumo_nets/<family>/manifest.json`` (or under ``root``)."""
-    path = (root if root is not None else nets_dir()) / family / "manifest.json"
+    """Read ``<root>/<family>/manifest.json`` (no root: ``./sumo_nets`` if it has it, else shipped)."""
+    path = (root if root is not None else paths.nets_root_for(family)) / family / "manifest.json"
     if not path.is_file():
         have = ", ".join(list_generated(root)) or "none"
         raise PriqnError(
@@ -262,18 +264,21 @@ def hash_of_manifest(manifest: dict[str, Any]) -> str:
 
 
 def list_generated(root: Path | None = None) -> list[str]:
-    """Families that have a manifest under ``sumo_nets/`` (sorted)."""
-    d = root if root is not None else nets_dir()
-    return sorted(p.parent.name for p in d.glob("*/manifest.json")) if d.is_dir() else []
+    """Families that have a manifest under ``root`` (no root: ``./sumo_nets`` and shipped; sorted)."""
+    dirs = [root] if root is not None else paths.search_path(paths.NETS)
+    return sorted({p.parent.name for d in dirs if d.is_dir() for p in d.glob("*/manifest.json")})
 
 
 def list_nets(root: Path | None = None) -> list[str]:
-    """Every generated net as ``"<family>/<net_id>"`` (sorted)."""
-    d = root if root is not None else nets_dir()
-    if not d.is_dir():
-        return []
+    """Every generated net as ``"<family>/<net_id>"`` (sorted; no root: what ``net_path`` finds)."""
+    if root is not None:
+        fams = {f: root for f in list_generated(root)}
+    else:
+        fams = {f: paths.nets_root_for(f) for f in list_generated()}
     return sorted(
-        f"{p.parent.name}/{p.name.removesuffix('.net.xml')}" for p in d.glob("*/*.net.xml")
+        f"{fam}/{p.name.removesuffix('.net.xml')}"
+        for fam, d in fams.items()
+        for p in (d / fam).glob("*.net.xml")
     )
 
 
@@ -298,14 +303,12 @@ def net_path(net_ref: str | Path) -> Path:
             raise PriqnError(
                 f"net {ref!r}: expected 'family/net_id' (e.g. holdout/fourway_00) or a .net.xml path"
             )
-        path = nets_dir() / p.parts[0] / f"{p.parts[1]}.net.xml"
+        root = paths.nets_root_for(p.parts[0])
+        path = root / p.parts[0] / f"{p.parts[1]}.net.xml"
         if path.is_file():
             return path
+        path = path.relative_to(root.parent)  # 'sumo_nets/<family>/<id>.net.xml'
     shown = path
-    try:
-        shown = path.resolve().relative_to(nets_dir().parent)
-    except ValueError:
-        pass
     nets = list_nets()
     same_family = [n for n in nets if n.split("/")[0] == path.parent.name]
     listing = ", ".join(same_family or nets) if nets else "none generated yet"

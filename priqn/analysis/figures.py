@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
+from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
 
 plt.rcParams["svg.hashsalt"] = "priqn"

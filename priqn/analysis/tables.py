@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analysis.load import CONFIG_COLUMNS, config_key
+from priqn.analysis.load import CONFIG_COLUMNS, config_key
 
 AGENT_ORDER: tuple[str, ...] = ("iqn", "ensemble-iqn", "ma-iqn", "pr-iqn")
 """Row order of agents (the paper's); unknown agents follow alphabetically."""

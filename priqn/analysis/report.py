@@ -35,7 +35,7 @@ def _fmt_ci(point: float, lo: float, hi: float) -> str:
 
 def _rliable_markdown(aggregates: dict[str, Any], order: list[str]) -> str:
     """IQM / optimality-gap table from ``{metric: aggregates DataFrame}``."""
-    from analysis.stats import SCORE_METRICS
+    from priqn.analysis.stats import SCORE_METRICS
 
     heads = ["Policy"]
     for metric in aggregates:
@@ -89,9 +89,14 @@ def make_report(
     """
     import pandas as pd
 
-    from analysis import figures, tables
-    from analysis.load import check_seeds, find_run_dirs, load_evaluation, load_learning_curves
-    from analysis.stats import (
+    from priqn.analysis import figures, tables
+    from priqn.analysis.load import (
+        check_seeds,
+        find_run_dirs,
+        load_evaluation,
+        load_learning_curves,
+    )
+    from priqn.analysis.stats import (
         RUN_AXIS,
         SCORE_METRICS,
         SEED_AXIS,
