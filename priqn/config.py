@@ -16,7 +16,7 @@ import textwrap
 import tomllib
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -252,3 +252,33 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
             return Path(value)
         raise PriqnError(f"{where}: expected a path string, got {value!r}")
     return value
+
+
+def flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dict → ``{"a.b": value}``."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_differences(
+    old: Mapping[str, Any], new: Mapping[str, Any], ignore: Iterable[str] = ()
+) -> list[tuple[str, Any, Any]]:
+    """``(dotted key, old value, new value)`` for every key that differs, sorted by key.
+
+    The one config comparison of priqn: ``--resume`` (a run's config.toml against the
+    flags), ``priqn sweep`` (a cell's recorded config against the grid) and
+    ``priqn evaluate`` (an evaluation's recorded settings against the new ones).
+    Nested tables compare key by key (``env.family``); ``ignore`` names dotted keys.
+    """
+    fa, fb = flatten(old), flatten(new)
+    skip = set(ignore)
+    return [
+        (k, fa.get(k), fb.get(k))
+        for k in sorted(set(fa) | set(fb))
+        if k not in skip and fa.get(k) != fb.get(k)
+    ]

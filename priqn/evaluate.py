@@ -31,10 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from priqn.config import apply_overrides, from_dict, load_toml, to_dict
+from priqn.config import apply_overrides, config_differences, from_dict, load_toml, to_dict
+from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
+from priqn.runs import RunFolder
 
 LABEL_KEYS: tuple[str, ...] = (
     "agent",
@@ -70,11 +72,6 @@ EPISODE_COLUMNS: tuple[str, ...] = (
     "reset_seed",
 )
 """Columns of ``eval/episodes.csv``, in order (one row per episode)."""
-
-EVAL_DIR = "eval"
-CELLS_DIR = "cells"
-EPISODES_FILE = "episodes.csv"
-META_FILE = "meta.json"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,65 +182,21 @@ RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers"})
 """EvalConfig fields that do not change any episode (may differ on resume)."""
 
 
-def config_differences(old: dict[str, Any], new: dict[str, Any]) -> str:
+def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
     """``"field old -> new, ..."`` for result-affecting EvalConfig fields that differ."""
-    keys = sorted((set(old) | set(new)) - RESULT_NEUTRAL_FIELDS)
-    return ", ".join(
-        f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in keys if old.get(k) != new.get(k)
-    )
+    diff = config_differences(old, new, ignore=RESULT_NEUTRAL_FIELDS)
+    return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
 
 
 def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:
     """File of one finished (eval run, net, density) cell."""
     eval_run, net, density = cell
-    return eval_dir / CELLS_DIR / f"r{eval_run}__{net.replace('/', '__')}__d{density:g}.csv"
+    return (
+        eval_dir / RunFolder.EVAL_CELLS / f"r{eval_run}__{net.replace('/', '__')}__d{density:g}.csv"
+    )
 
 
 # ----------------------------------------------------------------------------- episodes
-
-
-def _info_row(infos: dict[str, Any], i: int) -> dict[str, Any]:
-    """The terminal info of env ``i`` from a SAME_STEP vector-env info dict."""
-    final = infos.get("final_info")
-    if final is None:
-        raise RuntimeError("episode ended without 'final_info' in the vector-env infos")
-    row = {}
-    for key, value in final.items():
-        if key.startswith("_"):
-            continue
-        mask = final.get(f"_{key}")
-        if mask is not None and not bool(mask[i]):
-            continue
-        row[key] = value[i]
-    return row
-
-
-def _episode_values(info: dict[str, Any]) -> dict[str, Any]:
-    missing = [
-        k
-        for k in ("success", "collision", "off_road", "timeout", "route_progress", "returns")
-        if k not in info
-    ]
-    if missing:
-        raise RuntimeError(f"environment info lacks {missing} (see docs/ARCHITECTURE.md, info)")
-    returns = np.asarray(info["returns"], dtype=np.float64).reshape(-1)
-    if returns.shape != (len(OBJECTIVES),):
-        raise RuntimeError(
-            f"info['returns'] has shape {returns.shape}, expected ({len(OBJECTIVES)},)"
-        )
-    values = {
-        "success": bool(info["success"]),
-        "collision": bool(info["collision"]),
-        "off_road": bool(info["off_road"]),
-        "timeout": bool(info["timeout"]),
-        "route_progress": float(info["route_progress"]),
-        "density_realised": float(info.get("density_realised", np.nan)),
-        "steps": int(info.get("episode_steps", -1)),
-    }
-    values.update({f"return_{name}": float(v) for name, v in zip(OBJECTIVES, returns, strict=True)})
-    if "command" in info and info["command"] is not None:
-        values["command"] = str(info["command"])
-    return values
 
 
 def _select(obs: Any, i: int) -> Any:
@@ -308,7 +261,7 @@ def run_scenes(
         for i in range(num_envs):
             if slot[i] is None or not (terminated[i] or truncated[i]):
                 continue
-            values = _episode_values(_info_row(infos, i))
+            values = episode_values(final_info(infos, i))
             values.update(sizes.pop(i))
             on_episode(slot[i], values)
             if progress is not None:
@@ -377,7 +330,7 @@ def evaluate_policy(
     from tqdm.auto import tqdm
 
     eval_dir = Path(eval_dir)
-    meta_path = eval_dir / META_FILE
+    meta_path = eval_dir / RunFolder.META
     meta = {
         "status": "running",
         "holdout_family": cfg.family,
@@ -396,7 +349,7 @@ def evaluate_policy(
                 f"{meta_path}: this run was evaluated on a different hold-out set (holdout_hash "
                 f"{str(old.get('holdout_hash'))[:12]} vs now {holdout_hash[:12]}); use --force to start over"
             )
-        diff = config_differences(old.get("eval_config") or {}, meta["eval_config"])
+        diff = eval_config_changes(old.get("eval_config") or {}, meta["eval_config"])
         if diff:
             raise PriqnError(
                 f"{meta_path}: an evaluation with a different eval_config is already here "
@@ -446,7 +399,7 @@ def evaluate_policy(
 
     frames = [pd.read_csv(cell_file(eval_dir, c)) for c in sorted(cells)]
     episodes = pd.concat(frames, ignore_index=True)
-    out = eval_dir / EPISODES_FILE
+    out = eval_dir / RunFolder.EVAL_EPISODES
     atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
     meta["status"] = "complete"
     meta["episodes"] = len(episodes)
@@ -468,16 +421,15 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     The run must be complete (``meta.json`` status). A finished evaluation with the
     same hold-out hash and EvalConfig is returned as is; a half-finished one goes on.
     """
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise PriqnError(f"{run_dir}: no such run folder")
-    run_meta_path = run_dir / "meta.json"
-    if not run_meta_path.is_file():
-        raise PriqnError(f"{run_meta_path}: missing; is {run_dir} a run made by 'priqn train'?")
-    status = read_json(run_meta_path).get("status")
+    run = RunFolder(run_dir)
+    if not run.path.is_dir():
+        raise PriqnError(f"{run.path}: no such run folder")
+    if not run.meta_path.is_file():
+        raise PriqnError(f"{run.meta_path}: missing; is {run.path} a run made by 'priqn train'?")
+    status = run.meta().get("status")
     if status != "complete":
         raise PriqnError(
-            f"{run_meta_path}: status is {status!r}; evaluate only complete runs "
+            f"{run.meta_path}: status is {status!r}; evaluate only complete runs "
             f"(finish it with 'priqn train --resume')"
         )
 
@@ -485,22 +437,19 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     net_ids = _net_ids(load_manifest(cfg.family))
     holdout_hash = manifest_hash(cfg.family)
-    eval_dir = run_dir / EVAL_DIR
-    meta_path = eval_dir / META_FILE
-    if not force and meta_path.is_file():
-        old = read_json(meta_path)
+    if not force and run.eval_meta_path.is_file():
+        old = run.eval_meta()
         if (
             old.get("status") == "complete"
             and old.get("holdout_hash") == holdout_hash
-            and not config_differences(old.get("eval_config") or {}, to_dict(cfg))
-            and (eval_dir / EPISODES_FILE).is_file()
+            and not eval_config_changes(old.get("eval_config") or {}, to_dict(cfg))
+            and run.eval_episodes_path.is_file()
         ):
-            return eval_dir / EPISODES_FILE
+            return run.eval_episodes_path
 
     from priqn.env.vector import make_vector_env
-    from priqn.train import load_policy
 
-    policy = load_policy(run_dir, device=cfg.device)
+    policy = run.load_policy(device=cfg.device)
     env_cfg = dataclasses.replace(policy.env_config, family=cfg.family)
     if cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
@@ -511,11 +460,11 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     return evaluate_policy(
         policy,
-        eval_dir,
+        run.eval_dir,
         cfg,
         net_ids,
         holdout_hash,
-        run_dir.name,
+        run.name,
         make_env,
         extra_meta={"env_config": to_dict(env_cfg)},
         force=force,
@@ -528,10 +477,10 @@ def find_runs(paths: Iterable[str | Path]) -> list[Path]:
     for p in map(Path, paths):
         if not p.is_dir():
             raise PriqnError(f"{p}: no such folder")
-        if (p / "config.toml").is_file():
+        if RunFolder(p).is_run():
             runs.append(p)
             continue
-        inner = sorted(c for c in p.iterdir() if (c / "config.toml").is_file())
+        inner = sorted(c for c in p.iterdir() if RunFolder(c).is_run())
         if not inner:
             raise PriqnError(f"{p}: neither a run folder (config.toml) nor a folder of runs")
         runs.extend(inner)

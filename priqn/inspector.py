@@ -34,6 +34,7 @@ import numpy as np
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
 from priqn.objectives import OBJECTIVES
+from priqn.runs import RunFolder
 
 KEPT = ""
 """``pruned_by_<objective>`` when the head's greedy action survives to the leaf."""
@@ -81,13 +82,12 @@ class Decision:
 def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any]:
     """The evaluation scenes to inspect, and the EvalConfig they come from."""
     from priqn.evaluate import EvalConfig, make_scenes
-    from priqn.io import read_json
     from priqn.sim.scenario import load_manifest
 
-    eval_meta = run_dir / "eval" / "meta.json"
+    run = RunFolder(run_dir)
     fields: dict[str, Any] = {}
-    if eval_meta.is_file():  # the scenes the run was evaluated on
-        fields = dict(read_json(eval_meta).get("eval_config") or {})
+    if run.eval_meta_path.is_file():  # the scenes the run was evaluated on
+        fields = dict(run.eval_meta().get("eval_config") or {})
     base = EvalConfig()
     known = {f.name for f in dataclasses.fields(EvalConfig)}
     kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in fields.items() if k in known}
@@ -405,13 +405,13 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     import pandas as pd
 
     from priqn.env.intersection import IntersectionEnv
-    from priqn.train import load_policy
 
     run_dir, out = Path(run_dir), Path(out_dir)
-    if not (run_dir / "config.toml").is_file():
-        raise PriqnError(f"{run_dir}: not a run folder (no config.toml)")
+    run = RunFolder(run_dir)
+    if not run.is_run():
+        raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
     scenes, eval_cfg = inspection_scenes(run_dir, cfg)
-    policy = load_policy(run_dir, device="cpu")
+    policy = run.load_policy(device="cpu")
     env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family)
     if eval_cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)

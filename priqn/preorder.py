@@ -29,11 +29,10 @@ from typing import Any
 
 import torch
 
+from priqn.agents.config import COMPARATORS as COMPARATOR_NAMES
+from priqn.agents.config import PREORDER_PRESETS as PRESETS
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
-
-PRESETS: tuple[str, ...] = ("total", "partial")
-"""Names accepted by :meth:`Preorder.preset` (TOML files in ``priqn/presets/``)."""
 
 SELECT_RULES: tuple[str, ...] = ("top-scc", "plain")
 """``top-scc``: docs/preorder.md (never empty); ``plain``: Alg. 1 line 23 literally."""
@@ -440,6 +439,11 @@ Scores are of the z-scored quantiles Z̃ = (Z − mean) / std; higher is better.
 comparators relate a and b by ``score(a) − score(b) > ε``; the comparators in
 :data:`PAIRWISE` relate them by their own rule instead (their score is only shown).
 """
+
+if tuple(COMPARATORS) != tuple(COMPARATOR_NAMES):  # one function per name, same order
+    raise ImportError(
+        f"priqn.preorder.COMPARATORS {tuple(COMPARATORS)} != {tuple(COMPARATOR_NAMES)}"
+    )
 
 PAIRWISE: frozenset[str] = frozenset({"fsd"})
 """Comparators whose relation is not an ε-difference of scores (see :func:`fsd_relations`)."""

@@ -1,45 +1,502 @@
-"""Run-folder facts every command reads the same way: who is training it, and its status.
+"""The run folder: one type that owns every file of a training run.
 
-(The first piece of the run-folder type the architecture issue asks for.)
+A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds::
+
+    config.toml            the resolved TrainConfig (loadable back)
+    meta.json              provenance, seeds, labels, status, trainer pid/host, sessions
+    metrics.csv            one row per training / in-training evaluation episode
+    learning_curve.png     the curves of metrics.csv
+    tb/                    TensorBoard scalars
+    checkpoints/latest.pt  the newest checkpoint (+ replay-<step>.npz); what --resume reads
+    policy.pt              final online weights of a complete run (what results keep)
+    eval/episodes.csv      hold-out evaluation, one row per episode (+ eval/meta.json,
+    eval/cells/            finished evaluation cells, kept for a resumed evaluation)
+
+Every command reads and writes these through :class:`RunFolder`, so no other module
+spells a file name. A run folder has one writer: ``meta.json`` records the trainer's
+pid and host while it runs (:meth:`RunFolder.live_trainer`), and a ``running`` run whose
+trainer is gone reads as ``interrupted`` (:meth:`RunFolder.status`).
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import os
+import platform
+import shutil
 import socket
+import subprocess
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
-from priqn.io import read_json
+import numpy as np
+
+from priqn.config import config_differences, dumps_toml, from_dict, load_toml, to_dict
+from priqn.errors import PriqnError
+from priqn.io import (
+    atomic_open,
+    atomic_torch_save,
+    atomic_write_json,
+    atomic_write_text,
+    read_json,
+    remove_stale_temp_files,
+    torch_load,
+)
+from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
+
+METRIC_COLUMNS: tuple[str, ...] = (
+    "kind",
+    "step",
+    "episode",
+    "wall_s",
+    "epsilon",
+    "updates",
+    "loss",
+    *(f"return_{o}" for o in OBJECTIVES),
+    "return_weighted",
+    "length",
+    "success",
+    "collision",
+    "off_road",
+    "timeout",
+    "route_progress",
+    "density_realised",
+    *SUBSET_COLUMNS,
+    "net",
+    "command",
+)
+"""Columns of ``metrics.csv``: one row per training (kind=train) or evaluation episode."""
 
 
-def live_trainer(run_dir: Path) -> str | None:
-    """``"pid N on host H"`` when a live process on this host is training ``run_dir``.
+class RunFolder:
+    """One run folder: its paths, config, meta and status, metrics, checkpoints, policy."""
 
-    ``meta.json`` records the trainer's host and pid with ``status: running``; a run whose
-    trainer died (kill -9, a crash, the machine rebooted) is not live: see
-    :func:`run_status`. A trainer on another host cannot be checked and counts as live.
-    """
-    meta_path = run_dir / "meta.json"
-    if not meta_path.is_file():
+    CONFIG = "config.toml"
+    META = "meta.json"
+    METRICS = "metrics.csv"
+    LEARNING_CURVE = "learning_curve.png"
+    TENSORBOARD = "tb"
+    CHECKPOINTS = "checkpoints"
+    LATEST = "latest.pt"
+    POLICY = "policy.pt"
+    EVAL = "eval"
+    EVAL_EPISODES = "episodes.csv"
+    EVAL_CELLS = "cells"
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        """The folder itself."""
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    def rel(self, path: Path) -> str:
+        """``path`` relative to the run folder, for messages (``checkpoints/latest.pt``)."""
+        return str(path.relative_to(self.path))
+
+    # ---------------------------------------------------------------- paths
+    @property
+    def config_path(self) -> Path:
+        return self.path / self.CONFIG
+
+    @property
+    def meta_path(self) -> Path:
+        return self.path / self.META
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / self.METRICS
+
+    @property
+    def learning_curve_path(self) -> Path:
+        return self.path / self.LEARNING_CURVE
+
+    @property
+    def tensorboard_dir(self) -> Path:
+        return self.path / self.TENSORBOARD
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / self.CHECKPOINTS
+
+    @property
+    def latest_checkpoint(self) -> Path:
+        return self.checkpoint_dir / self.LATEST
+
+    @property
+    def policy_path(self) -> Path:
+        return self.path / self.POLICY
+
+    @property
+    def eval_dir(self) -> Path:
+        return self.path / self.EVAL
+
+    @property
+    def eval_meta_path(self) -> Path:
+        return self.eval_dir / self.META
+
+    @property
+    def eval_episodes_path(self) -> Path:
+        return self.eval_dir / self.EVAL_EPISODES
+
+    @property
+    def eval_cells_dir(self) -> Path:
+        return self.eval_dir / self.EVAL_CELLS
+
+    def is_run(self) -> bool:
+        """A trained (or training) run: it has a config.toml."""
+        return self.config_path.is_file()
+
+    def has_evaluation(self) -> bool:
+        return self.eval_dir.is_dir()
+
+    # ---------------------------------------------------------------- config and meta
+    def config(self) -> Any:
+        """The run's resolved :class:`priqn.train_config.TrainConfig`."""
+        from priqn.train_config import TrainConfig
+
+        if not self.is_run():
+            raise PriqnError(f"{self.path}: not a run folder (no {self.CONFIG})")
+        return from_dict(TrainConfig, load_toml(self.config_path), where=str(self.config_path))
+
+    def meta(self) -> dict[str, Any]:
+        """meta.json (a missing or unreadable file is a one-line error)."""
+        return read_json(self.meta_path)
+
+    def write_meta(self, meta: Mapping[str, Any]) -> None:
+        atomic_write_json(self.meta_path, dict(meta))
+
+    def update_meta(self, **fields: Any) -> None:
+        """Merge ``fields`` into meta.json (atomically)."""
+        meta = self.meta()
+        meta.update(fields)
+        self.write_meta(meta)
+
+    def recorded_status(self) -> str | None:
+        """meta.json's ``status`` as written (None without a readable meta.json)."""
+        return _status_in(self.meta_path)
+
+    def recorded_eval_status(self) -> str | None:
+        """eval/meta.json's ``status`` as written (None when never evaluated or unreadable)."""
+        return _status_in(self.eval_meta_path)
+
+    def status(self) -> str:
+        """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
+        meta = self.meta()
+        status = str(meta.get("status"))
+        if status == "running" and meta.get("pid") is not None and self.live_trainer() is None:
+            return "interrupted"
+        return status
+
+    def live_trainer(self) -> str | None:
+        """``"pid N on host H"`` when a live process on this host is training this run.
+
+        ``meta.json`` records the trainer's host and pid with ``status: running``; a run
+        whose trainer died (kill -9, a crash, the machine rebooted) is not live. A trainer
+        on another host cannot be checked and counts as live.
+        """
+        if not self.meta_path.is_file():
+            return None
+        meta = self.meta()
+        if meta.get("status") != "running" or meta.get("pid") is None:
+            return None
+        pid, host = int(meta["pid"]), str(meta.get("host"))
+        if pid == os.getpid() and host == socket.gethostname():
+            return None
+        if host == socket.gethostname() and not _pid_alive(pid):
+            return None
+        return f"pid {pid} on host {host}"
+
+    def eval_meta(self) -> dict[str, Any]:
+        """eval/meta.json."""
+        return read_json(self.eval_meta_path)
+
+    # ---------------------------------------------------------------- starting a session
+    def prepare(self, cfg: Any, resume: bool, force: bool) -> dict[str, Any]:
+        """Check / create the folder for a training session; write config.toml and meta.json
+        (status running, this process as the trainer). Returns the meta."""
+        # Everything that can refuse the run comes before the folder is touched.
+        from priqn.train_config import (
+            derive_seeds,
+            policy_labels,
+            pool_families,
+        )
+
+        families = sorted(set(pool_families(cfg.env.family)) | {cfg.evaluation.family})
+        hashes = manifest_hashes(families, cfg.env.nets_dir)
+        labels = policy_labels(cfg)
+        owner = self.live_trainer()
+        if owner is not None and (resume or force):
+            raise PriqnError(
+                f"{self.path}: still being trained by {owner} (meta.json status running); "
+                "stop that process first (a run folder has one writer)"
+            )
+        if resume:
+            if not self.latest_checkpoint.is_file():
+                raise PriqnError(
+                    f"{self.path}: nothing to resume (no {self.rel(self.latest_checkpoint)})"
+                )
+            diff = config_differences(
+                to_dict(self.config()), to_dict(cfg), ignore=("total_steps", "device")
+            )
+            if diff:
+                k, old, new = diff[0]
+                raise PriqnError(
+                    f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
+                )
+            meta = self.meta()
+            remove_stale_temp_files(self.path)  # left by a killed write of the last session
+        else:
+            if self.path.exists() and any(self.path.iterdir()):
+                if not force:
+                    raise PriqnError(
+                        f"{self.path}: run folder already exists; use --resume to continue it or --force to overwrite"
+                    )
+                self.remove()
+            meta = {
+                "created": datetime.now(UTC).isoformat(timespec="seconds"),
+                "seed": cfg.seed,
+                "seeds": derive_seeds(cfg.seed),
+                "sessions": [],
+            }
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise PriqnError(f"{self.path}: cannot create the run folder ({exc.strerror})") from exc
+        atomic_write_text(self.config_path, dumps_toml(to_dict(cfg)))
+        meta.update(
+            {
+                "run": self.path.name,
+                "status": "running",
+                "error": None,
+                "git_sha": git_sha(),
+                "versions": versions(),
+                "manifest_hashes": hashes,
+                "labels": labels,
+                "total_steps": cfg.total_steps,
+                "host": socket.gethostname(),
+                "pid": os.getpid(),
+            }
+        )
+        meta.setdefault("steps_done", 0)
+        meta["sessions"].append(
+            {
+                "started": datetime.now(UTC).isoformat(timespec="seconds"),
+                "resume": resume,
+                "from_step": int(meta.get("steps_done", 0)) if resume else 0,
+            }
+        )
+        self.write_meta(meta)
+        return meta
+
+    # ---------------------------------------------------------------- metrics
+    def write_metrics(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """metrics.csv with :data:`METRIC_COLUMNS` (atomically)."""
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_text(self.metrics_path, buf.getvalue())
+
+    def read_metrics(self, max_step: int | None = None) -> list[dict[str, Any]]:
+        """metrics.csv rows (as strings) up to ``max_step``; [] when there is none yet."""
+        if not self.metrics_path.is_file():
+            return []
+        with self.metrics_path.open(encoding="utf-8", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        if max_step is None:
+            return rows
+        return [r for r in rows if int(float(r["step"])) <= max_step]
+
+    # ---------------------------------------------------------------- checkpoints and policy
+    def save_checkpoint(self, state: dict[str, Any], replay: Any, save_replay: bool) -> None:
+        """Replay file first, then latest.pt naming it, then old replay files removed.
+
+        Each file is atomic; latest.pt is the commit point, so a kill at any moment leaves
+        a consistent (latest.pt, replay file) pair.
+        """
+        import torch
+
+        replay_name = None
+        if save_replay:
+            replay_name = f"replay-{state['step']:012d}.npz"
+            with atomic_open(self.checkpoint_dir / replay_name, "wb") as fh:
+                replay.save_to(fh)
+        state = dict(state, replay_file=replay_name, torch_version=torch.__version__)
+        atomic_torch_save(state, self.latest_checkpoint)
+        for old in self.checkpoint_dir.glob("replay-*.npz"):
+            if old.name != replay_name:
+                old.unlink(missing_ok=True)
+
+    def load_checkpoint(self, device: Any) -> dict[str, Any]:
+        """The latest checkpoint (a damaged file is a one-line error saying what to do)."""
+        return torch_load(
+            self.latest_checkpoint,
+            "checkpoint",
+            f"delete the run folder's {self.CHECKPOINTS}/ and train again with --force",
+            device,
+        )
+
+    def replay_file(self, state: Mapping[str, Any]) -> Path | None:
+        """The replay buffer file a checkpoint names (None if it saved none)."""
+        name = state.get("replay_file")
+        return self.checkpoint_dir / name if name else None
+
+    def save_policy(self, state: Mapping[str, Any]) -> None:
+        """policy.pt: the final online weights and the agent's learned state (a few MB)."""
+        atomic_torch_save(dict(state), self.policy_path)
+
+    def load_policy(self, device: str = "cpu") -> Any:
+        """Greedy :class:`priqn.agents.policy.Policy` of this run.
+
+        From the latest checkpoint when present (a run in progress, or resumable); else
+        from policy.pt, which is all a committed result folder keeps.
+        """
+        from priqn.agents.policy import Policy
+        from priqn.agents.registry import make_agent
+        from priqn.train_config import (
+            build_network,
+            observation_space,
+            policy_labels,
+            select_device,
+        )
+
+        cfg = self.config()
+        latest, final = self.latest_checkpoint, self.policy_path
+        if not latest.is_file() and not final.is_file():
+            raise PriqnError(
+                f"{self.path}: no {self.rel(latest)} or {self.rel(final)} to load a policy from"
+            )
+        dev = select_device(device)
+        # The latest checkpoint when present (a run in progress, or resumable); else the
+        # final policy file, which is all a committed result folder keeps.
+        source = latest if latest.is_file() else final
+        state = torch_load(
+            source,
+            "checkpoint" if source == latest else "policy file",
+            "restore it from git or re-train the run (priqn train --force)",
+            dev,
+        )
+        learned = state["learner"] if "learner" in state else state
+        shapes = state["obs_shapes"]
+        agent = make_agent(cfg.agent.name, cfg.agent_config)
+        space = observation_space(shapes)
+        num_actions = int(state["num_actions"])
+        network = build_network(cfg, space, num_actions, seed=0)
+        network.load_state_dict(learned["online"])
+        network.eval()
+        agent.load_state_dict(learned.get("agent", {}))  # the running scale, if any
+        labels = policy_labels(cfg)
+        return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
+
+    def remove_stale_temp_files(self) -> int:
+        """Temp files a killed write left behind (only while this process is the writer)."""
+        return remove_stale_temp_files(self.path)
+
+    def remove(self) -> None:
+        """Delete the folder (``--force``); refused in one line, touching nothing, when any
+        part of it cannot be deleted (a read-only folder)."""
+        locked = [d for d, _, _ in os.walk(self.path) if not os.access(d, os.W_OK | os.X_OK)]
+        if locked:
+            raise PriqnError(
+                f"{locked[0]}: read-only, so --force cannot replace the run; "
+                "make it writable (chmod -R u+w) or pick another --name"
+            )
+        try:
+            shutil.rmtree(self.path)
+        except OSError as exc:
+            raise PriqnError(
+                f"{exc.filename or self.path}: cannot delete the old run for --force ({exc.strerror})"
+            ) from None
+
+
+def load_policy(run_dir: str | os.PathLike, device: str = "cpu") -> Any:
+    """Greedy policy of the trained run in ``run_dir`` (:meth:`RunFolder.load_policy`)."""
+    return RunFolder(run_dir).load_policy(device)
+
+
+def live_trainer(run_dir: str | os.PathLike) -> str | None:
+    """:meth:`RunFolder.live_trainer` of ``run_dir``."""
+    return RunFolder(run_dir).live_trainer()
+
+
+def run_status(run_dir: str | os.PathLike) -> str:
+    """:meth:`RunFolder.status` of ``run_dir``."""
+    return RunFolder(run_dir).status()
+
+
+# ------------------------------------------------------------------------ provenance
+
+
+def git_sha() -> str:
+    """priqn's git commit (``-dirty`` if changed) in a checkout; "not a checkout" if installed."""
+    from priqn.paths import PACKAGE_DIR
+
+    root = PACKAGE_DIR.parent
+    if not (root / ".git").exists():
+        return "not a checkout"
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha or "unknown") + ("-dirty" if dirty else "")
+
+
+def versions() -> dict[str, str]:
+    import gymnasium
+    import torch
+
+    import priqn
+
+    out = {
+        "priqn": priqn.__version__,
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "gymnasium": gymnasium.__version__,
+    }
+    try:
+        from priqn.sim.sumo import sumo_version
+
+        out["sumo"] = sumo_version()
+    except Exception as exc:  # noqa: BLE001 - recorded, never fatal
+        out["sumo"] = f"unknown ({type(exc).__name__})"
+    return out
+
+
+def manifest_hashes(families: Sequence[str], nets_dir: str) -> dict[str, str]:
+    """Manifest hash per family; a family without generated nets is a one-line error."""
+    from priqn.sim.scenario import manifest_hash
+
+    root = Path(nets_dir) if nets_dir else None
+    return {fam: manifest_hash(fam, root) for fam in families}
+
+
+def _status_in(meta_path: Path) -> str | None:
+    try:
+        meta = read_json(meta_path)
+    except PriqnError:
         return None
-    meta = read_json(meta_path)
-    if meta.get("status") != "running" or meta.get("pid") is None:
-        return None
-    pid, host = int(meta["pid"]), str(meta.get("host"))
-    if pid == os.getpid() and host == socket.gethostname():
-        return None
-    if host == socket.gethostname() and not _pid_alive(pid):
-        return None
-    return f"pid {pid} on host {host}"
-
-
-def run_status(run_dir: Path) -> str:
-    """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
-    meta = read_json(run_dir / "meta.json")
-    status = str(meta.get("status"))
-    if status == "running" and meta.get("pid") is not None and live_trainer(run_dir) is None:
-        return "interrupted"
-    return status
+    return meta.get("status") if isinstance(meta, dict) else None
 
 
 def _pid_alive(pid: int) -> bool:

@@ -43,10 +43,10 @@ from typing import Any
 
 from priqn import paths
 from priqn.agents.config import AGENT_SPECS
-from priqn.config import from_dict, load_toml, to_dict
+from priqn.config import config_differences, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, atomic_write_json
-from priqn.runs import run_status
+from priqn.runs import RunFolder
 
 DEFAULT_CELL_FN = "priqn.sweep:train_and_evaluate"
 """Import path of the function a cell's child process runs (tests substitute fast ones)."""
@@ -376,13 +376,6 @@ def expand(exp: Experiment) -> list[Cell]:
     return cells
 
 
-def _status(meta_path: Path) -> str | None:
-    try:
-        return json.loads(meta_path.read_text(encoding="utf-8")).get("status")
-    except (OSError, ValueError, AttributeError):
-        return None
-
-
 def cell_state(run_dir: Path) -> str:
     """``complete`` | ``trained`` (eval missing) | ``running`` | ``interrupted`` (its trainer
     died) | ``failed`` | ``new``.
@@ -390,11 +383,12 @@ def cell_state(run_dir: Path) -> str:
     Read from the run folder only: ``meta.json`` and ``eval/meta.json`` statuses.
     ``running`` may also be a run whose sweep was killed; the next sweep resumes it.
     """
-    run = _status(run_dir / "meta.json")
-    if run == "running" and run_status(run_dir) == "interrupted":
+    folder = RunFolder(run_dir)
+    run = folder.recorded_status()
+    if run == "running" and folder.status() == "interrupted":
         return "interrupted"  # its trainer died (kill -9, crash): the next sweep resumes it
     if run == "complete":
-        return "complete" if _status(run_dir / "eval" / "meta.json") == "complete" else "trained"
+        return "complete" if folder.recorded_eval_status() == "complete" else "trained"
     if run in ("running", "failed"):
         return run
     return "new"
@@ -409,10 +403,10 @@ def is_complete(run_dir: Path) -> bool:
 
 
 def build_train_config(cell: Cell) -> Any:
-    """The cell's resolved :class:`priqn.train.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
-    from priqn import train as train_mod
+    """The cell's resolved :class:`priqn.train_config.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
+    from priqn.train_config import resolve_config
 
-    return train_mod.resolve_config(
+    return resolve_config(
         preset=cell.preset,
         agent=cell.agent,
         seed=cell.seed,
@@ -438,7 +432,7 @@ def train_and_evaluate(cell: Cell) -> None:
     state = cell_state(cell.run_dir)
     if state not in ("complete", "trained"):
         cfg = build_train_config(cell)
-        has_checkpoint = (cell.run_dir / "checkpoints" / "latest.pt").is_file()
+        has_checkpoint = RunFolder(cell.run_dir).latest_checkpoint.is_file()
         if has_checkpoint:
             train(cfg, cell.run_dir, resume=True)
         else:
@@ -993,47 +987,31 @@ def run(args: argparse.Namespace) -> int:
     return 1 if result.failed else 0
 
 
-def _first_difference(recorded: Any, wanted: Any, prefix: str = "") -> str | None:
-    """``key: recorded != wanted`` for the first differing leaf of two nested dicts, else None."""
-    if isinstance(recorded, dict) and isinstance(wanted, dict):
-        for key in sorted(set(recorded) | set(wanted)):
-            diff = _first_difference(recorded.get(key), wanted.get(key), f"{prefix}{key}.")
-            if diff:
-                return diff
-        return None
-    if recorded != wanted:
-        return f"{prefix.rstrip('.')}: {recorded!r} != {wanted!r}"
-    return None
-
-
 def stale_cells(exp: Experiment) -> dict[str, str]:
     """Complete cells made with another TrainConfig / EvalConfig than the file gives now.
 
     They are kept (never re-run silently); the value says the first difference.
     ``device`` is ignored (a run may move between machines).
     """
-    from priqn.train import load_run_config
-
     out = {}
     for c in expand(exp):
         if not is_complete(c.run_dir):
             continue
         try:
-            recorded = to_dict(load_run_config(c.run_dir))
+            recorded = to_dict(RunFolder(c.run_dir).config())
         except PriqnError as exc:
             out[c.name] = str(exc)
             continue
         wanted = to_dict(build_train_config(c))
-        recorded.pop("device", None)
-        wanted.pop("device", None)
-        diff = _first_difference(recorded, wanted)
-        if diff is None:
-            eval_meta = json.loads((c.run_dir / "eval" / "meta.json").read_text(encoding="utf-8"))
-            diff = _first_difference(
-                eval_meta.get("eval_config"), to_dict(build_eval_config(c)), "evaluate."
-            )
+        diff = config_differences(recorded, wanted, ignore=("device",))
+        prefix = ""
+        if not diff:
+            recorded = RunFolder(c.run_dir).eval_meta().get("eval_config") or {}
+            diff = config_differences(recorded, to_dict(build_eval_config(c)))
+            prefix = "evaluate."
         if diff:
-            out[c.name] = diff
+            key, old, new = diff[0]
+            out[c.name] = f"{prefix}{key}: {old!r} != {new!r}"
     return out
 
 

@@ -326,7 +326,7 @@ def test_parameter_counts_in_the_docs():
     from pathlib import Path
 
     from priqn.bench.train import _obs_space
-    from priqn.train import build_network, resolve_config
+    from priqn.train_config import build_network, resolve_config
 
     doc = (Path(__file__).parents[1] / "docs" / "implementation-details.md").read_text()
     names = {"iqn": "IQN", "ensemble-iqn": "Ensemble-IQN", "ma-iqn": "MA-IQN", "pr-iqn": "Pr-IQN"}

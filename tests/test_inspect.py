@@ -73,9 +73,9 @@ def test_inspect_shows_the_evaluated_episode_and_its_subsets(evaluated_run, tmp_
         assert last[f"return_{o}"] == pytest.approx(scene[f"return_{o}"], abs=1e-5), o
     # The subsets the page shows are optimal_subsets of the saved quantiles.
     from priqn.preorder import Preorder, optimal_subsets
-    from priqn.train import load_run_config
+    from priqn.runs import RunFolder
 
-    cfg = load_run_config(evaluated_run).agent
+    cfg = RunFolder(evaluated_run).config().agent
     saved = np.load(out / "quantiles.npz")
     po = Preorder.resolve(cfg.preorder, OBJECTIVES)
     again = optimal_subsets(torch.from_numpy(saved["quantiles_THKA"]), po, cfg.comparator, cfg.eps)

@@ -182,7 +182,7 @@ PAPER_ROW_LABELS = [
 def test_table2_cells_train_the_papers_rows(tmp_path: Path) -> None:
     """Each row's resolved TrainConfig renders the Table II label, in the paper's order."""
     from priqn.sweep import build_train_config
-    from priqn.train import policy_labels
+    from priqn.train_config import policy_labels
 
     cells = expand(load_experiment(experiments_dir() / "table2.toml", runs_dir=tmp_path))
     labels = [policy_labels(build_train_config(c))["label"] for c in cells[::3]]

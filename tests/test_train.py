@@ -15,17 +15,15 @@ import numpy as np
 import pytest
 
 from priqn.errors import PriqnError
-from priqn.train import (
-    METRIC_COLUMNS,
+from priqn.runs import METRIC_COLUMNS, load_policy
+from priqn.train import linear_epsilon, train
+from priqn.train_config import (
     ExplorationConfig,
     TrainConfig,
     default_run_name,
     derive_seeds,
-    linear_epsilon,
-    load_policy,
     policy_labels,
     resolve_config,
-    train,
 )
 
 TINY = [
@@ -352,3 +350,25 @@ def test_one_writer_per_run_folder_and_a_killed_run_shows_interrupted(tmp_path):
     assert json.loads((run / "meta.json").read_text())["status"] == "running"  # never updated
     assert run_status(run) == "interrupted" and cell_state(run) == "interrupted"
     assert live_trainer(run) is None
+
+
+def test_force_over_a_read_only_run_is_one_line_and_deletes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from priqn.runs import RunFolder
+
+    run = tmp_path / "run"
+    (run / "eval").mkdir(parents=True)
+    (run / "meta.json").write_text('{"status": "complete"}')
+    (run / "eval" / "episodes.csv").write_text("kept\n")
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    # Root may delete anything, so the read-only folder is simulated where priqn asks.
+    real_access = os.access
+    monkeypatch.setattr(
+        os, "access", lambda p, mode: False if Path(p) == run / "eval" else real_access(p, mode)
+    )
+    with pytest.raises(PriqnError) as info:
+        RunFolder(run).remove()
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith(f"{run / 'eval'}: read-only") and "--force" in msg
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before

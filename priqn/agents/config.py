@@ -9,6 +9,10 @@ from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
+COMPARATORS: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd": "FSD"}
+"""Comparator name → display name (the functions: ``priqn.preorder.COMPARATORS``)."""
+PREORDER_PRESETS: tuple[str, ...] = ("total", "partial")
+"""Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,29 +147,42 @@ class LearnerConfig:
 
 @dataclasses.dataclass(frozen=True)
 class AgentSpec:
-    """The heads and the three rule names of one agent."""
+    """What one agent is: its heads, its three rule names and how tables name it."""
 
+    display_name: str
+    """Name in tables and labels (``IQN``, ``Pr-IQN``)."""
     num_heads: int
+    """Quantile heads of the network."""
     reward_rule: str
+    """How rewards reach the heads (``priqn.agents.rules``)."""
     acting_rule: str
+    """How an action is chosen from the heads."""
     target_rule: str
+    """Which next action each head bootstraps from."""
     own_taus: bool = False
     """Each head draws its own τ samples in the loss (Ensemble-IQN), not one shared set."""
 
     @property
     def uses_preorder(self) -> bool:
-        return "leaf-uniform" == self.acting_rule or "optimal-subset" == self.target_rule
+        """Acts on optimal subsets of a preorder (the Pr-IQN options apply)."""
+        return self.acting_rule == "leaf-uniform"
 
 
 AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
-    "iqn": lambda c: AgentSpec(1, "weighted-sum", "argmax", "own-argmax"),
+    "iqn": lambda c: AgentSpec("IQN", 1, "weighted-sum", "argmax", "own-argmax"),
     "ensemble-iqn": lambda c: AgentSpec(
-        c.ensemble_heads, "weighted-sum", "argmax-mean-of-heads", "own-argmax", own_taus=True
+        "Ensemble",
+        c.ensemble_heads,
+        "weighted-sum",
+        "argmax-mean-of-heads",
+        "own-argmax",
+        own_taus=True,
     ),
     "ma-iqn": lambda c: AgentSpec(
-        NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
+        "MA-IQN", NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
     ),
     "pr-iqn": lambda c: AgentSpec(
+        "Pr-IQN",
         NUM_OBJECTIVES,
         "per-objective",
         "leaf-uniform",
@@ -173,3 +190,9 @@ AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
     ),
 }
 """Agent name → its :class:`AgentSpec` given the config."""
+
+
+def agent_spec(name: str, cfg: AgentConfig | None = None) -> AgentSpec | None:
+    """The spec of agent ``name`` (under ``cfg``, else the defaults); None if unknown."""
+    make = AGENT_SPECS.get(name)
+    return None if make is None else make(cfg or AgentConfig(name=name))

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from priqn.agents.config import NetworkConfig
+from priqn.preorder import quantile_grid
 
 OBS_KEYS: tuple[str, ...] = ("bev", "lidar", "command", "kinematics")
 """Observation keys the encoder reads (the env's Dict space, ARCHITECTURE.md)."""
@@ -116,6 +117,5 @@ class QuantileNetwork(nn.Module):
         return self.quantiles(self.encode(obs), taus_BT)
 
 
-def tau_grid(num_quantiles: int, device: torch.device | str = "cpu") -> torch.Tensor:
-    """The fixed acting/subset grid τ_k = (k + 0.5) / K, k = 0..K-1, shape ``[K]``."""
-    return (torch.arange(num_quantiles, dtype=torch.float32, device=device) + 0.5) / num_quantiles
+tau_grid = quantile_grid
+"""The fixed acting/subset grid τ_k = (k + 0.5) / K (one grid: :func:`priqn.preorder.quantile_grid`)."""

@@ -17,13 +17,10 @@ from typing import Any
 import torch
 
 from priqn.agents import rules
-from priqn.agents.config import AGENT_SPECS, AgentConfig, AgentSpec
+from priqn.agents.config import AGENT_SPECS, COMPARATORS, AgentConfig, AgentSpec
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
-
-PREORDER_PRESETS: tuple[str, ...] = ("total", "partial")
-"""Named preorders of ``priqn.preorder.Preorder.preset``; anything else is a TOML path."""
 
 
 def load_preorder(spec: str) -> Any:
@@ -134,20 +131,15 @@ class Agent:
 
     @property
     def labels(self) -> dict[str, Any]:
-        """Table II columns: agent, comparator, train_preorder, eps, partial_order."""
-        pr = self.name == "pr-iqn"
-        return {
-            "agent": self.name,
-            "comparator": self.cfg.comparator if pr else "",
-            "train_preorder": self.cfg.train_preorder if pr else "",
-            "eps": self.cfg.eps if pr else "",
-            "partial_order": _is_partial(self.subsets.preorder) if pr else "",
-        }
+        """Table II columns and label of this agent (:class:`priqn.labels.PolicyLabel`)."""
+        from priqn.labels import PolicyLabel
 
+        return PolicyLabel.of_config(self.cfg, self.partial_order).to_row()
 
-def _is_partial(preorder: Any) -> bool:
-    """True unless the preorder is a chain over all objectives (a total order)."""
-    return not preorder.is_chain()
+    @property
+    def partial_order(self) -> bool | None:
+        """True unless the preorder is a chain over all objectives; None without a preorder."""
+        return None if self.subsets is None else not self.subsets.preorder.is_chain()
 
 
 def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> Agent:
@@ -158,9 +150,7 @@ def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> A
     cfg = dataclasses.replace(cfg or AgentConfig(), name=name, **overrides)
     spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg)
     subsets = None
-    if name == "pr-iqn":
-        from priqn.preorder import COMPARATORS
-
+    if spec.uses_preorder:
         if cfg.comparator not in COMPARATORS:  # checked here: a one-line error before training
             raise PriqnError(
                 f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATORS)})"

@@ -17,7 +17,8 @@ from typing import Any
 import pandas as pd
 
 from priqn.errors import PriqnError
-from priqn.evaluate import EPISODE_COLUMNS, EPISODES_FILE, EVAL_DIR, META_FILE
+from priqn.evaluate import EPISODE_COLUMNS
+from priqn.runs import RunFolder
 
 CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
 """Columns that define a policy configuration (one row of Table II)."""
@@ -69,13 +70,6 @@ class Evaluation:
     """The shared evaluation settings."""
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise PriqnError(f"{path}: unreadable JSON ({exc})") from exc
-
-
 def find_run_dirs(runs_dir: str | Path) -> list[Path]:
     """Run folders in ``runs_dir`` (a folder with ``config.toml`` or ``eval/``), sorted.
 
@@ -86,7 +80,7 @@ def find_run_dirs(runs_dir: str | Path) -> list[Path]:
         raise PriqnError(f"{root}: no such folder; expected a folder of runs (e.g. runs/)")
 
     def is_run(p: Path) -> bool:
-        return (p / "config.toml").is_file() or (p / EVAL_DIR).is_dir()
+        return RunFolder(p).is_run() or RunFolder(p).has_evaluation()
 
     if is_run(root):
         return [root]
@@ -103,8 +97,7 @@ def load_evaluation(runs_dir: str | Path) -> Evaluation:
         )
     unevaluated = []
     for run in run_dirs:
-        meta = run / EVAL_DIR / META_FILE
-        if not meta.is_file() or _read_json(meta).get("status") != "complete":
+        if RunFolder(run).recorded_eval_status() != "complete":
             unevaluated.append(run.name)
     if unevaluated:
         shown = ", ".join(unevaluated[:5]) + (" ..." if len(unevaluated) > 5 else "")
@@ -115,8 +108,9 @@ def load_evaluation(runs_dir: str | Path) -> Evaluation:
 
     frames, infos = [], []
     for run in run_dirs:
-        meta = _read_json(run / EVAL_DIR / META_FILE)
-        csv = run / EVAL_DIR / EPISODES_FILE
+        folder = RunFolder(run)
+        meta = folder.eval_meta()
+        csv = folder.eval_episodes_path
         try:
             frame = pd.read_csv(csv, keep_default_na=True)
         except (OSError, ValueError) as exc:
@@ -133,7 +127,7 @@ def load_evaluation(runs_dir: str | Path) -> Evaluation:
                 raise PriqnError(f"{csv}: column {column!r} is not constant within one run")
         holdout = str(meta.get("holdout_hash"))
         if str(frame["holdout_hash"].iloc[0]) != holdout:
-            raise PriqnError(f"{csv}: holdout_hash differs from {run / EVAL_DIR / META_FILE}")
+            raise PriqnError(f"{csv}: holdout_hash differs from {folder.eval_meta_path}")
         frame["run"] = run.name
         frames.append(frame[list(EPISODE_COLUMNS)])
         infos.append(
@@ -299,7 +293,7 @@ def load_learning_curves(
     for run in run_dirs:
         if run.name not in by_name:
             continue
-        path = run / "metrics.csv"
+        path = RunFolder(run).metrics_path
         if not path.is_file():
             notes.append(f"{run.name}: no metrics.csv, so no learning curve")
             continue

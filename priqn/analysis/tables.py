@@ -19,36 +19,20 @@ mostly penalties, i.e. negative).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from priqn.agents.config import AGENT_SPECS
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
+from priqn.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 
-AGENT_ORDER: tuple[str, ...] = ("iqn", "ensemble-iqn", "ma-iqn", "pr-iqn")
-"""Row order of agents (the paper's); unknown agents follow alphabetically."""
-AGENT_DISPLAY: dict[str, str] = {
-    "iqn": "IQN",
-    "ensemble-iqn": "Ensemble",
-    "ma-iqn": "MA-IQN",
-    "pr-iqn": "Pr-IQN",
-}
+AGENT_ORDER: tuple[str, ...] = tuple(AGENT_SPECS)
+"""Row order of agents (the paper's, as registered); unknown agents follow alphabetically."""
 COMPARATOR_ORDER: tuple[str, ...] = ("mv", "cvar", "qd", "fsd")
-COMPARATOR_DISPLAY: dict[str, str] = {
-    "qd": "QD",
-    "mv": "MV",
-    "cvar": "CVaR",
-    "fsd": "FSD",
-    "mean": "Mean",
-}
-PREORDER_AGENTS: frozenset[str] = frozenset({"pr-iqn"})
-"""Agents for which comparator / training preorder / eps / partial order apply."""
-
-DASH = "–"
-CHECK, CROSS = "✓", "✗"
+"""Row order of the Pr-IQN comparators (the paper's: MV, CVaR, QD; then ours)."""
 
 
 @dataclass(frozen=True)
@@ -103,14 +87,6 @@ CONFIG_HEADERS: tuple[str, ...] = (
 )
 
 
-def _flag(value: object) -> bool | None:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return None
-    if isinstance(value, str):
-        return value.strip().lower() in ("true", "1", "yes")
-    return bool(value)
-
-
 def policy_sort_key(key: tuple) -> tuple:
     """Sort key of a configuration ``(agent, comparator, train_preorder, eps, partial_order)``.
 
@@ -128,7 +104,15 @@ def policy_sort_key(key: tuple) -> tuple:
         e = -float(eps) if eps is not None else 0.0
     except (TypeError, ValueError):  # per-objective thresholds, e.g. "[0.2, 0.4]"
         e = 0.0
-    return (a, str(agent), c, str(comparator), bool(_flag(partial)), e, bool(_flag(train_preorder)))
+    return (
+        a,
+        str(agent),
+        c,
+        str(comparator),
+        bool(flag_value(partial)),
+        e,
+        bool(flag_value(train_preorder)),
+    )
 
 
 def policy_configs(episodes: pd.DataFrame) -> dict[str, tuple]:
@@ -149,29 +133,12 @@ def config_cells(key: tuple, label: str | None = None) -> list[str]:
     A label with words beyond the paper's columns (our rows: ``Pr-IQN QD ✓ 0.2 ✗ scaled``,
     ``IQN hln-4``) shows them beside the policy name, so such rows stay distinguishable.
     """
-    agent, comparator, train_preorder, eps, partial = key
-    policy = AGENT_DISPLAY.get(agent, str(agent))
-    if label is not None:
-        extra = label.split(" ")[5 if agent in PREORDER_AGENTS else 1 :]
-        if extra:
-            policy += f" ({' '.join(extra)})"
-    if agent not in PREORDER_AGENTS:
-        return [policy, DASH, DASH, DASH, DASH]
-
-    def tick(v: object) -> str:
-        flag = _flag(v)
-        return DASH if flag is None else (CHECK if flag else CROSS)
-
-    comp = DASH if comparator is None else COMPARATOR_DISPLAY.get(comparator, str(comparator))
-    eps_s = DASH if eps is None else _eps_text(eps)
-    return [policy, comp, tick(train_preorder), eps_s, tick(partial)]
-
-
-def _eps_text(eps: object) -> str:
-    try:
-        return f"{float(eps):g}"
-    except (TypeError, ValueError):
-        return str(eps).strip("[]()").replace(", ", "/").replace(",", "/")
+    row = dict(zip(CONFIG_COLUMNS, key, strict=True), label=label or "")
+    policy = PolicyLabel.from_row(row)
+    cells = policy.cells()
+    if policy.extra:
+        cells[0] += f" ({' '.join(policy.extra)})"
+    return cells
 
 
 def unit_values(episodes: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:

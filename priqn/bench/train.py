@@ -82,12 +82,12 @@ def _synthetic_batch(space: Any, batch: int, rng: np.random.Generator) -> dict[s
 def _make_learner(preset: str, agent_name: str, batch_size: int, device: str) -> tuple[Any, Any]:
     from priqn.agents.learner import Learner
     from priqn.agents.registry import make_agent
-    from priqn.train import _select_device, build_network, resolve_config
+    from priqn.train_config import build_network, resolve_config, select_device
 
     cfg = resolve_config(preset=preset, agent=agent_name)
     cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, batch_size=batch_size))
     space, num_actions = _obs_space(cfg)
-    dev = _select_device(device)
+    dev = select_device(device)
     net = build_network(cfg, space, num_actions, seed=0)
     learner = Learner(net, make_agent(agent_name, cfg.agent_config), cfg.learner, dev, tau_seed=0)
     rng = np.random.default_rng(0)
@@ -160,8 +160,9 @@ def loop_throughput(
     update at all: the env-only throughput the end-to-end figure is compared with.
     ``overlap=False`` is the serial loop (update after the env step), the baseline.
     """
-    from priqn.io import read_json
-    from priqn.train import resolve_config, train
+    from priqn.runs import RunFolder
+    from priqn.train import train
+    from priqn.train_config import resolve_config
 
     starts = min(500, steps // 4) if learning else steps + 1
     cfg = resolve_config(
@@ -181,7 +182,7 @@ def loop_throughput(
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
         with contextlib.redirect_stdout(io.StringIO()):  # the loop's progress lines
             run_dir = train(cfg, Path(tmp) / "run")
-        meta = read_json(run_dir / "meta.json")
+        meta = RunFolder(run_dir).meta()
     wall = float(meta["wall_s"])
     return {
         "agent": agent_name,

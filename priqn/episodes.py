@@ -1,0 +1,60 @@
+"""The one reader of an ended episode's info (gymnasium's SAME_STEP ``final_info``).
+
+Training (metrics.csv), in-training evaluation and ``priqn evaluate`` (episodes.csv)
+all summarise an episode through :func:`final_info` and :func:`episode_values`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from priqn.objectives import OBJECTIVES
+
+
+def final_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
+    """The terminal info of env ``i`` from a SAME_STEP vector-env info dict."""
+    final = infos.get("final_info")
+    if final is None:
+        raise RuntimeError("episode ended without 'final_info' in the vector-env infos")
+    row = {}
+    for key, value in final.items():
+        if key.startswith("_"):
+            continue
+        mask = final.get(f"_{key}")
+        if mask is not None and not bool(mask[i]):
+            continue
+        row[key] = value[i]
+    return row
+
+
+def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
+    """An ended episode's outcome from its final info: flags, progress, realised density,
+    length (``steps``), ``return_<objective>`` and the route command (if given)."""
+    missing = [
+        k
+        for k in ("success", "collision", "off_road", "timeout", "route_progress", "returns")
+        if k not in info
+    ]
+    if missing:
+        raise RuntimeError(f"environment info lacks {missing} (see docs/ARCHITECTURE.md, info)")
+    returns = np.asarray(info["returns"], dtype=np.float64).reshape(-1)
+    if returns.shape != (len(OBJECTIVES),):
+        raise RuntimeError(
+            f"info['returns'] has shape {returns.shape}, expected ({len(OBJECTIVES)},)"
+        )
+    values = {
+        "success": bool(info["success"]),
+        "collision": bool(info["collision"]),
+        "off_road": bool(info["off_road"]),
+        "timeout": bool(info["timeout"]),
+        "route_progress": float(info["route_progress"]),
+        "density_realised": float(info.get("density_realised", np.nan)),
+        "steps": int(info.get("episode_steps", -1)),
+    }
+    values.update({f"return_{name}": float(v) for name, v in zip(OBJECTIVES, returns, strict=True)})
+    if "command" in info and info["command"] is not None:
+        values["command"] = str(info["command"])
+    return values

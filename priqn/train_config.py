@@ -1,0 +1,336 @@
+"""What a training run is: :class:`TrainConfig`, presets, and what follows from a config.
+
+``resolve_config`` layers a preset TOML (``priqn/presets/train_<name>.toml``), a config
+file, the ``priqn train`` flags and ``--set`` overrides into one :class:`TrainConfig`;
+``derive_seeds`` gives every child seed; ``default_run_name`` and ``policy_labels``
+name the run; ``build_network`` builds its network. Torch is imported only by the
+functions that build something.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.agents.config import AGENT_SPECS, AgentConfig, LearnerConfig, NetworkConfig, agent_spec
+from priqn.agents.scalarise import crash_margin, scheme_weights
+from priqn.config import apply_overrides, from_dict, load_toml, to_dict
+from priqn.env.intersection import EnvConfig
+from priqn.errors import PriqnError
+
+PRESETS_DIR = Path(__file__).resolve().parent / "presets"
+PRESETS: tuple[str, ...] = ("default", "paper")
+"""Training presets: ``priqn/presets/train_<name>.toml``."""
+NETS: tuple[str, ...] = ("tjunction", "fourway", "all")
+"""Training pools ``--net`` accepts (EnvConfig.family)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayConfig:
+    """Replay buffer and update ratio."""
+
+    capacity: int = 50_000
+    """Transitions kept (all workers together); frames are stored once, as uint8."""
+    learning_starts: int = 2_000
+    """Env decisions collected before the first update."""
+    decisions_per_update: int = 4
+    """Env decisions (summed over workers) per gradient update."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ExplorationConfig:
+    """ε-greedy schedule over env decisions: linear from ε_start to ε_end, then flat."""
+
+    eps_start: float = 1.0
+    """ε at decision 0 (probability of a uniformly random action)."""
+    eps_end: float = 0.05
+    """ε after the decay."""
+    decay_fraction: float = 0.3
+    """Fraction of total_steps over which ε decays linearly."""
+
+    def __post_init__(self) -> None:
+        for name in ("eps_start", "eps_end", "decay_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name}: expected a number in [0, 1]")
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalDuringTrainingConfig:
+    """Greedy evaluation episodes on hold-out nets while training."""
+
+    interval_steps: int = 10_000
+    """Env decisions between evaluations (0 = never)."""
+    episodes: int = 6
+    """Episodes per evaluation."""
+    family: str = "holdout"
+    """Scenario family the evaluation episodes are drawn from."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckpointConfig:
+    """Checkpoints (written atomically; the newest one is all a resume needs)."""
+
+    interval_steps: int = 10_000
+    """Env decisions between checkpoints (one more is written at the end)."""
+    save_replay: bool = True
+    """Save the replay buffer with each checkpoint. A resume then restores the networks,
+    Adam, the replay buffer, the τ / replay / exploration generators and the step count;
+    it does not restore the episodes in flight (they end as truncated) nor the env
+    workers' generators (reseeded from the env seed and the session number), so the
+    episodes after a resume differ from an uninterrupted run's. Without the buffer the
+    resume refills it before learning again. meta.json lists every session and the step
+    it resumed from."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """One training run (``priqn train --list-options`` prints every key)."""
+
+    seed: int = 0
+    """Master seed; every child seed (env workers, torch init, τ, replay, exploration) derives from it."""
+    total_steps: int = 100_000
+    """Training budget in env decisions, summed over workers."""
+    num_envs: int = 2
+    """Env worker processes (each runs one SUMO)."""
+    device: str = "auto"
+    """Torch device: auto (CUDA when present), cpu or cuda."""
+    torch_threads: int = 1
+    """CPU threads for torch in the learner process (0 = torch's default). On a small CPU the
+    env workers need the other cores: oversubscribed torch threads slow everything down."""
+    overlap_updates: bool = True
+    """Run the learner's updates while the env workers simulate (step_async → update →
+    step_wait). False: the serial order act → step → store → update (a step's batch may
+    then include that step's transitions); kept to measure the gain in priqn bench train."""
+    log_interval_steps: int = 1_000
+    """Env decisions between TensorBoard scalars / metrics.csv flushes."""
+    env: EnvConfig = dataclasses.field(default_factory=lambda: EnvConfig(obs_size_px=64))
+    """The environment (family = --net, obs_size_px, densities, ...)."""
+    agent: AgentConfig = dataclasses.field(default_factory=AgentConfig)
+    """Agent and its Pr-IQN options."""
+    network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
+    """Encoder and head sizes."""
+    learner: LearnerConfig = dataclasses.field(default_factory=LearnerConfig)
+    """IQN hyper-parameters."""
+    replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
+    """Replay buffer."""
+    exploration: ExplorationConfig = dataclasses.field(default_factory=ExplorationConfig)
+    """ε-greedy schedule."""
+    evaluation: EvalDuringTrainingConfig = dataclasses.field(
+        default_factory=EvalDuringTrainingConfig
+    )
+    """Periodic hold-out evaluation."""
+    checkpoint: CheckpointConfig = dataclasses.field(default_factory=CheckpointConfig)
+    """Checkpointing."""
+
+    def __post_init__(self) -> None:
+        if self.total_steps < 1 or self.num_envs < 1:
+            raise ValueError("total_steps and num_envs: expected positive integers")
+        if self.device not in ("auto", "cpu", "cuda") and not self.device.startswith("cuda:"):
+            raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
+        if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
+            raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
+        spec = AGENT_SPECS.get(self.agent.name)  # unknown names: one line in _validate_names
+        scalar_heads = spec is not None and spec(self.agent).reward_rule == "weighted-sum"
+        if scalar_heads and len(set(self.learner.gamma_5)) > 1:
+            raise ValueError(
+                f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
+                "so it needs one discount (per-objective values are for ma-iqn and pr-iqn)"
+            )
+
+    @property
+    def safety_penalty(self) -> float:
+        """The smaller one-off safety penalty (collision or off-road) [-]."""
+        return min(self.env.reward.collision_penalty, self.env.reward.off_road_penalty)
+
+    @property
+    def reward_weights(self) -> tuple[float, ...]:
+        """The weighted-sum weights this run uses: ``agent.reward_weights`` when given, else
+        ``agent.reward_scheme`` resolved for this run's episode length, γ and safety penalty."""
+        if self.agent.reward_weights is not None:
+            return tuple(self.agent.reward_weights)
+        return scheme_weights(
+            self.agent.reward_scheme,
+            self.safety_penalty,
+            self.env.max_episode_steps,
+            max(self.learner.gamma_5),  # the longest horizon: the margin holds for all
+        )
+
+    @property
+    def agent_config(self) -> AgentConfig:
+        """``agent`` with its weights resolved (what every agent of this run is built from)."""
+        return dataclasses.replace(self.agent, reward_weights=self.reward_weights)
+
+    @property
+    def crash_margin(self) -> float:
+        """Safety event cost over the worst accumulable lower-level penalty (> 1: crashing never pays)."""
+        return crash_margin(
+            self.reward_weights,
+            self.safety_penalty,
+            self.env.max_episode_steps,
+            self.learner.gamma_5,
+        )
+
+
+def _deep_merge(base: dict[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in extra.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def resolve_config(
+    preset: str = "default",
+    agent: str | None = None,
+    seed: int | None = None,
+    net: str | None = None,
+    steps: int | None = None,
+    overrides: Sequence[str] = (),
+    where: str = "--set",
+    config_file: str | Path | None = None,
+    num_envs: int | None = None,
+    device: str | None = None,
+) -> TrainConfig:
+    """Preset TOML, then ``config_file``, then the flags, then ``--set`` overrides."""
+    if preset not in PRESETS:
+        raise PriqnError(f"--preset: unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
+    preset_path = PRESETS_DIR / f"train_{preset}.toml"
+    data = to_dict(TrainConfig())
+    data = _deep_merge(data, load_toml(preset_path))
+    from_dict(TrainConfig, data, where=str(preset_path))  # name the preset in its errors
+    if config_file is not None:
+        data = _deep_merge(data, load_toml(config_file))
+        from_dict(TrainConfig, data, where=str(config_file))
+    flags: dict[str, Any] = {}
+    if net is not None:
+        if net not in NETS:
+            raise PriqnError(f"--net: unknown net {net!r} (valid: {', '.join(NETS)})")
+        data["env"]["family"] = net
+    for key, value in (("seed", seed), ("total_steps", steps), ("num_envs", num_envs)):
+        if value is not None:
+            flags[key] = value
+    if device is not None:
+        flags["device"] = device
+    data.update(flags)
+    if agent is not None:
+        data["agent"]["name"] = agent
+    cfg = from_dict(TrainConfig, data, where="priqn train flags")
+    cfg = apply_overrides(cfg, list(overrides), where=where)
+    _validate_names(cfg)
+    preorder = Path(cfg.agent.preorder)
+    if cfg.agent.preorder not in ("total", "partial") and preorder.is_file():
+        # a preorder TOML is recorded by absolute path, so load_policy works from any cwd
+        agent = dataclasses.replace(cfg.agent, preorder=str(preorder.resolve()))
+        cfg = dataclasses.replace(cfg, agent=agent)
+    return cfg
+
+
+def _validate_names(cfg: TrainConfig) -> None:
+    """Unknown agent / comparator / preorder → one line before anything starts."""
+    from priqn.agents.registry import make_agent
+
+    make_agent(cfg.agent.name, cfg.agent_config)
+
+
+def derive_seeds(seed: int) -> dict[str, int]:
+    """Every child seed of a run, from ``SeedSequence(seed)`` (recorded in meta.json)."""
+    names = ("env", "eval_env", "torch_init", "tau", "replay", "explore")
+    children = np.random.SeedSequence(seed).spawn(len(names))
+    return {
+        n: int(c.generate_state(1, dtype=np.uint32)[0])
+        for n, c in zip(names, children, strict=True)
+    }
+
+
+def policy_labels(cfg: TrainConfig) -> dict[str, Any]:
+    """Table II labels of a run (:class:`priqn.labels.PolicyLabel` row) plus ``train_seed``."""
+    from priqn.agents.registry import make_agent
+
+    labels = make_agent(cfg.agent.name, cfg.agent_config).labels
+    labels["train_seed"] = cfg.seed
+    return labels
+
+
+def pool_families(family: str) -> list[str]:
+    """The scenario families of a training pool (``all`` = both)."""
+    return ["tjunction", "fourway"] if family == "all" else [family]
+
+
+def default_run_name(cfg: TrainConfig) -> str:
+    """``<net>_<agent>[_<comparator>_eps<eps>[_notrain][_partial]]_s<seed>``."""
+    parts = [cfg.env.family, cfg.agent.name]
+    spec = agent_spec(cfg.agent.name, cfg.agent)
+    if spec is not None and spec.uses_preorder:
+        eps = cfg.agent.eps
+        parts.append(cfg.agent.comparator)
+        parts.append("eps" + (f"{eps:g}" if isinstance(eps, float) else "custom"))
+        if not cfg.agent.train_preorder:
+            parts.append("notrain")
+        if cfg.agent.preorder != "total":
+            parts.append(Path(cfg.agent.preorder).stem)
+        if cfg.agent.normalisation != "zscore":
+            parts.append(cfg.agent.normalisation)
+    parts.append(f"s{cfg.seed}")
+    return "_".join(parts)
+
+
+def select_device(name: str) -> Any:
+    import torch
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise PriqnError(f"device: {name!r} requested but CUDA is not available here")
+    return torch.device(name)
+
+
+def obs_spec(space: Any) -> dict[str, tuple[tuple[int, ...], Any]]:
+    from priqn.agents.network import OBS_KEYS
+
+    missing = [k for k in OBS_KEYS if k not in space.spaces]
+    if missing:
+        raise PriqnError(f"observation space lacks {missing} (ARCHITECTURE.md Environment)")
+    return {k: (tuple(space[k].shape), space[k].dtype) for k in OBS_KEYS}
+
+
+def obs_scales(space: Any) -> dict[str, float]:
+    """1 / the Box's ``high`` of each uint8 grid, so the network sees [0, 1]."""
+    return {k: 1.0 / max(1.0, float(np.max(space[k].high))) for k in ("bev", "lidar")}
+
+
+def build_network(cfg: TrainConfig, obs_space: Any, num_actions: int, seed: int) -> Any:
+    """The run's QuantileNetwork, initialised from ``seed`` (global torch RNG untouched)."""
+    import torch
+
+    from priqn.agents.network import QuantileNetwork
+    from priqn.agents.registry import make_agent
+
+    heads = make_agent(cfg.agent.name, cfg.agent_config).num_heads
+    spec = obs_spec(obs_space)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return QuantileNetwork(
+            {k: s for k, (s, _) in spec.items()},
+            obs_scales(obs_space),
+            num_actions,
+            heads,
+            cfg.network,
+        )
+
+
+def observation_space(shapes: Mapping[str, Any]) -> Any:
+    """The observation space a checkpoint was trained on (its ``obs_shapes``)."""
+    import gymnasium
+
+    spaces = {}
+    for k, (shape, dtype, high) in shapes.items():
+        spaces[k] = gymnasium.spaces.Box(
+            low=0 if dtype == "uint8" else -np.inf, high=high, shape=tuple(shape), dtype=dtype
+        )
+    return gymnasium.spaces.Dict(spaces)
