@@ -11,6 +11,7 @@ A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds
     policy.pt              final online weights of a complete run (what results keep)
     eval/episodes.csv      hold-out evaluation, one row per episode (+ eval/meta.json,
     eval/cells/            finished evaluation cells, kept for a resumed evaluation)
+    nets.json              your own nets (env.nets) with their SHA-256, when the run used them
 
 Every command reads and writes these through :class:`RunFolder`, so no other module
 spells a file name. A run folder has one writer: ``meta.json`` records the trainer's
@@ -85,6 +86,7 @@ class RunFolder:
     EVAL = "eval"
     EVAL_EPISODES = "episodes.csv"
     EVAL_CELLS = "cells"
+    NETS_MANIFEST = "nets.json"
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
@@ -136,6 +138,11 @@ class RunFolder:
     @property
     def policy_path(self) -> Path:
         return self.path / self.POLICY
+
+    @property
+    def nets_manifest_path(self) -> Path:
+        """nets.json: the run's own nets (``env.nets``) with their SHA-256."""
+        return self.path / self.NETS_MANIFEST
 
     @property
     def eval_dir(self) -> Path:
@@ -232,8 +239,13 @@ class RunFolder:
             pool_families,
         )
 
-        families = sorted(set(pool_families(cfg.env.family)) | {cfg.evaluation.family})
-        hashes = manifest_hashes(families, cfg.env.nets_dir)
+        pool = set() if cfg.env.nets else set(pool_families(cfg.env.family))
+        hashes = manifest_hashes(sorted(pool | {cfg.evaluation.family}), cfg.env.nets_dir)
+        own_nets = own_nets_manifest(cfg.env.nets, cfg.env.junction) if cfg.env.nets else None
+        if own_nets is not None:
+            from priqn.sim.scenario import hash_of_manifest
+
+            hashes["own"] = hash_of_manifest(own_nets)
         labels = policy_labels(cfg)
         owner = self.live_trainer()
         if owner is not None and (resume or force):
@@ -274,6 +286,8 @@ class RunFolder:
         except OSError as exc:
             raise PriqnError(f"{self.path}: cannot create the run folder ({exc.strerror})") from exc
         atomic_write_text(self.config_path, dumps_toml(to_dict(cfg)))
+        if own_nets is not None:
+            atomic_write_json(self.nets_manifest_path, own_nets)
         meta.update(
             {
                 "run": self.path.name,
@@ -481,6 +495,26 @@ def versions() -> dict[str, str]:
     except Exception as exc:  # noqa: BLE001 - recorded, never fatal
         out["sumo"] = f"unknown ({type(exc).__name__})"
     return out
+
+
+def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
+    """A manifest of ``env.nets`` as the generated families have one: id, path, SHA-256."""
+    import hashlib
+
+    from priqn.env.scenes import own_net_files
+
+    return {
+        "family": "own",
+        "junction": junction,
+        "nets": [
+            {
+                "id": ref,
+                "path": str(path.resolve()),
+                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+            }
+            for ref, path in own_net_files(nets).items()
+        ],
+    }
 
 
 def manifest_hashes(families: Sequence[str], nets_dir: str) -> dict[str, str]:

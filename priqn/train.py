@@ -438,7 +438,12 @@ def _evaluate(
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``priqn train`` (every config key is also reachable with --set)."""
-    parser.add_argument("--net", choices=NETS, help="training pool (env.family; default tjunction)")
+    parser.add_argument(
+        "--net",
+        metavar="POOL|FILE|DIR",
+        help=f"training pool ({', '.join(NETS)}; default tjunction), or your own .net.xml "
+        "file or folder of them (docs/your-own-net.md)",
+    )
     parser.add_argument("--agent", help="iqn | ensemble-iqn | ma-iqn | pr-iqn (default pr-iqn)")
     parser.add_argument("--seed", type=int, help="master seed (default 0)")
     parser.add_argument(

@@ -209,9 +209,17 @@ def resolve_config(
         from_dict(TrainConfig, data, where=str(config_file))
     flags: dict[str, Any] = {}
     if net is not None:
-        if net not in NETS:
-            raise PriqnError(f"--net: unknown net {net!r} (valid: {', '.join(NETS)})")
-        data["env"]["family"] = net
+        if net in NETS:
+            data["env"]["family"] = net
+        elif net.endswith(".net.xml") or Path(net).is_dir():
+            if not Path(net).exists():
+                raise PriqnError(f"--net: {net}: no such file or folder")
+            data["env"]["nets"] = [net]  # your own net(s): docs/your-own-net.md
+        else:
+            raise PriqnError(
+                f"--net: unknown net {net!r} (valid: {', '.join(NETS)}, a .net.xml file or a "
+                "folder of them)"
+            )
     for key, value in (("seed", seed), ("total_steps", steps), ("num_envs", num_envs)):
         if value is not None:
             flags[key] = value
@@ -223,6 +231,9 @@ def resolve_config(
     cfg = from_dict(TrainConfig, data, where="priqn train flags")
     cfg = apply_overrides(cfg, list(overrides), where=where)
     _validate_names(cfg)
+    if cfg.env.nets:  # recorded by absolute path, so a run folder works from any cwd
+        nets = tuple(str(Path(n).resolve()) for n in cfg.env.nets)
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, nets=nets))
     preorder = Path(cfg.agent.preorder)
     if cfg.agent.preorder not in ("total", "partial") and preorder.is_file():
         # a preorder TOML is recorded by absolute path, so load_policy works from any cwd
@@ -264,7 +275,10 @@ def pool_families(family: str) -> list[str]:
 
 def default_run_name(cfg: TrainConfig) -> str:
     """``<net>_<agent>[_<comparator>_eps<eps>[_notrain][_partial]]_s<seed>``."""
-    parts = [cfg.env.family, cfg.agent.name]
+    pool = cfg.env.family
+    if cfg.env.nets:  # own nets: named after the first one
+        pool = Path(cfg.env.nets[0]).name.removesuffix(".net.xml")
+    parts = [pool, cfg.agent.name]
     spec = agent_spec(cfg.agent.name, cfg.agent)
     if spec is not None and spec.uses_preorder:
         eps = cfg.agent.eps

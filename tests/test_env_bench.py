@@ -40,3 +40,40 @@ def test_bench_env_rejects_bad_densities() -> None:
     assert proc.stderr.strip() == (
         "priqn: error: --densities 'half': expected numbers like 0.5,0.75,1.0"
     )
+
+
+def test_vs_highway_measures_both_in_one_command(tmp_path: Path) -> None:
+    import pytest
+
+    pytest.importorskip("highway_env", reason="optional: pip install 'priqn[bench]'")
+    out = tmp_path / "bench.json"
+    cmd = [sys.executable, "-m", "priqn.cli", "bench", "env", "--family", "tjunction",
+           "--densities", "0.5", "--decisions", "10", "--max-workers", "0", "--obs-size", "32",
+           "--repeats", "1", "--vs", "highway", "--json", str(out)]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    for env_id in ("intersection-v0", "intersection-v2"):
+        hw = data["highway"][env_id]
+        assert hw["decisions"] == 10 and hw["decisions_per_s"] > 0 and hw["decision_s"] == 1.0
+        assert env_id in proc.stdout
+    assert "priqn density 0.5" in proc.stdout
+
+
+def test_vs_highway_without_highway_env_is_one_line(monkeypatch) -> None:
+    import argparse
+    import importlib.util
+
+    import pytest
+
+    from priqn.bench import env as bench_env
+    from priqn.errors import PriqnError
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "highway_env" else real(name, *a),
+    )
+    with pytest.raises(PriqnError, match=r"--vs highway: HighwayEnv is not installed; pip install"):
+        bench_env._versus_highway({}, [], argparse.Namespace(decisions=10, seed=0))

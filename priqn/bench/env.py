@@ -53,6 +53,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of scenes and policy")
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    parser.add_argument(
+        "--vs",
+        choices=("highway",),
+        default=None,
+        help="also measure HighwayEnv intersection-v0 and -v2 in the same command "
+        "(pip install 'priqn[bench]'; the ratio is priqn's decisions/s over theirs)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -122,11 +129,88 @@ def run(args: argparse.Namespace) -> int:
         one = one or vec["decisions_per_s"]
         results["vector"][str(n)] = vec
         print(f"{n:>7d} {vec['decisions_per_s']:>9.1f} {vec['decisions_per_s'] / one:>8.2f}x")
+    if args.vs == "highway":
+        results["highway"] = _versus_highway(results, densities, args)
     if args.json is not None:
         from priqn.io import atomic_write_json
 
         atomic_write_json(args.json, results)
     return 0
+
+
+HIGHWAY_ENVS: tuple[str, ...] = ("intersection-v0", "intersection-v2")
+"""HighwayEnv's intersection tasks measured by ``--vs highway`` (v2 is its newest)."""
+
+
+def _versus_highway(
+    results: dict[str, Any], densities: list[float], args: argparse.Namespace
+) -> dict[str, Any]:
+    """HighwayEnv beside priqn: decisions/s (incl. resets) and simulated seconds per second."""
+    import importlib.util
+
+    from priqn.errors import PriqnError
+
+    if importlib.util.find_spec("highway_env") is None:
+        raise PriqnError(
+            "--vs highway: HighwayEnv is not installed; pip install 'priqn[bench]' (highway-env)"
+        )
+    out: dict[str, Any] = {}
+    ours = {d: _with_resets(results["density"][str(d)]["env"]) for d in densities}
+    decision_s = 0.5  # priqn's decision interval (EnvConfig.decision_interval_s)
+    print(
+        f"\n{'env':>24} {'dec/s incl. resets':>18} {'sim s / wall s':>14} "
+        + " ".join(f"{'priqn d=' + format(d, 'g'):>11}" for d in densities)
+        + "   (ratio: priqn decisions/s over theirs, resets included)"
+    )
+    for env_id in HIGHWAY_ENVS:
+        res = _child(
+            {"mode": "highway", "env_id": env_id, "decisions": args.decisions, "seed": args.seed}
+        )
+        out[env_id] = res
+        ratios = " ".join(f"{ours[d] / res['decisions_per_s']:>10.1f}x" for d in densities)
+        print(
+            f"{env_id:>24} {res['decisions_per_s']:>18.1f} "
+            f"{res['decisions_per_s'] * res['decision_s']:>14.1f} {ratios}"
+        )
+    for d in densities:
+        print(
+            f"{'priqn density ' + format(d, 'g'):>24} {ours[d]:>18.1f} {ours[d] * decision_s:>14.1f}"
+        )
+    return out
+
+
+def _with_resets(env: dict[str, Any]) -> float:
+    """priqn's decisions/s with every episode's reset counted (as HighwayEnv's is)."""
+    ms = env["decisions"] * env["step_ms"] + len(env["episodes"]) * env["reset_ms"]
+    return 1e3 * env["decisions"] / ms
+
+
+def _measure_highway(spec: dict[str, Any]) -> dict[str, Any]:
+    """HighwayEnv ``env_id`` with random actions, resets included (child process)."""
+    import gymnasium
+    import highway_env  # noqa: F401 - registers the envs
+
+    env = gymnasium.make(spec["env_id"])
+    cfg = env.unwrapped.config
+    env.reset(seed=spec["seed"])
+    env.action_space.seed(spec["seed"])
+    done, episodes = 0, 0
+    t0 = time.perf_counter()
+    while done < spec["decisions"]:
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        done += 1
+        if term or trunc:
+            episodes += 1
+            env.reset()
+    wall = time.perf_counter() - t0
+    env.close()
+    return {
+        "decisions": done,
+        "episodes": episodes,
+        "decisions_per_s": done / wall,
+        "decision_s": 1.0 / float(cfg["policy_frequency"]),
+        "observation": str(cfg["observation"]["type"]),
+    }
 
 
 def _child(spec: dict[str, Any]) -> dict[str, Any]:
@@ -157,10 +241,12 @@ def _scenes(env: Any, seed: int, density: float) -> Any:
 
 def measure(spec: dict[str, Any]) -> dict[str, Any]:
     """One measurement (runs in the child process); see the module docstring."""
+    mode = spec["mode"]
+    if mode == "highway":
+        return _measure_highway(spec)
     from priqn.env.intersection import EnvConfig, IntersectionEnv
 
     cfg = EnvConfig(family=spec["family"], obs_size_px=spec["obs_size_px"])
-    mode = spec["mode"]
     if mode == "vector":
         return _measure_vector(cfg, spec)
     env = IntersectionEnv(cfg)

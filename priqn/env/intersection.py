@@ -63,7 +63,11 @@ class EnvConfig:
     family: str = "tjunction"
     """Net pool: 'tjunction', 'fourway', 'all' (both training pools) or 'holdout'."""
     nets_dir: str = ""
-    """Folder holding ``<family>/manifest.json`` and the nets ('' = the repository's sumo_nets/)."""
+    """Folder holding ``<family>/manifest.json`` and the nets ('' = ./sumo_nets if it has the family, else the nets shipped with priqn)."""
+    nets: tuple[str, ...] = ()
+    """Your own nets: ``.net.xml`` files and/or folders of them, no manifest needed (docs/your-own-net.md). When given, reset draws from these and ``family`` / ``nets_dir`` are not used."""
+    junction: str = ""
+    """With ``nets``: the id of the junction to drive through ('' = each net's junction with the most approaches)."""
     obs_size_px: int = 128
     """Side of the square BEV and LiDAR grids [px] (the paper uses 128)."""
     render_size_px: int = 0
@@ -365,7 +369,11 @@ class IntersectionEnv(gymnasium.Env):
             extend_s=max(0, cfg.substeps + n_look - n_plan) * cfg.sim_step_s,
         )
         self._scenes = ScenePool(
-            cfg.family, cfg.nets_dir, marking_width_m=max(0.5, self._sensors.cfg.metres_per_px)
+            cfg.family,
+            cfg.nets_dir,
+            marking_width_m=max(0.5, self._sensors.cfg.metres_per_px),
+            nets=cfg.nets,
+            junction=cfg.junction,
         )
         self._session = SumoSession(cfg.sim_step_s, cfg.lateral_resolution_m)
         self._episode: _Episode | None = None

@@ -1,7 +1,8 @@
 """The env's pool of nets and what it keeps per net: road map, rasters, routes, obstacle sites.
 
 A :class:`ScenePool` knows which nets ``reset`` may draw (the families of
-``EnvConfig.family`` under ``EnvConfig.nets_dir`` or the repository's ``sumo_nets/``)
+``EnvConfig.family`` under ``EnvConfig.nets_dir``, ``./sumo_nets/`` or the shipped nets;
+or your own ``.net.xml`` files, ``EnvConfig.nets``)
 and builds a :class:`Scene` per net the first time it is used, then keeps it: parsing
 a net and rasterising its road takes 0.1-0.3 s, a reset afterwards only milliseconds.
 A scene also caches, per ego route, the cells of that route's bit
@@ -117,16 +118,29 @@ class ScenePool:
     """The nets of a pool and their :class:`Scene` cache.
 
     ``family``: a key of :data:`FAMILIES`; ``nets_dir``: folder holding
-    ``<family>/manifest.json`` and the nets ('' = the repository's ``sumo_nets/``);
-    ``marking_width_m``: width the lane markings are rasterised with.
+    ``<family>/manifest.json`` and the nets ('' = ``./sumo_nets/`` or the shipped nets);
+    ``marking_width_m``: width the lane markings are rasterised with. ``nets``: your own
+    ``.net.xml`` files or folders of them instead of a family (no manifest needed), each
+    driven through ``junction`` (an id; '' = its junction with the most approaches).
     """
 
-    def __init__(self, family: str, nets_dir: str, marking_width_m: float) -> None:
+    def __init__(
+        self,
+        family: str,
+        nets_dir: str,
+        marking_width_m: float,
+        nets: Sequence[str] = (),
+        junction: str = "",
+    ) -> None:
         self.root: Path | None = Path(nets_dir) if nets_dir else None
-        """The nets folder given (None = the repository's)."""
+        """The nets folder given (None = ./sumo_nets or the shipped nets)."""
         self.marking_width_m = marking_width_m
-        self.refs: tuple[str, ...] = tuple(_pool_refs(FAMILIES[family], self.root))
-        """The nets ``reset`` draws from, ``"family/net_id"``, in manifest order."""
+        self.junction = junction or None
+        self._own: dict[str, Path] = own_net_files(nets) if nets else {}
+        self.refs: tuple[str, ...] = (
+            tuple(self._own) if nets else tuple(_pool_refs(FAMILIES[family], self.root))
+        )
+        """The nets ``reset`` draws from, ``"family/net_id"`` (own nets: ``"<folder>/<stem>"``)."""
         self._scenes: dict[str, Scene] = {}
 
     def __len__(self) -> int:
@@ -136,6 +150,10 @@ class ScenePool:
         """The ``.net.xml`` of ``"family/net_id"``; a one-line error if there is none."""
         from priqn.sim.scenario import net_path
 
+        if self._own:
+            if net not in self._own:
+                raise PriqnError(f"net {net!r}: not one of env.nets ({', '.join(self.refs)})")
+            return self._own[net]
         if self.root is None:
             return net_path(net)
         parts = Path(net).parts
@@ -154,7 +172,7 @@ class ScenePool:
         if scene is None:
             path = self.net_file(net)
             check_net(path)  # a malformed net would crash libsumo (and the process)
-            roadmap = RoadMap.load(path)
+            roadmap = RoadMap.load(path, junction=self.junction)
             raster = geometry.MapRaster.from_roadmap(roadmap, marking_width_m=self.marking_width_m)
             refs = {r.name: planner.ReferenceLine(r.reference_xy) for r in roadmap.ego_routes}
             scene = Scene(net, roadmap, raster, refs, _traffic_spec(roadmap))
@@ -166,6 +184,35 @@ class ScenePool:
         for net in self.refs:
             self.scene(net).prepare_routes()
         return len(self.refs)
+
+
+def own_net_files(entries: Sequence[str]) -> dict[str, Path]:
+    """``"<folder>/<stem>" -> path`` for ``env.nets``: ``.net.xml`` files and folders of them.
+
+    A missing path, a file that is not a ``.net.xml``, a folder without one, or two nets
+    that would get the same name is a one-line error naming ``env.nets``.
+    """
+    files: list[Path] = []
+    for entry in entries:
+        p = Path(entry)
+        if p.is_dir():
+            found = sorted(p.glob("*.net.xml"))
+            if not found:
+                raise PriqnError(f"env.nets: {p} holds no .net.xml file")
+            files += found
+        elif p.is_file() and p.name.endswith(".net.xml"):
+            files.append(p)
+        elif p.exists():
+            raise PriqnError(f"env.nets: {p} is not a .net.xml file or a folder of them")
+        else:
+            raise PriqnError(f"env.nets: {p}: no such file or folder")
+    out: dict[str, Path] = {}
+    for f in files:
+        ref = f"{f.parent.name or '.'}/{f.name.removesuffix('.net.xml')}"
+        if ref in out and out[ref].resolve() != f.resolve():
+            raise PriqnError(f"env.nets: {out[ref]} and {f} would both be net {ref!r}; rename one")
+        out[ref] = f
+    return out
 
 
 def _pool_refs(families: Sequence[str], root: Path | None) -> list[str]:

@@ -199,8 +199,11 @@ class RoadMap:
         )
 
     @classmethod
-    def load(cls, net_path: str | Path) -> RoadMap:
-        """Read a ``.net.xml`` with sumolib (internal lanes included) and derive the road map."""
+    def load(cls, net_path: str | Path, junction: str | None = None) -> RoadMap:
+        """Read a ``.net.xml`` with sumolib (internal lanes included) and derive the road map
+        around one junction (:func:`find_junction`: ``junction`` by id, else the one with
+        the most approaches). Only that junction's arms and internal lanes are kept, so a
+        net with many junctions (a grid, an OSM extract) gives a map of one intersection."""
         import sumolib  # lazy: pure-python but slow-ish to import
 
         path = Path(net_path)
@@ -211,16 +214,12 @@ class RoadMap:
         except Exception as exc:  # sumolib raises a mix of SAX / Value errors
             raise PriqnError(f"{path}: not a readable SUMO net ({exc})") from exc
 
-        junctions = [n for n in net.getNodes() if n.getType() not in ("dead_end", "internal")]
-        if len(junctions) != 1:
-            raise PriqnError(
-                f"{path}: expected exactly one intersection node, found {len(junctions)}"
-            )
-        junction = junctions[0]
+        junction = find_junction(net, path, junction)
         junction_xy = np.asarray(junction.getShape(), dtype=float)
+        edges = _junction_edges(net, junction)
 
         lane_ids, polygons, lanes = [], [], {}
-        for edge in net.getEdges(withInternal=True):
+        for edge in edges:
             for lane in edge.getLanes():
                 centre = np.asarray(lane.getShape(), float)
                 lane_ids.append(lane.getID())
@@ -238,8 +237,14 @@ class RoadMap:
                     and edge.getToNode().getID() == junction.getID(),
                 )
 
-        markings, kinds = _markings(net)
-        ego_routes, npc_routes = _routes(net, path)
+        normal = [e for e in edges if e.getFunction() != "internal"]
+        markings, kinds = _markings(normal)
+        ego_routes, npc_routes = _routes(normal, junction, net, path)
+        if not ego_routes:
+            raise PriqnError(
+                f"{path}: junction {junction.getID()!r} has no drivable route through it "
+                "(no connection from an approach edge to an exit edge)"
+            )
 
         pts = np.concatenate([junction_xy, *polygons]) if polygons else junction_xy
         bounds = (
@@ -364,10 +369,62 @@ def _dedupe(xy: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     return xy[keep]
 
 
-def _markings(net) -> tuple[list[np.ndarray], list[str]]:
-    """Road edges, lane boundaries and centre lines of the normal (non-internal) edges."""
+def arms(node) -> set[str]:
+    """Ids of the other nodes ``node`` is joined to by an edge (either direction)."""
+    ends = {e.getFromNode().getID() for e in node.getIncoming()}
+    ends |= {e.getToNode().getID() for e in node.getOutgoing()}
+    ends.discard(node.getID())
+    return ends
+
+
+def find_junction(net, path: Path, junction: str | None = None):
+    """The intersection node the env drives through.
+
+    A node is an intersection iff it joins three or more other nodes (arms): the dead
+    ends and turnaround nodes at the tips of a plain netconvert net's arms join one, a
+    node in the middle of a road two. ``junction`` picks one by id; otherwise the one
+    with the most approach edges (ties: the smallest id), so a generated net's single
+    junction is found as before.
+    """
+    candidates = [n for n in net.getNodes() if n.getType() != "internal" and len(arms(n)) >= 3]
+    if junction:
+        try:
+            node = net.getNode(junction)
+        except KeyError:
+            node = None
+        if node is None or node not in candidates:
+            valid = ", ".join(sorted(n.getID() for n in candidates)) or "none"
+            raise PriqnError(
+                f"{path}: junction {junction!r} is not an intersection of this net "
+                f"(intersections, >= 3 arms: {valid})"
+            )
+        return node
+    if not candidates:
+        raise PriqnError(
+            f"{path}: no intersection (a node joining 3 or more roads); priqn drives through "
+            "one junction: build the net around a T-junction or a crossing (docs/your-own-net.md)"
+        )
+    incoming = lambda n: sum(e.getFunction() != "internal" for e in n.getIncoming())  # noqa: E731
+    return min(candidates, key=lambda n: (-incoming(n), n.getID()))
+
+
+def _junction_edges(net, junction) -> list:
+    """The normal edges into and out of ``junction`` and its internal edges, in net order."""
+    jid = junction.getID()
+    out = []
+    for edge in net.getEdges(withInternal=True):
+        if edge.getFunction() == "internal":
+            if edge.getID().startswith(f":{jid}_"):
+                out.append(edge)
+        elif jid in (edge.getFromNode().getID(), edge.getToNode().getID()):
+            out.append(edge)
+    return out
+
+
+def _markings(edges) -> tuple[list[np.ndarray], list[str]]:
+    """Road edges, lane boundaries and centre lines of the given normal edges."""
     lines, kinds = [], []
-    for edge in net.getEdges(withInternal=False):
+    for edge in edges:
         lanes = sorted(edge.getLanes(), key=lambda ln: ln.getIndex())
         first = lanes[0]
         lines.append(offset_polyline(np.asarray(first.getShape(), float), -first.getWidth() / 2))
@@ -430,9 +487,11 @@ def _lane_chain(net, conn, path: Path) -> list:
     return chain
 
 
-def _routes(net, path: Path) -> tuple[list[EgoRoute], list[tuple[str, ...]]]:
+def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tuple[str, ...]]]:
+    """Ego and NPC routes through ``junction``: every connected (approach, exit) edge pair."""
     ego, npc = [], []
-    for edge in sorted(net.getEdges(withInternal=False), key=lambda e: e.getID()):
+    approaches = [e for e in edges if e.getToNode() is junction]
+    for edge in sorted(approaches, key=lambda e: e.getID()):
         for to_edge, conns in sorted(edge.getOutgoing().items(), key=lambda kv: kv[0].getID()):
             if to_edge.getToNode() is edge.getFromNode():
                 continue  # U-turn (netgen builds none; be safe with other nets)

@@ -1,25 +1,84 @@
-"""Ray back-end of ``priqn sweep``: the same cell child processes, as Ray tasks.
+"""Where cells run: a :class:`Backend` protocol, the local process pool and Ray tasks.
 
-Each cell becomes one Ray task declaring ``num_cpus`` / ``num_gpus`` from the
-experiment's ``[resources]``. The task starts the very child command the local pool
-starts (``python -m priqn.sweep --cell SPEC``) on whichever node Ray picks, so a cell
-never shares a process with libsumo from another cell, and a Ray worker that is
-reused for the next task starts clean. Results are the run folders the child writes
-under the runs folder (an absolute path: on a multi-node cluster it must be the same
-shared filesystem path on every node); completion is read from those folders.
-
-``ray`` is an optional extra (``pip install 'priqn[ray]'``) imported only here.
+Both back-ends start the same child command per cell (:mod:`priqn.sweep.process`), so
+they produce the same run folders. ``ray`` is an optional extra (``pip install
+'priqn[ray]'``) imported only inside :class:`RayBackend` and :func:`ray_cell`: each cell
+becomes one Ray task declaring ``num_cpus`` / ``num_gpus`` from ``[resources]``; the task
+starts the child on whichever node Ray picks, so a cell never shares a process with
+libsumo from another cell. Results are the run folders the child writes under the runs
+folder (on a multi-node cluster: a shared filesystem path, docs/sweeps.md).
 """
 
 from __future__ import annotations
 
 import socket
 import sys
+import threading
+from concurrent import futures
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from priqn.errors import PriqnError
-from priqn.sweep import _STOP_GRACE_S, ResourceSpec, run_cell_process
+from priqn.sweep.experiment import ResourceSpec
+from priqn.sweep.process import _STOP_GRACE_S, run_cell_process
+
+# --------------------------------------------------------------------------- back-ends
+
+
+class Backend(Protocol):
+    """What the scheduler needs from a place that runs cells."""
+
+    slots: int | None
+    """Cells in flight at most (None: as many as the back-end accepts)."""
+
+    def describe(self) -> str:
+        """One line for the sweep's header (``local pool, 1 cell(s) at a time``)."""
+
+    def submit(self, spec: dict[str, Any], log_path: Path) -> Any:
+        """Start the cell's child process; returns a handle for :meth:`wait`."""
+
+    def wait(self, handles: list[Any], timeout_s: float) -> list[tuple[Any, int, str, bool]]:
+        """``(handle, exit code, log tail, complete)`` of the cells that ended (maybe none)."""
+
+    def cancel(self, handles: list[Any]) -> None:
+        """Stop these cells (their children checkpoint and mark their runs interrupted)."""
+
+    def close(self) -> None:
+        """Release the back-end (the thread pool, a Ray cluster this sweep started)."""
+
+
+class LocalBackend:
+    """Runs cells as child processes on this machine, ``jobs`` at a time."""
+
+    def __init__(self, jobs: int) -> None:
+        self.slots = max(1, jobs)
+        self._stop = threading.Event()
+        self._pool = futures.ThreadPoolExecutor(max_workers=self.slots, thread_name_prefix="cell")
+
+    def describe(self) -> str:
+        return f"local pool, {self.slots} cell(s) at a time"
+
+    def submit(self, spec: dict[str, Any], log_path: Path) -> futures.Future:
+        return self._pool.submit(run_cell_process, spec, log_path, self._stop)
+
+    def wait(self, handles: list[Any], timeout_s: float) -> list[tuple[Any, int, str, bool]]:
+        done, _ = futures.wait(handles, timeout=timeout_s, return_when=futures.FIRST_COMPLETED)
+        out = []
+        for h in done:
+            try:
+                out.append((h, *h.result()))
+            except PriqnError as exc:
+                out.append((h, 1, str(exc), False))
+            except OSError as exc:
+                out.append((h, 1, f"could not start the cell process: {exc}", False))
+        return out
+
+    def cancel(self, handles: list[Any]) -> None:
+        self._stop.set()
+        futures.wait(handles, timeout=_STOP_GRACE_S + 10.0)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _import_ray() -> Any:

@@ -1,0 +1,180 @@
+"""Cells: one (policy, seed) of a grid, its run folder, its state and its configs.
+
+A cell is complete iff its run's ``meta.json`` and its ``eval/meta.json`` both say
+``"status": "complete"``; the state is always read from the run folder
+(:class:`priqn.runs.RunFolder`), never from a sweep's memory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from priqn.config import config_differences, from_dict, to_dict
+from priqn.errors import PriqnError
+from priqn.runs import RunFolder
+from priqn.sweep.experiment import Experiment, policy_overrides
+
+# --------------------------------------------------------------------------- cells
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One (policy, seed) pair of the grid: one training run and its evaluation."""
+
+    experiment: str
+    """Experiment name."""
+    policy: str
+    """Policy (row) name."""
+    seed: int
+    """Training seed."""
+    run_dir: Path
+    """Run folder: ``<runs_dir>/<experiment>/<policy>__seed<seed>``."""
+    agent: str
+    """Agent name (``priqn train --agent``)."""
+    net: str
+    """Scenario family (``priqn train --net``)."""
+    preset: str
+    """Training preset (``priqn train --preset``)."""
+    steps: int | None
+    """Training budget (``priqn train --steps``); None keeps the preset's."""
+    overrides: tuple[str, ...]
+    """TrainConfig ``KEY=VALUE`` overrides, in the order they apply."""
+    evaluate: dict[str, Any]
+    """EvalConfig fields."""
+    source: str
+    """Experiment file, named in the child's errors."""
+
+    @property
+    def name(self) -> str:
+        """``<experiment>/<policy>__seed<k>``: unique, readable, filesystem-safe."""
+        return f"{self.experiment}/{self.policy}__seed{self.seed}"
+
+    def to_spec(self) -> dict[str, Any]:
+        """JSON-able description handed to the cell's child process."""
+        return {**to_dict(self), "name": self.name}
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> Cell:
+        """Inverse of :meth:`to_spec`."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        kw = {k: v for k, v in spec.items() if k in names}
+        kw["run_dir"] = Path(kw["run_dir"])
+        kw["overrides"] = tuple(kw["overrides"])
+        return cls(**kw)
+
+
+def expand(exp: Experiment) -> list[Cell]:
+    """All cells of the grid: policies in file order, seeds in file order within each."""
+    e = exp.experiment
+    cells = []
+    for pol in exp.policies:
+        overrides = tuple(e.set) + tuple(policy_overrides(pol))
+        for seed in e.seeds:
+            cells.append(
+                Cell(
+                    experiment=e.name,
+                    policy=pol.name,
+                    seed=seed,
+                    run_dir=exp.runs_dir / f"{pol.name}__seed{seed}",
+                    agent=pol.agent,
+                    net=e.net,
+                    preset=e.preset,
+                    steps=e.steps,
+                    overrides=overrides,
+                    evaluate=dict(exp.evaluate),
+                    source=str(exp.path),
+                )
+            )
+    return cells
+
+
+def cell_state(run_dir: Path) -> str:
+    """``complete`` | ``trained`` (eval missing) | ``running`` | ``interrupted`` (its trainer
+    died) | ``failed`` | ``new``.
+
+    Read from the run folder only: ``meta.json`` and ``eval/meta.json`` statuses.
+    ``running`` may also be a run whose sweep was killed; the next sweep resumes it.
+    """
+    folder = RunFolder(run_dir)
+    run = folder.recorded_status()
+    if run == "running" and folder.status() == "interrupted":
+        return "interrupted"  # its trainer died (kill -9, crash): the next sweep resumes it
+    if run == "complete":
+        return "complete" if folder.recorded_eval_status() == "complete" else "trained"
+    if run in ("running", "failed"):
+        return run
+    return "new"
+
+
+def is_complete(run_dir: Path) -> bool:
+    """A cell is complete iff training and evaluation both say ``"status": "complete"``."""
+    return cell_state(run_dir) == "complete"
+
+
+# --------------------------------------------------------------------------- one cell (child)
+
+
+def build_train_config(cell: Cell) -> Any:
+    """The cell's resolved :class:`priqn.train_config.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
+    from priqn.train_config import resolve_config
+
+    return resolve_config(
+        preset=cell.preset,
+        agent=cell.agent,
+        seed=cell.seed,
+        net=cell.net,
+        steps=cell.steps,
+        overrides=list(cell.overrides),
+        where=f"{cell.source} ({cell.policy})",
+    )
+
+
+def build_eval_config(cell: Cell) -> Any:
+    """The cell's :class:`priqn.evaluate.EvalConfig` from the experiment's ``[evaluate]``."""
+    from priqn.evaluate import EvalConfig
+
+    return from_dict(EvalConfig, cell.evaluate, where=f"{cell.source} [evaluate]")
+
+
+def stale_cells(exp: Experiment) -> dict[str, str]:
+    """Complete cells made with another TrainConfig / EvalConfig than the file gives now.
+
+    They are kept (never re-run silently); the value says the first difference.
+    ``device`` is ignored (a run may move between machines).
+    """
+    out = {}
+    for c in expand(exp):
+        if not is_complete(c.run_dir):
+            continue
+        try:
+            recorded = to_dict(RunFolder(c.run_dir).config())
+        except PriqnError as exc:
+            out[c.name] = str(exc)
+            continue
+        wanted = to_dict(build_train_config(c))
+        diff = config_differences(recorded, wanted, ignore=("device",))
+        prefix = ""
+        if not diff:
+            recorded = RunFolder(c.run_dir).eval_meta().get("eval_config") or {}
+            diff = config_differences(recorded, to_dict(build_eval_config(c)))
+            prefix = "evaluate."
+        if diff:
+            key, old, new = diff[0]
+            out[c.name] = f"{prefix}{key}: {old!r} != {new!r}"
+    return out
+
+
+def validate(exp: Experiment) -> None:
+    """Build every cell's TrainConfig and the EvalConfig now, so a typo fails before any work."""
+    cells = expand(exp)
+    seen: set[tuple[str, ...]] = set()
+    for c in cells:
+        key = (c.policy,)
+        if key not in seen:
+            seen.add(key)
+            build_train_config(c)
+    if cells:
+        build_eval_config(cells[0])

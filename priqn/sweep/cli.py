@@ -1,0 +1,136 @@
+"""``priqn sweep``: the command line over :func:`~priqn.sweep.scheduler.run_sweep`."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from typing import Any
+
+from priqn.errors import PriqnError
+from priqn.sweep.cells import cell_state, expand, stale_cells, validate
+from priqn.sweep.experiment import load_experiment
+from priqn.sweep.process import DEFAULT_CELL_FN
+from priqn.sweep.scheduler import _SWEEP_DIR, run_sweep
+
+# --------------------------------------------------------------------------- CLI
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """``priqn sweep EXPERIMENT [--jobs N | --ray [ADDRESS]] ...``."""
+    parser.add_argument(
+        "experiment",
+        help="experiment file, or a name: ./experiments/NAME.toml, else shipped (table2, smoke)",
+    )
+    parser.add_argument(
+        "--jobs",
+        "-j",
+        type=int,
+        default=None,
+        help="cells at a time (local default: cores // [resources].cpus_per_cell; "
+        "with --ray: a cap on cells in flight, default none)",
+    )
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="run cells as Ray tasks; no ADDRESS starts a local Ray cluster, 'auto' or "
+        "host:6379 / ray://host:10001 connects to an existing one (pip install 'priqn[ray]')",
+    )
+    parser.add_argument("--runs-dir", default=None, help="override [experiment].runs_dir")
+    parser.add_argument(
+        "--cpus-per-cell", type=float, default=None, help="override [resources].cpus_per_cell"
+    )
+    parser.add_argument(
+        "--gpus-per-cell", type=float, default=None, help="override [resources].gpus_per_cell"
+    )
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        default=(),
+        metavar="GLOB",
+        help="run only cells whose name matches, e.g. 'table2/pr-iqn-qd-*__seed0'",
+    )
+    parser.add_argument(
+        "--retries", type=int, default=1, help="extra attempts for a failed cell (default 1)"
+    )
+    parser.add_argument("--no-report", action="store_true", help="skip the report at the end")
+    parser.add_argument(
+        "--list", action="store_true", help="list the cells and their state; run nothing"
+    )
+    parser.add_argument(
+        "--cell-fn",
+        default=DEFAULT_CELL_FN,
+        metavar="MODULE:FUNC",
+        help="advanced: function run for each cell in its child process, called with the "
+        f"Cell (default {DEFAULT_CELL_FN}: train, then evaluate)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``priqn sweep``."""
+    exp = load_experiment(
+        args.experiment,
+        runs_dir=args.runs_dir,
+        cpus_per_cell=args.cpus_per_cell,
+        gpus_per_cell=args.gpus_per_cell,
+    )
+    if args.jobs is not None and args.jobs < 1:
+        raise PriqnError(f"--jobs {args.jobs}: expected a positive number of cells")
+    if args.retries < 0:
+        raise PriqnError(f"--retries {args.retries}: expected 0 or more")
+    if args.list:
+        for c in expand(exp):
+            print(f"{c.name:<48} {cell_state(c.run_dir):<9} {c.run_dir}")
+        return 0
+    if args.cell_fn == DEFAULT_CELL_FN:
+        validate(exp)
+        stale = stale_cells(exp)
+        if stale:
+            name, diff = next(iter(stale.items()))
+            print(
+                f"priqn sweep: warning: {len(stale)} complete cell(s) were made with another "
+                f"config than {exp.path} gives now (e.g. {name}: {diff}); they are kept as they "
+                "are: delete their run folders to re-run them",
+                file=sys.stderr,
+            )
+    _sigterm_as_interrupt()
+    result = run_sweep(
+        exp,
+        jobs=args.jobs,
+        use_ray=args.ray is not None,
+        ray_address=args.ray or None,
+        retries=args.retries,
+        only=args.only,
+        report=not args.no_report,
+        cell_fn=args.cell_fn,
+    )
+    print(
+        f"priqn sweep {exp.experiment.name}: {len(result.complete)} complete "
+        f"({len(result.skipped)} skipped, {len(result.completed)} run now), "
+        f"{len(result.failed)} failed"
+    )
+    for name, error in result.failed.items():
+        print(f"  FAILED {name}: {error}")
+    if result.failed:
+        print(f"  logs: {exp.runs_dir / _SWEEP_DIR / 'logs'}")
+    return 1 if result.failed else 0
+
+
+def _sigterm_as_interrupt() -> None:
+    """SIGTERM (a batch scheduler, ``kill``) stops the sweep like Ctrl-C: cells stopped cleanly.
+
+    SIGINT gets Python's KeyboardInterrupt handler even when it was inherited as ignored
+    (a shell starts ``cmd &`` with SIGINT ignored, and Python then leaves it so), so
+    ``kill -INT`` stops a background sweep too.
+    """
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, signal.default_int_handler)

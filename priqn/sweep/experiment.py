@@ -1,0 +1,275 @@
+"""An experiment file (``experiments/<name>.toml``) parsed and checked: the grid's schema.
+
+``load_experiment`` reads the ``[experiment]`` table (name, seeds, pool, preset, budget,
+overrides), the ``[[policy]]`` rows (agent and Pr-IQN options), ``[evaluate]`` and
+``[resources]``; every mistake is one line naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from priqn import paths
+from priqn.agents.config import AGENT_SPECS, NORMALISATIONS, PREORDER_PRESETS, agent_spec
+from priqn.agents.config import COMPARATORS as COMPARATOR_DISPLAY
+from priqn.config import from_dict, load_toml
+from priqn.errors import PriqnError
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+# --------------------------------------------------------------------------- experiment file
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """The ``[experiment]`` table: what every cell of the grid shares."""
+
+    name: str
+    """Experiment name (letters, digits, ``._-``); cells run in ``<runs_dir>/<name>/``."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds; every policy is trained once per seed."""
+    net: str = "all"
+    """Scenario family trained on: ``tjunction``, ``fourway`` or ``all`` (both pools)."""
+    preset: str = "default"
+    """Training preset (``priqn train --preset``)."""
+    steps: int | None = None
+    """Training budget in agent decisions per cell; unset keeps the preset's."""
+    set: tuple[str, ...] = ()
+    """TrainConfig overrides ``KEY=VALUE`` (as ``priqn train --set``) for every cell."""
+    runs_dir: str = "runs"
+    """Folder holding the experiment's run folders (relative to the working directory)."""
+    report_dir: str | None = None
+    """Where the report goes; unset: ``reports/<name>`` (relative to the working directory)."""
+    report_seed: int = 0
+    """Seed of the report's bootstrap confidence intervals."""
+    description: str = ""
+    """Free text: what this grid reproduces."""
+
+
+@dataclass(frozen=True)
+class ResourceSpec:
+    """The ``[resources]`` table: what one cell needs (local pool size, Ray task options)."""
+
+    cpus_per_cell: float = 2.0
+    """CPU cores one cell keeps busy (learner + env worker processes)."""
+    gpus_per_cell: float = 0.0
+    """GPUs one cell needs (Ray ``num_gpus``; fractions share a GPU)."""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """One ``[[policy]]`` entry: a row of the results table, trained once per seed."""
+
+    name: str
+    """Row name, used in run-folder names (letters, digits, ``._-``)."""
+    agent: str
+    """Agent to train (``priqn train --agent``: iqn, ensemble-iqn, ma-iqn, pr-iqn)."""
+    comparator: str | None = None
+    """Pr-IQN: distribution comparison metric."""
+    train_preorder: bool | None = None
+    """Pr-IQN: bootstrap each head from its optimal subset (preorder used in training)."""
+    eps: float | None = None
+    """Pr-IQN: comparison threshold epsilon."""
+    preorder: str | None = None
+    """Pr-IQN: objective preorder, ``total`` | ``partial`` or a preorder TOML file."""
+    normalisation: str | None = None
+    """Pr-IQN: quantile normalisation, ``zscore`` (the paper) | ``scaled`` (docs/preorder.md)."""
+    set: tuple[str, ...] = ()
+    """Further TrainConfig overrides ``KEY=VALUE`` for this row (after the experiment's)."""
+
+
+_PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
+COMPARATORS: tuple[str, ...] = tuple(COMPARATOR_DISPLAY)
+"""Comparison metrics of Table II (from the agent spec, :mod:`priqn.agents.config`)."""
+PREORDERS: tuple[str, ...] = PREORDER_PRESETS
+"""Preorder presets (from the agent spec)."""
+
+# Policy option -> TrainConfig key (``priqn train --set`` name).
+_TRAIN_KEYS = {
+    "agent": "agent.name",
+    "comparator": "agent.comparator",
+    "train_preorder": "agent.train_preorder",
+    "eps": "agent.eps",
+    "preorder": "agent.preorder",
+    "normalisation": "agent.normalisation",
+}
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A parsed experiment file."""
+
+    path: Path
+    """The TOML file it came from (named in errors)."""
+    experiment: ExperimentSpec
+    """Shared settings."""
+    policies: tuple[PolicySpec, ...]
+    """The rows of the grid, in file order."""
+    evaluate: dict[str, Any] = field(default_factory=dict)
+    """EvalConfig fields (``priqn.evaluate.EvalConfig``) for every cell."""
+    resources: ResourceSpec = ResourceSpec()
+    """Per-cell resource needs."""
+
+    @property
+    def runs_dir(self) -> Path:
+        """``<runs_dir>/<name>``: the folder holding this experiment's run folders."""
+        return Path(self.experiment.runs_dir) / self.experiment.name
+
+    @property
+    def report_dir(self) -> Path:
+        """Where :func:`run_sweep` writes the report."""
+        return Path(self.experiment.report_dir or Path("reports") / self.experiment.name)
+
+
+def resolve_experiment_path(name_or_path: str | os.PathLike) -> Path:
+    """A path, or a bare name: ``table2`` -> ``./experiments/table2.toml``, else the shipped one."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    if p.suffix == "" and len(p.parts) == 1:
+        dirs = paths.search_path(paths.EXPERIMENTS)
+        for d in dirs:
+            if (d / f"{p.name}.toml").is_file():
+                return d / f"{p.name}.toml"
+        known = sorted({q.stem for d in dirs for q in d.glob("*.toml")})
+        raise PriqnError(
+            f"{p}: no such experiment file (known in ./experiments/ and shipped: {', '.join(known) or 'none'})"
+        )
+    raise PriqnError(f"{p}: file not found")
+
+
+def load_experiment(
+    path: str | os.PathLike,
+    runs_dir: str | os.PathLike | None = None,
+    cpus_per_cell: float | None = None,
+    gpus_per_cell: float | None = None,
+) -> Experiment:
+    """Parse and check an experiment file; every mistake is one line naming file and key.
+
+    ``runs_dir`` / ``cpus_per_cell`` / ``gpus_per_cell`` override the file's values.
+    """
+    p = resolve_experiment_path(path)
+    data = load_toml(p)
+    sections = {"experiment", "policy", "evaluate", "resources"}
+    unknown = sorted(set(data) - sections)
+    if unknown:
+        raise PriqnError(
+            f"{p}: unknown section {unknown[0]!r} (valid: {', '.join(sorted(sections))})"
+        )
+    if "experiment" not in data:
+        raise PriqnError(f"{p}: missing [experiment] table (name, seeds, net, preset, steps)")
+    exp = from_dict(ExperimentSpec, data["experiment"], where=f"{p} [experiment]")
+    _check_name(exp.name, f"{p} [experiment].name")
+    if not exp.seeds:
+        raise PriqnError(
+            f"{p} [experiment].seeds: empty; expected at least one seed, e.g. [0, 1, 2]"
+        )
+    if len(set(exp.seeds)) != len(exp.seeds):
+        raise PriqnError(f"{p} [experiment].seeds: duplicate seeds in {list(exp.seeds)}")
+    if any(s < 0 for s in exp.seeds):
+        raise PriqnError(f"{p} [experiment].seeds: seeds must be >= 0, got {list(exp.seeds)}")
+    if exp.steps is not None and exp.steps <= 0:
+        raise PriqnError(f"{p} [experiment].steps: expected a positive integer, got {exp.steps}")
+    _check_overrides(exp.set, f"{p} [experiment].set")
+
+    raw_policies = data.get("policy", [])
+    if not isinstance(raw_policies, list) or not raw_policies:
+        raise PriqnError(f"{p}: expected one or more [[policy]] tables (name, agent, options)")
+    policies = []
+    seen: set[str] = set()
+    for i, raw in enumerate(raw_policies, start=1):
+        label = raw.get("name", f"#{i}") if isinstance(raw, dict) else f"#{i}"
+        where = f"{p} [[policy]] {label}"
+        pol = from_dict(PolicySpec, raw, where=where)
+        _check_name(pol.name, f"{where}.name")
+        if pol.agent not in AGENT_SPECS:
+            raise PriqnError(
+                f"{where}.agent: unknown agent {pol.agent!r} (valid: {', '.join(AGENT_SPECS)})"
+            )
+        if pol.name in seen:
+            raise PriqnError(f"{where}.name: duplicate policy name {pol.name!r}")
+        seen.add(pol.name)
+        if not agent_spec(pol.agent).uses_preorder:
+            for opt in _PREORDER_OPTIONS:
+                if getattr(pol, opt) is not None:
+                    raise PriqnError(
+                        f"{where}.{opt}: applies only to agent {_preorder_agents()}, not {pol.agent!r}"
+                    )
+        for opt, valid in (
+            ("comparator", COMPARATORS),
+            ("preorder", PREORDERS),
+            ("normalisation", NORMALISATIONS),
+        ):
+            value = getattr(pol, opt)
+            custom_preorder = opt == "preorder" and str(value).endswith(".toml")
+            if value is not None and value not in valid and not custom_preorder:
+                raise PriqnError(
+                    f"{where}.{opt}: expected one of {', '.join(map(repr, valid))}"
+                    + (" or a preorder .toml file" if opt == "preorder" else "")
+                    + f", got {value!r}"
+                )
+        if pol.eps is not None and pol.eps < 0:
+            raise PriqnError(f"{where}.eps: expected a threshold >= 0, got {pol.eps}")
+        _check_overrides(pol.set, f"{where}.set")
+        policies.append(pol)
+
+    evaluate = data.get("evaluate", {})
+    if not isinstance(evaluate, dict):
+        raise PriqnError(f"{p} [evaluate]: expected a table of EvalConfig fields")
+    res_data = dict(data.get("resources", {}))
+    for key, value in (("cpus_per_cell", cpus_per_cell), ("gpus_per_cell", gpus_per_cell)):
+        if value is not None:
+            res_data[key] = value
+    resources = from_dict(ResourceSpec, res_data, where=f"{p} [resources]")
+    if resources.cpus_per_cell <= 0 or resources.gpus_per_cell < 0:
+        raise PriqnError(
+            f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
+            f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
+        )
+    # Absolute, so Ray workers (whose working directory differs) write to the same place.
+    exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
+    return Experiment(p, exp, tuple(policies), dict(evaluate), resources)
+
+
+def _preorder_agents() -> str:
+    """The agents the Pr-IQN options apply to, as ``'pr-iqn'``."""
+    return " or ".join(repr(n) for n in AGENT_SPECS if agent_spec(n).uses_preorder)
+
+
+def _check_name(name: str, where: str) -> None:
+    if not _NAME_RE.match(name):
+        raise PriqnError(
+            f"{where}: {name!r} is not a safe folder name; use letters, digits, '.', '_' or '-'"
+        )
+
+
+def _check_overrides(items: Sequence[str], where: str) -> None:
+    for item in items:
+        if "=" not in item or not item.split("=", 1)[0].strip():
+            raise PriqnError(f'{where}: {item!r} is not KEY=VALUE, e.g. "learner.lr=1e-4"')
+
+
+def policy_overrides(policy: PolicySpec) -> list[str]:
+    """TrainConfig overrides (``KEY=VALUE``) a policy's options stand for, then its ``set``."""
+    out = []
+    for opt in _PREORDER_OPTIONS:
+        value = getattr(policy, opt)
+        if value is not None:
+            out.append(f"{_TRAIN_KEYS[opt]}={_toml_value(value)}")
+    return out + list(policy.set)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)

@@ -1,0 +1,270 @@
+"""The scheduler: run every cell that is not complete, retry failures, then report.
+
+:func:`run_sweep` takes an :class:`~priqn.sweep.experiment.Experiment`, skips complete
+cells, submits the rest to a back-end, retries a failed cell once with its log, stops
+cleanly on Ctrl-C (unfinished cells resume on the next run), writes ``summary.json``
+and runs the report. One sweep per experiment folder at a time (a lock).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json
+from priqn.sweep.backends import Backend, LocalBackend, RayBackend
+from priqn.sweep.cells import Cell, cell_state, expand, is_complete
+from priqn.sweep.experiment import Experiment, ResourceSpec
+from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
+
+_SWEEP_DIR = ".sweep"
+
+
+# --------------------------------------------------------------------------- the scheduler
+
+
+@dataclass
+class SweepResult:
+    """What a sweep did. A cell is in at most one of skipped / completed / failed (in
+    none if the sweep was interrupted before it finished)."""
+
+    skipped: list[str] = field(default_factory=list)
+    """Already complete before this sweep: no work done."""
+    completed: list[str] = field(default_factory=list)
+    """Completed by this sweep."""
+    failed: dict[str, str] = field(default_factory=dict)
+    """Cell -> one-line error of its last attempt (after the retry)."""
+    retried: list[str] = field(default_factory=list)
+    """Cells whose first attempt failed (they may have completed on the retry)."""
+    report: Path | None = None
+    """The report written after the grid, if any."""
+    interrupted: bool = False
+    """Ctrl-C stopped the sweep; unfinished cells resume on the next run."""
+
+    @property
+    def complete(self) -> list[str]:
+        """All cells complete now (skipped + completed)."""
+        return self.skipped + self.completed
+
+
+@contextlib.contextmanager
+def _sweep_lock(exp_dir: Path) -> Iterator[None]:
+    """One sweep per experiment folder at a time (advisory lock, released on exit)."""
+    import fcntl
+
+    lock_path = exp_dir / _SWEEP_DIR / "lock"
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    with lock_path.open("a") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise PriqnError(
+                f"{exp_dir}: another 'priqn sweep' is running this experiment "
+                f"(lock {lock_path}); wait for it or stop it first"
+            ) from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def default_jobs(resources: ResourceSpec) -> int:
+    """Cells at a time on this machine: ``max(1, cores // cpus_per_cell)``."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, int((cores or 1) // resources.cpus_per_cell))
+
+
+def run_sweep(
+    exp: Experiment,
+    *,
+    jobs: int | None = None,
+    ray_address: str | None = None,
+    use_ray: bool = False,
+    retries: int = 1,
+    only: Sequence[str] = (),
+    report: bool = True,
+    progress: bool | None = None,
+    cell_fn: str = DEFAULT_CELL_FN,
+    log: Callable[[str], None] | None = None,
+) -> SweepResult:
+    """Train and evaluate every incomplete cell, retrying failures ``retries`` times, then report.
+
+    ``use_ray`` runs cells as Ray tasks (``ray_address`` None: a new local Ray cluster;
+    ``"auto"`` or an address: an existing one); otherwise a local pool of ``jobs``
+    child processes (default :func:`default_jobs`). ``only`` keeps cells whose name
+    matches one of the glob patterns. A failing cell never stops the others.
+    Ctrl-C stops the running cells (they stay incomplete) and re-raises
+    KeyboardInterrupt after writing the sweep summary.
+    """
+    say = log or (lambda msg: print(msg, file=sys.stderr))
+    cells = expand(exp)
+    if only:
+        cells = [c for c in cells if any(fnmatch.fnmatch(c.name, pat) for pat in only)]
+        if not cells:
+            raise PriqnError(f"--only {' '.join(only)}: matches no cell of {exp.path}")
+    exp_dir = exp.runs_dir
+    exp_dir.mkdir(parents=True, exist_ok=True)
+    result = SweepResult()
+    with _sweep_lock(exp_dir):
+        todo = []
+        for c in cells:
+            if is_complete(c.run_dir):
+                result.skipped.append(c.name)
+            else:
+                todo.append(c)
+        if todo:
+            if use_ray:
+                backend: Backend = RayBackend(ray_address, exp.resources, jobs)
+            else:
+                backend = LocalBackend(jobs or default_jobs(exp.resources))
+            say(
+                f"priqn sweep {exp.experiment.name}: {len(cells)} cells, "
+                f"{len(result.skipped)} already complete, {len(todo)} to run ({backend.describe()})"
+            )
+            try:
+                _schedule(backend, todo, exp, result, retries, cell_fn, progress, say)
+            finally:
+                backend.close()
+                _write_summary(exp, cells, result)
+        else:
+            say(f"priqn sweep {exp.experiment.name}: all {len(cells)} cells already complete")
+            _write_summary(exp, cells, result)
+    if report and not result.interrupted:
+        missing = [c.name for c in expand(exp) if not is_complete(c.run_dir)]
+        if missing:
+            say(
+                f"priqn sweep: report skipped: {len(missing)} cell(s) not complete "
+                f"(e.g. {missing[0]}); a report never mixes in missing runs"
+            )
+        else:
+            result.report = _run_report(exp, say)
+    return result
+
+
+def _schedule(
+    backend: Any,
+    todo: list[Cell],
+    exp: Experiment,
+    result: SweepResult,
+    retries: int,
+    cell_fn: str,
+    progress: bool | None,
+    say: Callable[[str], None],
+) -> None:
+    from tqdm.auto import tqdm
+
+    queue: list[tuple[Cell, int]] = [(c, 1) for c in todo]
+    inflight: dict[Any, tuple[Cell, int]] = {}
+    slots = backend.slots
+    show_bar = sys.stderr.isatty() if progress is None else progress
+    bar = tqdm(
+        total=len(todo),
+        unit="cell",
+        desc=exp.experiment.name,
+        disable=not show_bar,
+        dynamic_ncols=True,
+        file=sys.stderr,
+    )
+    started = time.monotonic()
+
+    def counts() -> str:
+        return (
+            f"done={len(result.completed)} running={len(inflight)} "
+            f"failed={len(result.failed)} queued={len(queue)}"
+        )
+
+    def note(msg: str) -> None:
+        if show_bar:
+            tqdm.write(msg, file=sys.stderr)
+        else:
+            say(msg)
+
+    def finished(cell: Cell, what: str) -> None:
+        bar.update(1)
+        if not show_bar:  # a log file or a batch job: one line per finished cell
+            n = len(result.completed) + len(result.failed)
+            rate_s = (time.monotonic() - started) / n
+            eta = tqdm.format_interval(rate_s * (len(todo) - n))
+            say(f"[{n}/{len(todo)}] {cell.name} {what} ({counts()}, ETA {eta})")
+
+    try:
+        while queue or inflight:
+            while queue and (slots is None or len(inflight) < slots):
+                cell, attempt = queue.pop(0)
+                spec = {**cell.to_spec(), "attempt": attempt, "cell_fn": cell_fn}
+                log_path = (
+                    exp.runs_dir
+                    / _SWEEP_DIR
+                    / "logs"
+                    / f"{cell.policy}__seed{cell.seed}.attempt{attempt}.log"
+                )
+                inflight[backend.submit(spec, log_path)] = (cell, attempt)
+            bar.set_postfix_str(counts(), refresh=True)
+            for handle, rc, tail, complete in backend.wait(list(inflight), timeout_s=1.0):
+                cell, attempt = inflight.pop(handle)
+                if rc == 0 and complete:
+                    result.completed.append(cell.name)
+                    finished(cell, "complete")
+                    continue
+                error = describe_failure(rc, tail)
+                if attempt <= retries:
+                    result.retried.append(cell.name)
+                    note(f"cell {cell.name} failed (attempt {attempt}): {error}; retrying")
+                    queue.append((cell, attempt + 1))
+                else:
+                    result.failed[cell.name] = error
+                    note(f"cell {cell.name} FAILED: {error}")
+                    finished(cell, "FAILED")
+            bar.set_postfix_str(counts(), refresh=True)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        note(f"interrupted: stopping {len(inflight)} running cell(s); they stay incomplete")
+        backend.cancel(list(inflight))
+        raise
+    finally:
+        bar.close()
+
+
+def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> None:
+    states = {c.name: cell_state(c.run_dir) for c in cells}
+    atomic_write_json(
+        exp.runs_dir / _SWEEP_DIR / "summary.json",
+        {
+            "experiment": exp.experiment.name,
+            "file": str(exp.path),
+            "finished_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "interrupted": result.interrupted,
+            "cells": {
+                c.name: {
+                    "run_dir": str(c.run_dir),
+                    "state": states[c.name],
+                    "error": result.failed.get(c.name),
+                }
+                for c in cells
+            },
+        },
+    )
+
+
+def _run_report(exp: Experiment, say: Callable[[str], None]) -> Path | None:
+    try:
+        from priqn.analysis.report import make_report
+    except ModuleNotFoundError as exc:
+        say(f"priqn sweep: report skipped ({exc.name} is not installed)")
+        return None
+    out = make_report(
+        exp.runs_dir,
+        exp.report_dir,
+        seed=exp.experiment.report_seed,
+        command=f"priqn sweep {exp.path}",
+    )
+    say(f"priqn sweep: report in {out}")
+    return Path(out)
