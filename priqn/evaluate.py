@@ -450,7 +450,8 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     from priqn.env.vector import make_vector_env
 
     policy = run.load_policy(device=cfg.device)
-    env_cfg = dataclasses.replace(policy.env_config, family=cfg.family)
+    # The hold-out family, also for a run trained on its own nets (env.nets).
+    env_cfg = dataclasses.replace(policy.env_config, family=cfg.family, nets=())
     if cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
 

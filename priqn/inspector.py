@@ -412,7 +412,7 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
         raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
     scenes, eval_cfg = inspection_scenes(run_dir, cfg)
     policy = run.load_policy(device="cpu")
-    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family)
+    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=())
     if eval_cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
     # Frames for people at 128 px or more, whatever the observation size.

@@ -30,6 +30,7 @@ from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 from priqn.runs import RunFolder
+from priqn.sim.scenario import family_net_refs
 from priqn.timing import SectionClock
 from priqn.train_config import (
     NETS,
@@ -58,11 +59,10 @@ def _env_reset_seed(env_seed: int, session: int) -> int | None:
 
 
 def metrics_row(
-    kind: str, infos: Mapping[str, Any], e: int, weights: Sequence[float]
+    kind: str, values: Mapping[str, Any], net: str, weights: Sequence[float]
 ) -> dict[str, Any]:
-    """One metrics.csv row of the episode env ``e`` just ended (``kind`` train or eval)."""
-    info = final_info(infos, e)
-    values = episode_values(info)
+    """One metrics.csv row of an ended episode (``kind`` train or eval) from its
+    :func:`priqn.episodes.episode_values` and its net."""
     returns = np.array([values[f"return_{o}"] for o in OBJECTIVES])
     row: dict[str, Any] = {"kind": kind}
     row.update(
@@ -73,8 +73,8 @@ def metrics_row(
     row.update({k: int(values[k]) for k in ("success", "collision", "off_road", "timeout")})
     row["route_progress"] = round(values["route_progress"], 4)
     row["density_realised"] = round(values["density_realised"], 4)
-    row["net"] = str(info["net"])
-    row["command"] = str(info["command"])
+    row["net"] = net
+    row["command"] = str(values.get("command", ""))
     return row
 
 
@@ -323,7 +323,8 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, resume: bool) -> None:  # noqa
             wall = wall_before + log_t0 - t0
             for e in np.flatnonzero(ended):
                 episodes += 1
-                row = metrics_row("train", infos, int(e), weights)
+                info = final_info(infos, int(e))
+                row = metrics_row("train", episode_values(info), str(info["net"]), weights)
                 row.update(subset_sizes.pop(int(e)))
                 row.update(
                     step=step,
@@ -352,9 +353,17 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, resume: bool) -> None:  # noqa
                 with clock("evaluate"):
                     next_eval = _next_multiple(step, cfg.evaluation.interval_steps)
                     if eval_envs is None:
-                        eval_cfg = dataclasses.replace(cfg.env, family=cfg.evaluation.family)
+                        eval_cfg = dataclasses.replace(
+                            cfg.env, family=cfg.evaluation.family, nets=()
+                        )
                         eval_envs = make_vector_env(eval_cfg, 1, seed=seeds["eval_env"])
-                    rows = _evaluate(eval_envs, policy, cfg, step, seeds["eval_env"], weights)
+                        eval_nets = family_net_refs(
+                            cfg.evaluation.family,
+                            Path(cfg.env.nets_dir) if cfg.env.nets_dir else None,
+                        )
+                    rows = _evaluate(
+                        eval_envs, policy, cfg, step, seeds["eval_env"], weights, eval_nets
+                    )
                     for r in rows:
                         r.update(step=step, wall_s=round(wall, 2), updates=learner.updates)
                     logger.evaluation(rows, step)
@@ -417,20 +426,41 @@ def _next_multiple(step: int, interval: int) -> int:
 
 
 def _evaluate(
-    envs: Any, policy: Any, cfg: TrainConfig, step: int, eval_seed: int, weights: Sequence[float]
+    envs: Any,
+    policy: Any,
+    cfg: TrainConfig,
+    step: int,
+    eval_seed: int,
+    weights: Sequence[float],
+    nets: Sequence[str],
 ) -> list[dict[str, Any]]:
-    """Greedy episodes on ``envs`` (1 worker); the scene seeds depend only on ``step``."""
+    """Greedy episodes on the hold-out ``nets``, played by the evaluation's own rollout
+    (:func:`priqn.evaluate.run_scenes`); the scenes depend only on ``eval_seed`` and ``step``."""
+    from priqn.evaluate import Scene, run_scenes
+
     rng = np.random.default_rng([eval_seed, step])
+    scenes = [
+        Scene(
+            eval_run=0,
+            net=str(nets[int(rng.integers(len(nets)))]),
+            density=float(cfg.env.densities[int(rng.integers(len(cfg.env.densities)))]),
+            episode=i,
+            reset_seed=int(rng.integers(2**31)),
+            act_seed=int(rng.integers(2**31)),
+            command=None,
+        )
+        for i in range(cfg.evaluation.episodes)
+    ]
     rows: list[dict[str, Any]] = []
-    obs, _ = envs.reset(seed=int(rng.integers(2**31)))
-    while len(rows) < cfg.evaluation.episodes:
-        actions = policy.act(obs, rng)
-        obs, _, terminated, truncated, infos = envs.step(actions)
-        if terminated[0] or truncated[0]:
-            row = metrics_row("eval", infos, 0, weights)
-            row.update(episode=len(rows) + 1, epsilon=0.0, loss="")
-            rows.append(row)
-    return rows
+
+    def on_episode(scene: Any, values: dict[str, Any]) -> None:
+        row = metrics_row("eval", values, scene.net, weights)
+        row.update({k: values[k] for k in SUBSET_COLUMNS if k in values})  # preorder agents
+        row.update(episode=scene.episode + 1, epsilon=0.0, loss="")
+        rows.append(row)
+
+    run_scenes(policy, envs, scenes, on_episode)
+    return sorted(rows, key=lambda r: r["episode"])
 
 
 # ============================================================================ CLI
