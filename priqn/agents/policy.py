@@ -19,7 +19,7 @@ class Policy:
     ``act(obs_batch, rng)`` → ``int64 [B]``. Pr-IQN samples uniformly from its leaf
     optimal subset using ``rng``; the other agents are deterministic (``rng`` is still
     advanced by one draw per state so every agent consumes the same stream).
-    ``env_config`` and ``labels`` are filled by ``priqn.train.load_policy``.
+    ``env_config`` and ``labels`` are filled by ``priqn.runs.load_policy``.
     """
 
     def __init__(
