@@ -328,3 +328,13 @@ def test_missing_manifest_lists_the_families_of_that_folder(tmp_path):
         load_manifest("tjunction", tmp_path)
     with pytest.raises(PriqnError, match=r"generated families: none\)"):
         load_manifest("tjunction", tmp_path / "mine")
+
+
+def test_hand_made_manifest_without_hashes_is_one_line(tmp_path) -> None:
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "manifest.json").write_text('{"nets": [{"id": "a"}]}')
+    with pytest.raises(PriqnError) as info:
+        load_manifest("mine", tmp_path)
+    msg = str(info.value)
+    assert "\n" not in msg and "nets[0] needs an 'id' and the SHA-256 of its 'files'" in msg
+    assert "env.nets" in msg

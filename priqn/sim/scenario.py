@@ -239,8 +239,16 @@ def load_manifest(family: str, root: Path | None = None) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise PriqnError(f"{path}: not a valid manifest ({exc}); regenerate it") from exc
-    if not isinstance(data, dict) or "nets" not in data:
+    if not isinstance(data, dict) or not isinstance(data.get("nets"), list):
         raise PriqnError(f"{path}: manifest has no 'nets' list; regenerate it")
+    for i, net in enumerate(data["nets"]):
+        files = net.get("files") if isinstance(net, dict) else None
+        if not isinstance(net, dict) or "id" not in net or not files or not isinstance(files, dict):
+            raise PriqnError(
+                f"{path}: nets[{i}] needs an 'id' and the SHA-256 of its 'files' (a manifest is "
+                "written by 'priqn scenario generate'); for nets of your own use env.nets / "
+                "--net FILE, which need no manifest (docs/your-own-net.md)"
+            )
     return data
 
 
