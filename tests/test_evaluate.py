@@ -248,26 +248,28 @@ def _priqn(args: list[str], cwd) -> None:
 
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory):
-    """Two tiny trained runs (IQN, Pr-IQN), trained through the CLI in subprocesses."""
+    """Four tiny trained runs (IQN, Pr-IQN; training seeds 0 and 1: a report needs two
+    seeds per policy for its CIs), trained through the CLI in subprocesses."""
     pytest.importorskip("priqn.train", reason="priqn.train (training engineer) not there yet")
     root = tmp_path_factory.mktemp("e2e")
     runs = root / "runs"
     for agent in ("iqn", "pr-iqn"):
-        _priqn(
-            [
-                "train",
-                "--agent",
-                agent,
-                "--seed",
-                "0",
-                "--runs-dir",
-                str(runs),
-                "--name",
-                agent,
-                *TINY_TRAIN,
-            ],
-            root,
-        )
+        for seed in ("0", "1"):
+            _priqn(
+                [
+                    "train",
+                    "--agent",
+                    agent,
+                    "--seed",
+                    seed,
+                    "--runs-dir",
+                    str(runs),
+                    "--name",
+                    f"{agent}_s{seed}",
+                    *TINY_TRAIN,
+                ],
+                root,
+            )
     return root, runs
 
 
@@ -287,15 +289,15 @@ def test_end_to_end_train_evaluate_report(tiny_runs) -> None:
         "max_episode_steps=15",
     ]
     _priqn(["evaluate", str(runs), *tiny_eval], root)
-    for agent in ("iqn", "pr-iqn"):
+    for agent in ("iqn_s0", "iqn_s1", "pr-iqn_s0", "pr-iqn_s1"):
         frame = pd.read_csv(runs / agent / "eval" / "episodes.csv")
         assert list(frame.columns) == list(EPISODE_COLUMNS)
         assert len(frame) == 2 * 3  # eval runs x hold-out nets x densities x episodes
         assert frame["holdout_hash"].nunique() == 1 and (frame["steps"] <= 15).all()
         meta = json.loads((runs / agent / "eval" / "meta.json").read_text())
         assert meta["status"] == "complete"
-    a = pd.read_csv(runs / "iqn" / "eval" / "episodes.csv")
-    b = pd.read_csv(runs / "pr-iqn" / "eval" / "episodes.csv")
+    a = pd.read_csv(runs / "iqn_s0" / "eval" / "episodes.csv")
+    b = pd.read_csv(runs / "pr-iqn_s0" / "eval" / "episodes.csv")
     keys = ["eval_run", "net", "density", "episode", "reset_seed", "command"]
     pd.testing.assert_frame_equal(a[keys], b[keys])  # same scenes for both policies
 
