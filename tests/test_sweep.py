@@ -205,6 +205,22 @@ def test_cell_spec_round_trips_through_json(tmp_path: Path) -> None:
     assert Cell.from_spec(spec) == cell
 
 
+def test_seed_order_runs_every_row_before_the_next_seed(tmp_path: Path) -> None:
+    cells = expand(load_experiment(experiments_dir() / "table2_cpu.toml", runs_dir=tmp_path))
+    assert len(cells) == 39
+    assert [c.seed for c in cells] == [0] * 13 + [1] * 13 + [2] * 13
+    assert [c.policy for c in cells[:13]] == [c.policy for c in cells[13:26]]
+    assert (
+        cells[0].name == "table2_cpu/iqn__seed0" and cells[1].name == "table2_cpu/ensemble__seed0"
+    )
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[experiment]\nname = "x"\norder = "random"\n[[policy]]\nname = "a"\nagent = "iqn"\n'
+    )
+    with pytest.raises(PriqnError, match="order: expected one of policy, seed, got 'random'"):
+        load_experiment(bad)
+
+
 def test_smoke_grid_is_small(tmp_path: Path) -> None:
     exp = load_experiment(experiments_dir() / "smoke.toml", runs_dir=tmp_path)
     cells = expand(exp)

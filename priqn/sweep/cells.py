@@ -67,28 +67,28 @@ class Cell:
 
 
 def expand(exp: Experiment) -> list[Cell]:
-    """All cells of the grid: policies in file order, seeds in file order within each."""
+    """All cells of the grid in run order: policies in file order with their seeds in
+    file order (``order = "policy"``), or seed by seed over every policy (``"seed"``)."""
     e = exp.experiment
-    cells = []
-    for pol in exp.policies:
-        overrides = tuple(e.set) + tuple(policy_overrides(pol))
-        for seed in e.seeds:
-            cells.append(
-                Cell(
-                    experiment=e.name,
-                    policy=pol.name,
-                    seed=seed,
-                    run_dir=exp.runs_dir / f"{pol.name}__seed{seed}",
-                    agent=pol.agent,
-                    net=e.net,
-                    preset=e.preset,
-                    steps=e.steps,
-                    overrides=overrides,
-                    evaluate=dict(exp.evaluate),
-                    source=str(exp.path),
-                )
-            )
-    return cells
+    pairs = [(pol, seed) for pol in exp.policies for seed in e.seeds]
+    if e.order == "seed":
+        pairs = [(pol, seed) for seed in e.seeds for pol in exp.policies]
+    return [
+        Cell(
+            experiment=e.name,
+            policy=pol.name,
+            seed=seed,
+            run_dir=exp.runs_dir / f"{pol.name}__seed{seed}",
+            agent=pol.agent,
+            net=e.net,
+            preset=e.preset,
+            steps=e.steps,
+            overrides=tuple(e.set) + tuple(policy_overrides(pol)),
+            evaluate=dict(exp.evaluate),
+            source=str(exp.path),
+        )
+        for pol, seed in pairs
+    ]
 
 
 def cell_state(run_dir: Path) -> str:

@@ -28,6 +28,10 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 # --------------------------------------------------------------------------- experiment file
 
 
+CELL_ORDERS: tuple[str, ...] = ("policy", "seed")
+"""Values of ``[experiment].order``."""
+
+
 @dataclass(frozen=True)
 class ExperimentSpec:
     """The ``[experiment]`` table: what every cell of the grid shares."""
@@ -52,6 +56,13 @@ class ExperimentSpec:
     """Seed of the report's bootstrap confidence intervals."""
     description: str = ""
     """Free text: what this grid reproduces."""
+    order: str = "policy"
+    """Order cells run in: ``policy`` (each row's seeds together) or ``seed`` (every row's
+    first seed, then every row's second, ...: an interrupted long grid has all rows)."""
+
+    def __post_init__(self) -> None:
+        if self.order not in CELL_ORDERS:
+            raise ValueError(f"order: expected one of {', '.join(CELL_ORDERS)}, got {self.order!r}")
 
 
 @dataclass(frozen=True)
