@@ -456,6 +456,7 @@ def test_cli_exit_status_summary_and_list(tmp_path: Path, fake_cells: str) -> No
     assert listed.returncode == 0
     states = dict(line.split()[:2] for line in listed.stdout.splitlines())
     assert states == {"fake/ok__seed0": "complete", "fake/boom__seed0": "new"}
+    assert listed.stderr.strip() == "fake: 2 cells: 1 complete, 1 new"
     bad = subprocess.run(
         _sweep_cli(exp_path, "--jobs", "0"), capture_output=True, text=True, timeout=60
     )

@@ -83,8 +83,13 @@ def run(args: argparse.Namespace) -> int:
     if args.retries < 0:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     if args.list:
-        for c in expand(exp):
-            print(f"{c.name:<48} {cell_state(c.run_dir):<9} {c.run_dir}")
+        cells = expand(exp)
+        states = [cell_state(c.run_dir) for c in cells]
+        for c, state in zip(cells, states, strict=True):
+            print(f"{c.name:<48} {state:<9} {c.run_dir}")
+        counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
+        # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
+        print(f"{exp.experiment.name}: {len(cells)} cells: {counts}", file=sys.stderr)
         return 0
     if args.cell_fn == DEFAULT_CELL_FN:
         validate(exp)
