@@ -267,6 +267,11 @@ class RunFolder:
                     f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
                 )
             meta = self.meta()
+            if own_nets is not None and meta.get("manifest_hashes", {}).get("own") != hashes["own"]:
+                raise PriqnError(
+                    f"{self.path}: --resume: a net of env.nets changed since the run started "
+                    f"(see {self.NETS_MANIFEST}); restore it or start a new run"
+                )
             remove_stale_temp_files(self.path)  # left by a killed write of the last session
         else:
             if self.path.exists() and any(self.path.iterdir()):
@@ -498,10 +503,15 @@ def versions() -> dict[str, str]:
 
 
 def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
-    """A manifest of ``env.nets`` as the generated families have one: id, path, SHA-256."""
+    """A manifest of ``env.nets`` as the generated families have one: id, path, SHA-256,
+    and the junction each net is driven through (``junction`` or its default resolved).
+
+    Every net is read (:meth:`RoadMap.load`), so one that cannot be used stops the run
+    before it starts, in one line naming the file."""
     import hashlib
 
     from priqn.env.scenes import own_net_files
+    from priqn.sim.roadmap import RoadMap
 
     return {
         "family": "own",
@@ -511,6 +521,7 @@ def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
                 "id": ref,
                 "path": str(path.resolve()),
                 "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+                "junction": RoadMap.load(path, junction=junction).junction_id,
             }
             for ref, path in own_net_files(nets).items()
         ],

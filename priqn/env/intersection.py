@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 from collections.abc import Iterator, Mapping
 from numbers import Real
 from typing import Any
@@ -64,8 +65,8 @@ class EnvConfig:
     """Net pool: 'tjunction', 'fourway', 'all' (both training pools) or 'holdout'."""
     nets_dir: str = ""
     """Folder holding ``<family>/manifest.json`` and the nets ('' = ./sumo_nets if it has the family, else the nets shipped with priqn)."""
-    nets: tuple[str, ...] = ()
-    """Your own nets: ``.net.xml`` files and/or folders of them, no manifest needed (docs/your-own-net.md). When given, reset draws from these and ``family`` / ``nets_dir`` are not used."""
+    nets: str | os.PathLike | tuple[str, ...] = ()
+    """Your own nets: ``.net.xml`` files and/or folders of them, no manifest needed (docs/your-own-net.md). When given, reset draws from these and ``family`` / ``nets_dir`` are not used. One path (also a bare string from ``--set env.nets=...``) or a list; stored as a tuple of strings."""
     junction: str = ""
     """With ``nets``: the id of the junction to drive through ('' = each net's junction with the most approaches)."""
     obs_size_px: int = 128
@@ -117,6 +118,7 @@ class EnvConfig:
     """Reward term parameters."""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "nets", _net_entries(self.nets))
         if self.family not in FAMILIES:
             raise ValueError(f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})")
         if self.obs_size_px < 16:
@@ -776,6 +778,19 @@ def make_config(
         return from_dict(EnvConfig, merged, "env config")
     except ValueError as exc:  # __post_init__ checks
         raise PriqnError(f"env config: {exc}") from None
+
+
+def _net_entries(nets: Any) -> tuple[str, ...]:
+    """``EnvConfig.nets`` as a tuple of strings (one path, or a list of paths / strings)."""
+    if isinstance(nets, (str, os.PathLike)):
+        nets = (nets,) if os.fspath(nets) else ()
+    if not isinstance(nets, (list, tuple)) or not all(
+        isinstance(n, (str, os.PathLike)) and os.fspath(n) for n in nets
+    ):
+        raise ValueError(
+            f"nets: expected a .net.xml file, a folder of them, or a list of those; got {nets!r}"
+        )
+    return tuple(os.fspath(n) for n in nets)
 
 
 def _sumo_errors() -> tuple[type[BaseException], ...]:

@@ -24,7 +24,7 @@ from priqn.env import geometry, planner
 from priqn.env.traffic import ObstacleSite
 from priqn.errors import PriqnError
 from priqn.io import read_json
-from priqn.sim.roadmap import EgoRoute, RoadMap
+from priqn.sim.roadmap import CROP_MARGIN_M, EgoRoute, RoadMap
 from priqn.sim.scenario import TrafficSpec
 from priqn.sim.session import check_net
 
@@ -40,6 +40,9 @@ SITE_END_MARGIN_M = 5.0
 """Obstacle sites keep this far from the dead end / the start of an arm [m]."""
 SITE_MIN_LENGTH_M = 10.0
 """A lane stretch shorter than this offers no obstacle site [m]."""
+SITE_REACH_M = CROP_MARGIN_M
+"""Obstacle sites lie within this distance of the junction along their lane [m]: on the long
+arm of an own net an obstacle stays where the map covers it and the ego can meet it."""
 
 
 @dataclasses.dataclass
@@ -83,8 +86,9 @@ class Scene:
     def obstacle_sites(self, route: EgoRoute, clearance_m: float) -> list[ObstacleSite]:
         """Where obstacles may stand in an episode on ``route``.
 
-        The rightmost lane of every arm edge, at least ``clearance_m`` from the junction
-        (and :data:`SITE_END_MARGIN_M` from the arm's far end); on the ego's approach
+        The rightmost car lane of every arm edge, at least ``clearance_m`` and at most
+        :data:`SITE_REACH_M` from the junction (and :data:`SITE_END_MARGIN_M` from the arm's
+        far end); on the ego's approach
         edge also at least ``clearance_m`` ahead of the ego's start. Stretches shorter
         than :data:`SITE_MIN_LENGTH_M` are dropped.
         """
@@ -94,14 +98,20 @@ class Scene:
             incoming = {r[0] for r in rm.npc_routes}
             outgoing = {r[-1] for r in rm.npc_routes}
             sites = []
+            rightmost: dict[str, str] = {}  # edge -> its rightmost car lane
+            for lane in rm.lanes.values():  # a roadmap lists an edge's car lanes rightmost first
+                if not lane.internal:
+                    rightmost.setdefault(lane.edge_id, lane.lane_id)
             for edge in sorted(incoming | outgoing):
-                lane = rm.lanes[f"{edge}_0"]
+                lane = rm.lanes[rightmost[edge]]
                 if edge in incoming:
-                    lo, hi = SITE_END_MARGIN_M, lane.length_m - clearance_m
+                    lo = max(SITE_END_MARGIN_M, lane.length_m - SITE_REACH_M)
+                    hi = lane.length_m - clearance_m
                 else:
-                    lo, hi = clearance_m, lane.length_m - SITE_END_MARGIN_M
+                    lo = clearance_m
+                    hi = min(lane.length_m - SITE_END_MARGIN_M, SITE_REACH_M)
                 if hi - lo > SITE_MIN_LENGTH_M:
-                    sites.append(ObstacleSite(lane.lane_id, edge, 0, lo, hi, lane.width_m))
+                    sites.append(ObstacleSite(lane.lane_id, edge, lane.index, lo, hi, lane.width_m))
             self._sites[clearance_m] = sites
         out = []
         for site in sites:

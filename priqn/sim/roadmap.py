@@ -12,6 +12,13 @@ Coordinates and angles (everything in this module):
 - Polygons are ``float64 [P, 2]`` arrays of ``(x, y)``, open (first point not repeated).
 
 Traffic drives on the right (SUMO's default): lane 0 of an edge is its rightmost lane.
+
+Nets that were not generated here (docs/your-own-net.md): only *car roads* count —
+normal edges with a lane allowing SUMO's :data:`CAR_CLASS` — so footways, cycleways,
+sidewalk lanes and rails are neither junction arms, drivable area nor routes. The map
+of a net with several intersections covers one junction (:func:`find_junction`), its
+arms and internal lanes, clipped to a square window :data:`CROP_MARGIN_M` around the
+junction's shape, so a long arm of a street map does not make a huge raster.
 """
 
 from __future__ import annotations
@@ -40,10 +47,28 @@ SMOOTHING_SIGMA_M = 2.0
 """Gaussian smoothing width applied to the joined lane centre lines [m]."""
 
 START_BEFORE_JUNCTION_M = 70.0
-"""The ego is inserted this far before the junction (or at the lane start if shorter) [m]."""
+"""The ego is inserted this far before the junction [m] (shorter approaches:
+:data:`START_MIN_LANE_POS_M`)."""
 
 GOAL_AFTER_JUNCTION_M = 25.0
 """The route's goal lies this far past the junction on the exit lane [m]."""
+
+START_MIN_LANE_POS_M = 5.0
+"""On an approach shorter than :data:`START_BEFORE_JUNCTION_M` the ego starts this far into
+the lane (or half-way along a shorter one), so that its rear stays on the road [m]."""
+
+CAR_CLASS = "passenger"
+"""SUMO vehicle class of the ego and the traffic: lanes that do not allow it (sidewalks,
+bike lanes, rails) are neither drivable area, junction arms nor routes."""
+
+CROP_MARGIN_M = 150.0
+"""The map covers the junction's shape grown by this much on every side [m]; lanes reaching
+further are clipped. The ego starts at most 70 m before the stop line and its grids reach
+48 m ahead, 16 m behind and 32 m to each side, so it never sees past ~115 m; nets from
+priqn.sim.netgen (arms <= 150 m from the junction centre) fit inside unclipped."""
+
+MIN_ARMS = 3
+"""A node is an intersection when its car roads lead to at least this many other nodes."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -67,7 +92,23 @@ class LaneInfo:
     centre_xy: np.ndarray
     """``float64 [P, 2]`` centre line as written in the net (not resampled)."""
     towards_junction: bool
-    """True for lanes of an approach (``*_in``) edge, i.e. lanes that end at the junction."""
+    """True for lanes of an approach edge, i.e. lanes that end at the map's junction."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Junction:
+    """An intersection of a net, as :func:`list_junctions` reports it."""
+
+    node_id: str
+    """SUMO node (junction) id: what ``EnvConfig.junction`` names."""
+    node_type: str
+    """SUMO junction type ('priority', 'traffic_light', ...)."""
+    arms: int
+    """Other nodes its car roads lead to (either direction): >= :data:`MIN_ARMS`."""
+    approaches: int
+    """Car roads leading into it (the default junction is the one with the most)."""
+    xy: tuple[float, float]
+    """Node position [m]."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -146,17 +187,19 @@ class RoadMap:
     family: str
     """Folder name the net lives in (its family), e.g. ``"holdout"``."""
     bounds_m: tuple[float, float, float, float]
-    """``(xmin, ymin, xmax, ymax)`` of all lane polygons and the junction [m]."""
+    """``(xmin, ymin, xmax, ymax)`` of the (clipped) lane polygons and the junction [m]."""
     junction_id: str
-    """SUMO id of the (single) intersection node."""
+    """SUMO id of the intersection node the map is built around (:func:`find_junction`)."""
     junction_type: str
     """SUMO junction type ('priority', 'right_before_left', ...)."""
     junction_polygon_xy: np.ndarray
     """``float64 [P, 2]`` junction shape."""
     lane_ids: tuple[str, ...]
-    """Lane id of each entry in ``lane_polygons_xy`` (internal lanes start with ':')."""
+    """Lane id of each entry in ``lane_polygons_xy`` (internal lanes start with ':'): the car
+    lanes of the junction's arms and its internal lanes that reach into the window."""
     lane_polygons_xy: list[np.ndarray]
-    """Footprint ``float64 [P, 2]`` of every lane, from its centre line and width."""
+    """Footprint ``float64 [P, 2]`` of every lane, from its centre line and width, clipped to
+    the :data:`CROP_MARGIN_M` window."""
     marking_polylines_xy: list[np.ndarray]
     """Lane markings ``float64 [P, 2]``: road edges, lane boundaries and centre lines of normal edges."""
     marking_kinds: tuple[str, ...]
@@ -166,7 +209,7 @@ class RoadMap:
     npc_routes: list[tuple[str, ...]]
     """Edge-id routes for traffic: every connected (approach edge, exit edge) pair."""
     lanes: dict[str, LaneInfo]
-    """Every lane (normal and internal) by id, in ``lane_ids`` order."""
+    """Every lane of ``lane_ids`` by id, in that order (centre lines unclipped)."""
 
     @property
     def drivable_polygons_xy(self) -> list[np.ndarray]:
@@ -202,28 +245,26 @@ class RoadMap:
     def load(cls, net_path: str | Path, junction: str | None = None) -> RoadMap:
         """Read a ``.net.xml`` with sumolib (internal lanes included) and derive the road map
         around one junction (:func:`find_junction`: ``junction`` by id, else the one with
-        the most approaches). Only that junction's arms and internal lanes are kept, so a
-        net with many junctions (a grid, an OSM extract) gives a map of one intersection."""
-        import sumolib  # lazy: pure-python but slow-ish to import
-
+        the most approaches). Only that junction's car roads (its arms) and internal lanes are
+        kept, clipped to the :data:`CROP_MARGIN_M` window, so a net with many junctions (a
+        grid, an OSM extract) gives a map of one intersection."""
         path = Path(net_path)
-        if not path.is_file():
-            raise PriqnError(f"{path}: no such net; run 'priqn scenario generate'")
-        try:
-            net = sumolib.net.readNet(str(path), withInternal=True)
-        except Exception as exc:  # sumolib raises a mix of SAX / Value errors
-            raise PriqnError(f"{path}: not a readable SUMO net ({exc})") from exc
-
+        net = _read_net(path)
         junction = find_junction(net, path, junction)
-        junction_xy = np.asarray(junction.getShape(), dtype=float)
+        junction_xy = np.asarray(junction.getShape(), dtype=float).reshape(-1, 2)
+        anchor = junction_xy if len(junction_xy) else np.asarray([junction.getCoord()[:2]], float)
+        window = (*(anchor.min(axis=0) - CROP_MARGIN_M), *(anchor.max(axis=0) + CROP_MARGIN_M))
         edges = _junction_edges(net, junction)
 
         lane_ids, polygons, lanes = [], [], {}
         for edge in edges:
-            for lane in edge.getLanes():
+            for lane in _car_lanes(edge):
                 centre = np.asarray(lane.getShape(), float)
+                polygon = clip_polygon(lane_polygon(centre, lane.getWidth()), window)
+                if len(polygon) < 3:
+                    continue  # outside the window
                 lane_ids.append(lane.getID())
-                polygons.append(lane_polygon(centre, lane.getWidth()))
+                polygons.append(polygon)
                 lanes[lane.getID()] = LaneInfo(
                     lane_id=lane.getID(),
                     edge_id=edge.getID(),
@@ -238,15 +279,16 @@ class RoadMap:
                 )
 
         normal = [e for e in edges if e.getFunction() != "internal"]
-        markings, kinds = _markings(normal)
+        markings, kinds = _markings(normal, window)
         ego_routes, npc_routes = _routes(normal, junction, net, path)
         if not ego_routes:
             raise PriqnError(
                 f"{path}: junction {junction.getID()!r} has no drivable route through it "
-                "(no connection from an approach edge to an exit edge)"
+                "(no connection from an approach edge to an exit edge on lanes cars may use, "
+                "U-turns excluded)"
             )
 
-        pts = np.concatenate([junction_xy, *polygons]) if polygons else junction_xy
+        pts = np.concatenate([anchor, *polygons]) if polygons else anchor
         bounds = (
             float(pts[:, 0].min()),
             float(pts[:, 1].min()),
@@ -256,7 +298,7 @@ class RoadMap:
         return cls(
             net_path=path,
             net_id=path.name.removesuffix(".net.xml"),
-            family=path.parent.name,
+            family=path.absolute().parent.name,
             bounds_m=bounds,
             junction_id=junction.getID(),
             junction_type=junction.getType(),
@@ -358,6 +400,97 @@ def project_s(xy: np.ndarray, point: np.ndarray) -> float:
     return float(arc_length(xy)[i] + t[i] * np.linalg.norm(ab[i]))
 
 
+Box = tuple[float, float, float, float]
+"""An axis-aligned window ``(xmin, ymin, xmax, ymax)`` [m]."""
+
+
+def clip_polygon(xy: np.ndarray, box: Box) -> np.ndarray:
+    """Polygon ``xy [P, 2]`` cut to ``box`` (Sutherland-Hodgman); ``xy`` itself when inside.
+
+    Returns ``[Q, 2]``, empty (``Q = 0``) when the polygon lies outside the box.
+    """
+    xy = np.asarray(xy, float)
+    if len(xy) == 0 or _inside_box(xy, box):
+        return xy
+    pts = xy
+    for axis, bound, keep_below in (
+        (0, box[0], False),
+        (0, box[2], True),
+        (1, box[1], False),
+        (1, box[3], True),
+    ):
+        if len(pts) == 0:
+            break
+        v = pts[:, axis] - bound
+        inside = v <= 0 if keep_below else v >= 0
+        out = []
+        for i in range(len(pts)):
+            j = i - 1  # the previous vertex (i = 0: the last one)
+            if inside[i] != inside[j]:
+                out.append(pts[j] + v[j] / (v[j] - v[i]) * (pts[i] - pts[j]))
+            if inside[i]:
+                out.append(pts[i])
+        pts = np.asarray(out, float).reshape(-1, 2)
+    return pts
+
+
+def clip_polyline(xy: np.ndarray, box: Box) -> list[np.ndarray]:
+    """The pieces ``[P_i, 2]`` of polyline ``xy`` inside ``box`` (Liang-Barsky per segment).
+
+    ``[xy]`` itself when it lies inside; ``[]`` when nothing of it does.
+    """
+    xy = np.asarray(xy, float)
+    if len(xy) < 2:
+        return []
+    if _inside_box(xy, box):
+        return [xy]
+    pieces: list[list[np.ndarray]] = []
+    extend = False  # the last piece ends at this segment's start point
+    for p0, p1 in zip(xy[:-1], xy[1:], strict=True):
+        d = p1 - p0
+        t0, t1 = 0.0, 1.0
+        for p, q in (
+            (-d[0], p0[0] - box[0]),
+            (d[0], box[2] - p0[0]),
+            (-d[1], p0[1] - box[1]),
+            (d[1], box[3] - p0[1]),
+        ):
+            if p == 0.0:
+                if q < 0.0:
+                    t0, t1 = 1.0, 0.0  # parallel to this side and outside it
+            elif p < 0.0:
+                t0 = max(t0, q / p)
+            else:
+                t1 = min(t1, q / p)
+        if t0 > t1:
+            extend = False
+            continue
+        if extend and t0 == 0.0:
+            pieces[-1].append(p0 + t1 * d)
+        else:
+            pieces.append([p0 + t0 * d, p0 + t1 * d])
+        extend = t1 == 1.0
+    return [np.asarray(pc) for pc in pieces if len(_dedupe(np.asarray(pc))) >= 2]
+
+
+def list_junctions(net_path: str | Path) -> list[Junction]:
+    """The intersections of a ``.net.xml``, the default one first (what ``junction`` may name)."""
+    net = _read_net(Path(net_path))
+    out = []
+    for node in _intersections(net):
+        x, y = node.getCoord()[:2]
+        out.append(
+            Junction(
+                node.getID(),
+                node.getType(),
+                len(arms(node)),
+                _approaches(node),
+                (float(x), float(y)),
+            )
+        )
+    return out
+
+
 # --------------------------------------------------------------------------- internals
 
 
@@ -369,75 +502,113 @@ def _dedupe(xy: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     return xy[keep]
 
 
+def _inside_box(xy: np.ndarray, box: Box) -> bool:
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    return bool(lo[0] >= box[0] and lo[1] >= box[1] and hi[0] <= box[2] and hi[1] <= box[3])
+
+
+def _read_net(path: Path):
+    """The sumolib net with internal lanes; a missing or unreadable file is one line."""
+    import sumolib  # lazy: pure-python but slow-ish to import
+
+    if not path.is_file():
+        raise PriqnError(f"{path}: no such net; run 'priqn scenario generate'")
+    try:
+        return sumolib.net.readNet(str(path), withInternal=True)
+    except Exception as exc:  # sumolib raises a mix of SAX / Value errors
+        raise PriqnError(f"{path}: not a readable SUMO net ({exc})") from exc
+
+
+def _is_car_road(edge) -> bool:
+    """A normal edge with a lane that :data:`CAR_CLASS` may use."""
+    return edge.getFunction() == "" and edge.allows(CAR_CLASS)
+
+
+def _car_lanes(edge) -> list:
+    """The lanes of ``edge`` that :data:`CAR_CLASS` may use, rightmost first."""
+    lanes = [ln for ln in edge.getLanes() if ln.allows(CAR_CLASS)]
+    return sorted(lanes, key=lambda ln: ln.getIndex())
+
+
 def arms(node) -> set[str]:
-    """Ids of the other nodes ``node`` is joined to by an edge (either direction)."""
-    ends = {e.getFromNode().getID() for e in node.getIncoming()}
-    ends |= {e.getToNode().getID() for e in node.getOutgoing()}
+    """Ids of the other nodes ``node``'s car roads lead to or come from."""
+    ends = {e.getFromNode().getID() for e in node.getIncoming() if _is_car_road(e)}
+    ends |= {e.getToNode().getID() for e in node.getOutgoing() if _is_car_road(e)}
     ends.discard(node.getID())
     return ends
+
+
+def _approaches(node) -> int:
+    return sum(_is_car_road(e) for e in node.getIncoming())
+
+
+def _intersections(net) -> list:
+    """Nodes with >= :data:`MIN_ARMS` arms, the default first (most approaches, then id)."""
+    found = [n for n in net.getNodes() if n.getType() != "internal" and len(arms(n)) >= MIN_ARMS]
+    return sorted(found, key=lambda n: (-_approaches(n), n.getID()))
 
 
 def find_junction(net, path: Path, junction: str | None = None):
     """The intersection node the env drives through.
 
-    A node is an intersection iff it joins three or more other nodes (arms): the dead
-    ends and turnaround nodes at the tips of a plain netconvert net's arms join one, a
-    node in the middle of a road two. ``junction`` picks one by id; otherwise the one
-    with the most approach edges (ties: the smallest id), so a generated net's single
-    junction is found as before.
+    A node is an intersection iff its car roads join it to three or more other nodes
+    (arms): the dead ends and turnaround nodes at the tips of a plain netconvert net's
+    arms join one, a node in the middle of a road two, a footway or a rail line is no
+    arm. ``junction`` picks one by id; otherwise the one with the most approach edges
+    (ties: the smallest id), so a generated net's single junction is found as before.
     """
-    candidates = [n for n in net.getNodes() if n.getType() != "internal" and len(arms(n)) >= 3]
+    candidates = _intersections(net)
     if junction:
-        try:
-            node = net.getNode(junction)
-        except KeyError:
-            node = None
-        if node is None or node not in candidates:
-            valid = ", ".join(sorted(n.getID() for n in candidates)) or "none"
+        node = next((n for n in candidates if n.getID() == junction), None)
+        if node is None:
+            shown = ", ".join(n.getID() for n in candidates[:10]) or "none"
+            more = f" and {len(candidates) - 10} more" if len(candidates) > 10 else ""
             raise PriqnError(
                 f"{path}: junction {junction!r} is not an intersection of this net "
-                f"(intersections, >= 3 arms: {valid})"
+                f"(intersections, >= 3 arms, most approaches first: {shown}{more})"
             )
         return node
     if not candidates:
         raise PriqnError(
-            f"{path}: no intersection (a node joining 3 or more roads); priqn drives through "
-            "one junction: build the net around a T-junction or a crossing (docs/your-own-net.md)"
+            f"{path}: no intersection (a node joining 3 or more roads cars may use); priqn "
+            "drives through one junction: build the net around a T-junction or a crossing "
+            "(docs/your-own-net.md)"
         )
-    incoming = lambda n: sum(e.getFunction() != "internal" for e in n.getIncoming())  # noqa: E731
-    return min(candidates, key=lambda n: (-incoming(n), n.getID()))
+    return candidates[0]
 
 
 def _junction_edges(net, junction) -> list:
-    """The normal edges into and out of ``junction`` and its internal edges, in net order."""
+    """The car roads into and out of ``junction`` and its internal edges, in net order."""
     jid = junction.getID()
     out = []
     for edge in net.getEdges(withInternal=True):
         if edge.getFunction() == "internal":
-            if edge.getID().startswith(f":{jid}_"):
+            if edge.getID().rsplit("_", 1)[0] == f":{jid}":  # ':<junction>_<index>'
                 out.append(edge)
-        elif jid in (edge.getFromNode().getID(), edge.getToNode().getID()):
+        elif _is_car_road(edge) and jid in (edge.getFromNode().getID(), edge.getToNode().getID()):
             out.append(edge)
     return out
 
 
-def _markings(edges) -> tuple[list[np.ndarray], list[str]]:
-    """Road edges, lane boundaries and centre lines of the given normal edges."""
+def _markings(edges, window: Box) -> tuple[list[np.ndarray], list[str]]:
+    """Road edges, lane boundaries and centre lines of the given car roads, clipped to ``window``."""
     lines, kinds = [], []
+
+    def add(lane, side: float, kind: str) -> None:
+        line = offset_polyline(np.asarray(lane.getShape(), float), side * lane.getWidth() / 2)
+        for piece in clip_polyline(line, window):
+            lines.append(piece)
+            kinds.append(kind)
+
     for edge in edges:
-        lanes = sorted(edge.getLanes(), key=lambda ln: ln.getIndex())
-        first = lanes[0]
-        lines.append(offset_polyline(np.asarray(first.getShape(), float), -first.getWidth() / 2))
-        kinds.append("edge")
+        lanes = _car_lanes(edge)
+        add(lanes[0], -1.0, "edge")
         for lane in lanes[1:]:
-            lines.append(offset_polyline(np.asarray(lane.getShape(), float), -lane.getWidth() / 2))
-            kinds.append("lane")
-        top = lanes[-1]
+            add(lane, -1.0, "lane")
         opposite = _has_opposite(edge)
         # The left border of an edge with an opposite edge is the centre line; draw it once.
         if not opposite or edge.getID() < opposite:
-            lines.append(offset_polyline(np.asarray(top.getShape(), float), top.getWidth() / 2))
-            kinds.append("centre" if opposite else "edge")
+            add(lanes[-1], 1.0, "centre" if opposite else "edge")
     return lines, kinds
 
 
@@ -493,11 +664,18 @@ def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tupl
     approaches = [e for e in edges if e.getToNode() is junction]
     for edge in sorted(approaches, key=lambda e: e.getID()):
         for to_edge, conns in sorted(edge.getOutgoing().items(), key=lambda kv: kv[0].getID()):
-            if to_edge.getToNode() is edge.getFromNode():
-                continue  # U-turn (netgen builds none; be safe with other nets)
+            if to_edge.getToNode() is edge.getFromNode() or not _is_car_road(to_edge):
+                continue  # U-turn (netgen builds none; be safe with other nets), footway, rail
+            conns = [
+                c
+                for c in conns
+                if c.getFromLane().allows(CAR_CLASS) and c.getToLane().allows(CAR_CLASS)
+            ]
+            if not conns:
+                continue
             npc.append((edge.getID(), to_edge.getID()))
-            in_shape = np.asarray(edge.getLanes()[0].getShape(), float)
-            out_shape = np.asarray(to_edge.getLanes()[0].getShape(), float)
+            in_shape = np.asarray(_car_lanes(edge)[0].getShape(), float)
+            out_shape = np.asarray(_car_lanes(to_edge)[0].getShape(), float)
             turn = math.degrees(_heading_at_start(out_shape) - _heading_at_end(in_shape))
             turn = (turn + 180.0) % 360.0 - 180.0
             if turn == -180.0:
@@ -521,7 +699,7 @@ def _ego_route(net, edge, to_edge, conn, command: str, turn: float, path: Path) 
     exit_len = float(arc_length(shapes[-1])[-1])
     goal = s_exit + min(GOAL_AFTER_JUNCTION_M, max(exit_len - 2.0, 0.0))
     lane_len = float(approach.getLength())
-    start_pos = max(lane_len - START_BEFORE_JUNCTION_M, 0.0)
+    start_pos = max(lane_len - START_BEFORE_JUNCTION_M, min(START_MIN_LANE_POS_M, lane_len / 2))
     start_xy = np.asarray(
         [np.interp(start_pos, arc_length(shapes[0]), shapes[0][:, i]) for i in range(2)]
     )
