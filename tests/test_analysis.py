@@ -431,3 +431,35 @@ def test_one_seed_report_ranks_nothing_and_prints_no_ci(tmp_path) -> None:
     assert not (tmp_path / "out" / "tables" / "rliable_aggregates.csv").exists()
     t2 = tables.table2(load_evaluation(root).episodes, ranked=False)
     assert (t2.long["mark"] == "").all()
+
+
+def test_partial_report_leaves_out_unevaluated_runs_and_names_them(runs, tmp_path, capsys) -> None:
+    """A grid still running: --partial reports the evaluated runs, names the rest."""
+    from priqn.cli import main
+
+    (runs / "still_training").mkdir()
+    (runs / "still_training" / "config.toml").write_text("")
+    with pytest.raises(PriqnError, match="or report the evaluated ones with --partial"):
+        load_evaluation(runs)
+    full = load_evaluation(runs, partial=True)
+    assert full.left_out == ("still_training",)
+    assert "still_training" not in set(full.episodes["run"])
+
+    out = tmp_path / "partial"
+    assert main(["report", str(runs), "--out", str(out), "--reps", "20", "--partial"]) == 0
+    report = (out / "report.md").read_text()
+    assert report.startswith("# priqn evaluation report (partial)")
+    assert "left out: still_training." in report
+    assert "--partial" in report  # the command that remakes it
+    assert json.loads((out / "meta.json").read_text())["left_out"] == ["still_training"]
+
+    (runs / "still_training" / "config.toml").unlink()  # nothing left out: no banner
+    complete = make_report(runs, tmp_path / "whole", seed=0, reps=20, partial=True).read_text()
+    assert "(partial)" not in complete and "left out" not in complete
+
+
+def test_partial_report_with_nothing_evaluated_is_one_line(tmp_path) -> None:
+    (tmp_path / "grid" / "cell").mkdir(parents=True)
+    (tmp_path / "grid" / "cell" / "config.toml").write_text("")
+    with pytest.raises(PriqnError, match="none of its 1 runs is fully evaluated yet"):
+        load_evaluation(tmp_path / "grid", partial=True)

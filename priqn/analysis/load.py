@@ -68,6 +68,8 @@ class Evaluation:
     """The single hold-out manifest hash every run was evaluated on."""
     eval_config: dict[str, Any]
     """The shared evaluation settings."""
+    left_out: tuple[str, ...] = ()
+    """Run folders left out because their evaluation is not complete (``partial=True``)."""
 
 
 def find_run_dirs(runs_dir: str | Path) -> list[Path]:
@@ -87,8 +89,12 @@ def find_run_dirs(runs_dir: str | Path) -> list[Path]:
     return sorted(p for p in root.iterdir() if p.is_dir() and is_run(p))
 
 
-def load_evaluation(runs_dir: str | Path) -> Evaluation:
-    """Load and cross-check every evaluated run under ``runs_dir``."""
+def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
+    """Load and cross-check every evaluated run under ``runs_dir``.
+
+    ``partial``: leave out runs whose evaluation is not complete (a grid still running)
+    and name them in ``Evaluation.left_out``, instead of refusing.
+    """
     root = Path(runs_dir)
     run_dirs = find_run_dirs(root)
     if not run_dirs:
@@ -99,12 +105,15 @@ def load_evaluation(runs_dir: str | Path) -> Evaluation:
     for run in run_dirs:
         if RunFolder(run).recorded_eval_status() != "complete":
             unevaluated.append(run.name)
-    if unevaluated:
+    if unevaluated and not partial:
         shown = ", ".join(unevaluated[:5]) + (" ..." if len(unevaluated) > 5 else "")
         raise PriqnError(
             f"{root}: {len(unevaluated)} of {len(run_dirs)} runs not (fully) evaluated: {shown}; "
-            f"run 'priqn evaluate {root}' first (a report never mixes in missing runs)"
+            f"run 'priqn evaluate {root}' first, or report the evaluated ones with --partial"
         )
+    run_dirs = [run for run in run_dirs if run.name not in unevaluated]
+    if not run_dirs:
+        raise PriqnError(f"{root}: none of its {len(unevaluated)} runs is fully evaluated yet")
 
     frames, infos = [], []
     for run in run_dirs:
@@ -157,6 +166,7 @@ def load_evaluation(runs_dir: str | Path) -> Evaluation:
         runs=tuple(infos),
         holdout_hash=infos[0].holdout_hash,
         eval_config=infos[0].eval_config,
+        left_out=tuple(unevaluated),
     )
 
 

@@ -81,11 +81,13 @@ def make_report(
     reps: int = DEFAULT_REPS,
     min_seeds: int | None = None,
     command: str | None = None,
+    partial: bool = False,
 ) -> Path:
     """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
 
     ``min_seeds``: refuse when a policy has fewer training seeds. ``seed`` goes to
-    ``np.random.seed`` before every rliable call (recorded in the report).
+    ``np.random.seed`` before every rliable call (recorded in the report). ``partial``:
+    report the fully evaluated runs of a grid still running, and say which were left out.
     """
     import pandas as pd
 
@@ -108,11 +110,16 @@ def make_report(
 
     out = Path(out_dir)
     runs_root = Path(runs_dir)
-    evaluation = load_evaluation(runs_root)
+    evaluation = load_evaluation(runs_root, partial=partial)
     episodes = evaluation.episodes
     if min_seeds is not None:
         check_seeds(episodes, min_seeds)
     notes: list[str] = []
+    if evaluation.left_out:
+        notes.append(
+            f"Partial report: {len(evaluation.left_out)} run folder(s) not fully evaluated "
+            f"were left out: {', '.join(evaluation.left_out)}."
+        )
     seeds_per_policy = episodes.groupby("label")["train_seed"].nunique()
     if seeds_per_policy.nunique() > 1:
         notes.append(
@@ -211,8 +218,17 @@ def make_report(
         axes = ""
         rliable_md = ["## rliable", "", f"Not computed. {unranked_why}", ""]
     md = [
-        "# priqn evaluation report",
+        "# priqn evaluation report" + (" (partial)" if evaluation.left_out else ""),
         "",
+        *(
+            [
+                f"**Partial:** {len(evaluation.runs)} evaluated run(s); "
+                f"{len(evaluation.left_out)} not yet evaluated left out (see Notes).",
+                "",
+            ]
+            if evaluation.left_out
+            else []
+        ),
         f"Made by `{cmd}`; episodes by `priqn evaluate` on every run below.",
         "",
         f"- **Hold-out set**: family `{ec.get('family')}`, manifest hash `{evaluation.holdout_hash}` "
@@ -226,7 +242,11 @@ def make_report(
         f"{axes}Scores: success rate (SR) and mean "
         "route progress (RP) per cell; optimality-gap threshold 1.",
         "- **Tables**: mean ± sample std (ddof=1) over training seeds × evaluation runs; "
-        "**best** / <u>second</u> per column and density on the printed means (ties share).",
+        + (
+            "**best** / <u>second</u> per column and density on the printed means (ties share)."
+            if ranked
+            else "no best / second marks (too few training seeds; see rliable)."
+        ),
         "",
         "## Table II — driving metrics",
         "",
@@ -282,6 +302,7 @@ def make_report(
                 for r in evaluation.runs
             ],
             "policies": order,
+            "left_out": list(evaluation.left_out),
             "notes": notes,
         },
     )
@@ -300,6 +321,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds", type=int, default=None, help="refuse if a policy has fewer training seeds"
     )
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="report the fully evaluated runs of a grid still running; name the rest",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -308,11 +334,19 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "
-        f"--seed {args.seed} --reps {args.reps}" + (f" --seeds {args.seeds}" if args.seeds else "")
+        f"--seed {args.seed} --reps {args.reps}"
+        + (f" --seeds {args.seeds}" if args.seeds else "")
+        + (" --partial" if args.partial else "")
     )
     print(
         make_report(
-            args.runs, out, seed=args.seed, reps=args.reps, min_seeds=args.seeds, command=command
+            args.runs,
+            out,
+            seed=args.seed,
+            reps=args.reps,
+            min_seeds=args.seeds,
+            command=command,
+            partial=args.partial,
         )
     )
     return 0
