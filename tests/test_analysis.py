@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from priqn.analysis import tables
+from priqn.analysis.claims import CLAIMS
 from priqn.analysis.load import check_seeds, load_evaluation
 from priqn.analysis.report import make_report
 from priqn.analysis.stats import (
@@ -463,3 +464,19 @@ def test_partial_report_with_nothing_evaluated_is_one_line(tmp_path) -> None:
     (tmp_path / "grid" / "cell" / "config.toml").write_text("")
     with pytest.raises(PriqnError, match="none of its 1 runs is fully evaluated yet"):
         load_evaluation(tmp_path / "grid", partial=True)
+
+
+def test_report_checks_the_papers_claims_its_rows_allow(runs, tmp_path) -> None:
+    """IQN and Pr-IQN* (2 seeds each): the claims on those two rows are in the report."""
+    report = make_report(runs, tmp_path / "out", seed=0, reps=50).read_text()
+    assert "## The paper's claims" in report
+    # The fixture evaluates densities 0.5 and 1.0 only: the per-density claim waits.
+    assert "pending: no episodes at density 0.75" in report
+    # Table I by hand: safety −10 (IQN) vs −5 (Pr-IQN) at 0.5, −4 vs −4 at 1.0 → +2.5.
+    assert "Pr-IQN QD ✓ 0.2 ✗ − IQN, safety, all densities: +2.50 [+2.50, +2.50] (holds)" in report
+    assert "Not checked here (rows not in this report): star-vs-ensemble" in report
+    frame = pd.read_csv(tmp_path / "out" / "tables" / "claims.csv")
+    assert set(frame["claim"]) == {c.key for c in CLAIMS}
+    # Risk −3 (Pr-IQN) vs −2 (IQN) everywhere: the opposite of the claim, so not reproduced.
+    table1 = frame[frame["claim"] == "table1"]
+    assert set(table1["verdict"]) == {"not reproduced"}

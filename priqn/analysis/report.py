@@ -7,6 +7,8 @@
     out_dir/tables/table2.{md,tex,csv}, table1.{md,tex,csv}
     out_dir/tables/rliable_aggregates.csv, probability_of_improvement.csv,
                    performance_profiles.csv
+    out_dir/tables/claims.csv         the paper's claims (priqn.analysis.claims), when the
+                                      report holds every row of at least one claim
     out_dir/figures/{probability_of_improvement,iqm_optimality_gap,
                      performance_profile,learning_curves}.{png,pdf}
 
@@ -91,7 +93,7 @@ def make_report(
     """
     import pandas as pd
 
-    from priqn.analysis import figures, tables
+    from priqn.analysis import claims, figures, tables
     from priqn.analysis.load import (
         check_seeds,
         find_run_dirs,
@@ -182,6 +184,15 @@ def make_report(
         )
         figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
         figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
+    claim_results = claims.evaluate_claims(episodes, reps, seed)
+    claims_checked = any(not r.missing for r in claim_results)
+    if claims_checked:
+        atomic_write_text(
+            tdir / "claims.csv",
+            claims.to_frame(claim_results).to_csv(
+                index=False, float_format="%.10g", lineterminator="\n"
+            ),
+        )
     curves, curve_notes = load_learning_curves(find_run_dirs(runs_root), evaluation)
     if len(curves):
         figures.save_figure(figures.learning_curves_figure(curves, order), fdir, "learning_curves")
@@ -254,6 +265,11 @@ def make_report(
         "## Table I — objective returns",
         "",
         tables.to_markdown(t1),
+        *(
+            ["## The paper's claims", "", claims.to_markdown(claim_results, reps, seed)]
+            if claims_checked
+            else []
+        ),
         *rliable_md,
         "## Learning curves",
         "",
