@@ -480,3 +480,19 @@ def test_report_checks_the_papers_claims_its_rows_allow(runs, tmp_path) -> None:
     # Risk −3 (Pr-IQN) vs −2 (IQN) everywhere: the opposite of the claim, so not reproduced.
     table1 = frame[frame["claim"] == "table1"]
     assert set(table1["verdict"]) == {"not reproduced"}
+
+
+def test_outcomes_by_command_by_hand(runs, tmp_path) -> None:
+    """IQN: half succeed, half collide; Pr-IQN: 1 of 8 episodes per unit off-road."""
+    episodes = load_evaluation(runs).episodes
+    frame = tables.outcomes_by_command(episodes, ["IQN", "Pr-IQN QD ✓ 0.2 ✗"])
+    assert list(frame["command"]) == ["left", "left"]
+    iqn, pr = frame.to_dict("records")
+    assert (iqn["episodes"], iqn["success"], iqn["collision"], iqn["timeout"]) == (32, 0.5, 0.5, 0)
+    assert (pr["success"], pr["off_road"]) == (7 / 8, 1 / 8)
+    for row in (iqn, pr):  # exactly one outcome per episode
+        assert sum(row[o] for o in tables.OUTCOMES) == pytest.approx(1.0)
+    assert "| IQN | left | 32 | 50 % | 50 % | 0 % | 0 % |" in tables.outcomes_markdown(frame)
+    make_report(runs, tmp_path / "out", seed=0, reps=20)
+    assert (tmp_path / "out" / "figures" / "outcomes_by_command.png").is_file()
+    assert "## How episodes end, by route command" in (tmp_path / "out" / "report.md").read_text()

@@ -6,6 +6,7 @@ SVG hash salt, the Agg backend.
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -264,3 +265,43 @@ def write_training_curve(rows: Sequence[Mapping[str, Any]], path: Path, title: s
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
+
+
+OUTCOME_COLORS: dict[str, str] = {
+    "success": "tab:green",
+    "collision": "tab:red",
+    "off_road": "tab:orange",
+    "timeout": "tab:gray",
+}
+
+
+def outcomes_figure(frame: pd.DataFrame, order: list[str]) -> plt.Figure:
+    """Stacked bars: how each policy's episodes end, one bar per route command.
+
+    ``frame`` is :func:`priqn.analysis.tables.outcomes_by_command`'s table.
+    """
+    commands = list(dict.fromkeys(frame["command"]))
+    labels = [label for label in order if label in set(frame["label"])]
+    ncols = min(len(labels), 7)
+    nrows = -(-len(labels) // ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(1.2 + 1.3 * ncols, 0.4 + 2.9 * nrows), sharey=True, squeeze=False
+    )
+    for ax in axes.flat[len(labels) :]:
+        ax.set_visible(False)
+    for ax, label in zip(axes.flat, labels, strict=False):
+        mine = frame[frame["label"] == label].set_index("command").reindex(commands)
+        bottom = np.zeros(len(commands))
+        for outcome, color in OUTCOME_COLORS.items():
+            values = mine[outcome].fillna(0.0).to_numpy(float)
+            ax.bar(commands, values, bottom=bottom, color=color, label=outcome.replace("_", "-"))
+            bottom += values
+        ax.set_title(textwrap.fill(label, 14), fontsize=8)
+        ax.tick_params(axis="x", labelsize=7, rotation=45)
+        ax.set_ylim(0, 1)
+    for row in axes:
+        row[0].set_ylabel("fraction of episodes")
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="upper center", ncol=4, fontsize=8, bbox_to_anchor=(0.5, 1.08))
+    fig.tight_layout()
+    return fig

@@ -7,10 +7,12 @@
     out_dir/tables/table2.{md,tex,csv}, table1.{md,tex,csv}
     out_dir/tables/rliable_aggregates.csv, probability_of_improvement.csv,
                    performance_profiles.csv
+    out_dir/tables/outcomes_by_command.csv  how episodes end, per policy and command
     out_dir/tables/claims.csv         the paper's claims (priqn.analysis.claims), when the
                                       report holds every row of at least one claim
     out_dir/figures/{probability_of_improvement,iqm_optimality_gap,
-                     performance_profile,learning_curves}.{png,pdf}
+                     performance_profile,learning_curves,
+                     outcomes_by_command}.{png,pdf}
 
 Same inputs and seed give byte-identical tables and report.md (no timestamps).
 """
@@ -184,6 +186,12 @@ def make_report(
         )
         figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
         figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
+    outcomes = tables.outcomes_by_command(episodes, order)
+    atomic_write_text(
+        tdir / "outcomes_by_command.csv",
+        outcomes.to_csv(index=False, float_format="%.10g", lineterminator="\n"),
+    )
+    figures.save_figure(figures.outcomes_figure(outcomes, order), fdir, "outcomes_by_command")
     claim_results = claims.evaluate_claims(episodes, reps, seed)
     claims_checked = any(not r.missing for r in claim_results)
     if claims_checked:
@@ -262,6 +270,15 @@ def make_report(
         "## Table II — driving metrics",
         "",
         tables.to_markdown(t2),
+        "## How episodes end, by route command",
+        "",
+        "Densities pooled; every episode ends in exactly one outcome (timeout = the "
+        "time limit reached without finishing the route).",
+        "",
+        tables.outcomes_markdown(outcomes),
+        "![Outcomes by command](figures/outcomes_by_command.png) "
+        "([pdf](figures/outcomes_by_command.pdf))",
+        "",
         "## Table I — objective returns",
         "",
         tables.to_markdown(t1),

@@ -422,3 +422,45 @@ def to_csv(table: Table) -> str:
                     rec[f"{name}_delta_pct"] = row["delta_pct"]
             records.append(rec)
     return pd.DataFrame(records).to_csv(index=False, float_format="%.10g", lineterminator="\n")
+
+
+OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
+"""How an episode ends (exactly one per episode), in the outcome table's column order."""
+COMMAND_ORDER: tuple[str, ...] = ("left", "straight", "right")
+"""Column order of the route commands; others follow alphabetically."""
+
+
+def outcomes_by_command(episodes: pd.DataFrame, order: Sequence[str]) -> pd.DataFrame:
+    """How each policy's episodes end, per route command, densities pooled.
+
+    One row per (policy, command) in table order: ``episodes`` (count) and the fraction of
+    them ending in each of :data:`OUTCOMES` (they sum to 1). Shows *why* a success rate is
+    low — e.g. a policy that never completes a left turn because it waits until the time
+    limit — which Table II's per-density means hide.
+    """
+    commands = sorted(
+        episodes["command"].astype(str).unique(),
+        key=lambda c: (COMMAND_ORDER.index(c) if c in COMMAND_ORDER else len(COMMAND_ORDER), c),
+    )
+    rows = []
+    for label in order:
+        mine = episodes[episodes["label"] == label]
+        for command in commands:
+            part = mine[mine["command"].astype(str) == command]
+            if part.empty:
+                continue
+            fractions = {o: float(part[o].astype(bool).mean()) for o in OUTCOMES}
+            rows.append({"label": label, "command": command, "episodes": len(part), **fractions})
+    return pd.DataFrame(rows, columns=["label", "command", "episodes", *OUTCOMES])
+
+
+def outcomes_markdown(frame: pd.DataFrame) -> str:
+    """The outcome table as Markdown: one row per (policy, command), percentages."""
+    lines = [
+        "| Policy | Command | Episodes | Success | Collision | Off-road | Timeout |",
+        "|:--|:--|--:|--:|--:|--:|--:|",
+    ]
+    for row in frame.itertuples(index=False):
+        cells = [f"{100 * getattr(row, o):.0f} %" for o in OUTCOMES]
+        lines.append(f"| {row.label} | {row.command} | {row.episodes} | {' | '.join(cells)} |")
+    return "\n".join(lines) + "\n"
