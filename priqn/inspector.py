@@ -304,18 +304,39 @@ def frame_figure(
 
 
 def summary_figure(rows: list[dict], preorder: Any, path: Path) -> None:
-    """How often each level pruned a head's greedy action, and mean |S_r| per level."""
+    """``summary.png``: the chosen manoeuvre decision by decision.
+
+    For a preorder agent also how often each level pruned a head's greedy action, and the
+    mean |S_r| per level.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    if preorder is None:
-        for ax in axes:
-            ax.text(0.5, 0.5, "no preorder: this agent has no optimal subsets", ha="center")
-            ax.set_axis_off()
-    else:
+    mosaic = (
+        [["v"], ["d"]] if preorder is None else [["prune", "size", "v"], ["prune", "size", "d"]]
+    )
+    fig, axes = plt.subplot_mosaic(
+        mosaic, figsize=(4.6 * len(mosaic[0]), 4.0), layout="constrained"
+    )
+    # What the policy chose, decision by decision: a policy that waits shows v_f = 0.
+    x = np.arange(len(rows))
+    for key, column, name, color in (
+        ("v", "v_f_mps", "v_f [m/s]", "tab:blue"),
+        ("d", "d_f_m", "d_f [m]", "tab:orange"),
+    ):
+        ax = axes[key]
+        ax.step(x, [r[column] for r in rows], where="post", color=color)
+        ax.set_ylabel(name, color=color)
+        for i in range(1, len(rows)):
+            if rows[i]["episode"] != rows[i - 1]["episode"]:
+                ax.axvline(i, color="0.6", lw=0.8, ls="--")
+    axes["v"].set_title("chosen action: target speed, lateral offset")
+    axes["v"].tick_params(labelbottom=False)
+    axes["v"].sharex(axes["d"])
+    axes["d"].set_xlabel("decision (all inspected episodes)")
+    if preorder is not None:
         levels = [*preorder.topological_order(), "leaf"]
         counts = {lv: 0 for lv in levels}
         for r in rows:
@@ -323,16 +344,15 @@ def summary_figure(rows: list[dict], preorder: Any, path: Path) -> None:
                 lv = r.get(f"pruned_by_{o}", KEPT)
                 if lv:
                     counts[lv] += 1
-        axes[0].bar(levels, [counts[lv] for lv in levels], color="tab:red")
-        axes[0].set_title("level that removed a head's greedy action (count)")
+        axes["prune"].bar(levels, [counts[lv] for lv in levels], color="tab:red")
+        axes["prune"].set_title("level that removed a head's greedy action (count)")
         sizes = [np.mean([r[f"size_{lv}"] for r in rows]) for lv in levels]
-        axes[1].bar(levels, sizes, color="tab:blue")
-        axes[1].set_title("mean optimal-subset size |S_r|")
-        for ax in axes:
-            ax.tick_params(axis="x", rotation=30, labelsize=8)
-    fig.tight_layout()
+        axes["size"].bar(levels, sizes, color="tab:blue")
+        axes["size"].set_title("mean optimal-subset size |S_r|")
+        for key in ("prune", "size"):
+            axes[key].tick_params(axis="x", rotation=30, labelsize=8)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
 
