@@ -20,6 +20,7 @@ from priqn.analysis.claims import (
     run_means,
     verdict,
 )
+from priqn.errors import PriqnError
 
 STAR, BASE = PR_IQN_STAR.render(), IQN.render()
 
@@ -182,3 +183,14 @@ def test_markdown_and_frame() -> None:
     star = frame[frame["claim"] == "star-vs-iqn"]
     assert list(star["density"]) == [0.5, 0.75, 1.0] and (star["diff"] == 0.5).all()
     assert (frame[frame["claim"] == "ours-fsd"]["verdict"] == "pending").all()
+
+
+def test_seeds_with_different_evaluation_runs_are_one_line() -> None:
+    ragged = pd.concat(
+        [
+            episodes(BASE, lambda s, r, d: 0.5, seeds=(0,), runs=(0, 1)),
+            episodes(BASE, lambda s, r, d: 0.5, seeds=(1,), runs=(0,)),
+        ]
+    )
+    with pytest.raises(PriqnError, match="IQN: training seeds were evaluated on different"):
+        run_means(ragged, BASE, "success", 0.5)

@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from priqn.errors import PriqnError
 from priqn.labels import PolicyLabel
 
 EQUIVALENCE_MARGIN: dict[str, float] = {"success": 0.05}
@@ -243,15 +244,15 @@ def run_means(episodes: pd.DataFrame, label: str, metric: str, density: float | 
     """``scores_SR``: mean of ``metric`` per (training seed, evaluation run) of one policy.
 
     Rows are the policy's training seeds, columns its evaluation runs (both sorted); the
-    mean is over every net and episode at ``density`` (None: every density). Raises
-    ValueError when the seeds do not all have the same evaluation runs.
+    mean is over every net and episode at ``density`` (None: every density). A one-line
+    PriqnError when the seeds do not all have the same evaluation runs.
     """
     rows = episodes[episodes["label"] == label]
     if density is not None:
         rows = rows[np.isclose(rows["density"].astype(float), density)]
     table = rows.groupby(["train_seed", "eval_run"])[metric].mean().astype(float).unstack()
     if table.isna().any().any():
-        raise ValueError(f"{label}: training seeds were evaluated on different evaluation runs")
+        raise PriqnError(f"{label}: training seeds were evaluated on different evaluation runs")
     return table.sort_index().sort_index(axis=1).to_numpy()
 
 
