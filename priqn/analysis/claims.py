@@ -372,7 +372,8 @@ def to_markdown(results: list[ClaimResult], reps: int, seed: int) -> str:
         f"bootstrap (training seeds, then evaluation runs within a seed), {reps} "
         f"replications, `numpy.random.default_rng({seed})`. Rule (fixed before the data, "
         "`priqn/analysis/claims.py`): a comparison holds when its CI is on the claimed side "
-        f"of 0, and is contradicted when its CI is on the other side or inside ±δ ({margins}); "
+        "of 0, and is contradicted when its CI is on the other side or straddles 0 within ±δ "
+        f"({margins}); "
         "reproduced = all hold, not reproduced = any contradicted, otherwise inconclusive at "
         f"this budget; pending while a row is missing or has fewer than {MIN_SEEDS} "
         "training seeds.",
