@@ -438,15 +438,16 @@ def outcomes_by_command(episodes: pd.DataFrame, order: Sequence[str]) -> pd.Data
     low — e.g. a policy that never completes a left turn because it waits until the time
     limit — which Table II's per-density means hide.
     """
+    command_E = episodes["command"].fillna("").astype(str).replace("", "unknown")
     commands = sorted(
-        episodes["command"].astype(str).unique(),
+        command_E.unique(),
         key=lambda c: (COMMAND_ORDER.index(c) if c in COMMAND_ORDER else len(COMMAND_ORDER), c),
     )
     rows = []
     for label in order:
-        mine = episodes[episodes["label"] == label]
+        mine = episodes["label"] == label
         for command in commands:
-            part = mine[mine["command"].astype(str) == command]
+            part = episodes[mine & (command_E == command)]
             if part.empty:
                 continue
             fractions = {o: float(part[o].astype(bool).mean()) for o in OUTCOMES}
