@@ -322,6 +322,9 @@ def summary_figure(rows: list[dict], preorder: Any, path: Path) -> None:
     )
     # What the policy chose, decision by decision: a policy that waits shows v_f = 0.
     x = np.arange(len(rows))
+    episode_starts = [
+        i for i in range(1, len(rows)) if rows[i]["episode"] != rows[i - 1]["episode"]
+    ]
     for key, column, name, color in (
         ("v", "v_f_mps", "v_f [m/s]", "tab:blue"),
         ("d", "d_f_m", "d_f [m]", "tab:orange"),
@@ -329,9 +332,8 @@ def summary_figure(rows: list[dict], preorder: Any, path: Path) -> None:
         ax = axes[key]
         ax.step(x, [r[column] for r in rows], where="post", color=color)
         ax.set_ylabel(name, color=color)
-        for i in range(1, len(rows)):
-            if rows[i]["episode"] != rows[i - 1]["episode"]:
-                ax.axvline(i, color="0.6", lw=0.8, ls="--")
+        for i in episode_starts:
+            ax.axvline(i, color="0.6", lw=0.8, ls="--")
     axes["v"].set_title("chosen action: target speed, lateral offset")
     axes["v"].tick_params(labelbottom=False)
     axes["v"].sharex(axes["d"])

@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
+from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
 from priqn.objectives import OBJECTIVES  # noqa: E402
 
@@ -267,12 +268,10 @@ def write_training_curve(rows: Sequence[Mapping[str, Any]], path: Path, title: s
     atomic_write_bytes(path, buf.getvalue())
 
 
-OUTCOME_COLORS: dict[str, str] = {
-    "success": "tab:green",
-    "collision": "tab:red",
-    "off_road": "tab:orange",
-    "timeout": "tab:gray",
-}
+OUTCOME_COLORS: dict[str, str] = dict(
+    zip(OUTCOMES, ("tab:green", "tab:red", "tab:orange", "tab:gray"), strict=True)
+)
+"""Bar colour of each episode outcome (:data:`priqn.analysis.tables.OUTCOMES`, in order)."""
 
 
 def outcomes_figure(frame: pd.DataFrame, order: list[str]) -> plt.Figure:
