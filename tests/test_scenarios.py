@@ -256,7 +256,10 @@ def test_manifest_hash_is_sha256_of_sorted_file_lines():
     assert manifest_hash("tjunction") != manifest_hash("fourway")
 
 
-def test_net_refs_and_missing_net_error():
+def test_net_refs_and_missing_net_error(tmp_path, monkeypatch):
+    # The shipped nets: from a folder without its own ./sumo_nets (the README's first
+    # command writes one into the checkout, and a ./sumo_nets is searched first).
+    monkeypatch.chdir(tmp_path)
     assert set(FAMILIES) <= set(list_generated())
     refs = family_net_refs("holdout")
     assert refs == ["holdout/tjunction_00", "holdout/fourway_00", "holdout/fourway_01"]
