@@ -18,6 +18,9 @@ call skips finished cells. ``eval/meta.json`` says ``"status": "complete"`` only
 after every cell is done; it records the hold-out manifest hash, the EvalConfig
 and the seeds. A different hold-out set or EvalConfig than a half-finished
 evaluation refuses to mix (``--force`` starts over).
+
+``--acting near-greedy`` evaluates the greedy baselines once more, acting at random
+among their near-best actions (the acting-randomness control), into ``eval-near-greedy/``.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shutil
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -74,6 +78,10 @@ EPISODE_COLUMNS: tuple[str, ...] = (
 """Columns of ``eval/episodes.csv``, in order (one row per episode)."""
 
 
+ACTINGS: tuple[str, ...] = ("own", "near-greedy")
+"""Values of ``EvalConfig.acting``; each evaluates into its own folder (:func:`eval_dir_of`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class EvalConfig:
     """How a trained run is evaluated (recorded in ``eval/meta.json``)."""
@@ -99,8 +107,20 @@ class EvalConfig:
     """Override of the run's episode step limit; 0 keeps the run's own."""
     device: str = "cpu"
     """Torch device for the policy network."""
+    acting: str = "own"
+    """How the policy acts: "own" (its agent's rule: greedy, or Pr-IQN's sample from its
+    leaf subset; written to eval/) or "near-greedy" (the acting-randomness control for
+    IQN, Ensemble-IQN and MA-IQN: uniform among the actions whose mean is within
+    acting_eps of the best; written to eval-near-greedy/, labelled as its own row)."""
+    acting_eps: float = 0.2
+    """Tolerance ε of near-greedy acting, in per-state standard deviations of the scalar
+    value's quantiles (the z-score of Pr-IQN's comparators; 0.2 is Pr-IQN*'s ε)."""
 
     def __post_init__(self) -> None:
+        if self.acting not in ACTINGS:
+            raise ValueError(f"acting: {self.acting!r} is not one of {', '.join(ACTINGS)}")
+        if not self.acting_eps >= 0:
+            raise ValueError(f"acting_eps: must be >= 0, got {self.acting_eps}")
         if not self.densities:
             raise ValueError("densities: need at least one density")
         if any(not 0.0 < d <= 1.0 for d in self.densities):
@@ -182,10 +202,27 @@ RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers"})
 """EvalConfig fields that do not change any episode (may differ on resume)."""
 
 
+def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """Result-affecting differences of two recorded EvalConfigs (``config_differences``).
+
+    A field missing from a record written before the field existed counts as its
+    default: the evaluation behaved as the default does (``acting`` was always "own").
+    """
+    defaults = to_dict(EvalConfig())
+    return config_differences(
+        {**defaults, **old}, {**defaults, **new}, ignore=RESULT_NEUTRAL_FIELDS
+    )
+
+
 def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
     """``"field old -> new, ..."`` for result-affecting EvalConfig fields that differ."""
-    diff = config_differences(old, new, ignore=RESULT_NEUTRAL_FIELDS)
+    diff = eval_config_differences(old, new)
     return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
+
+
+def eval_dir_of(run: RunFolder, cfg: EvalConfig) -> Path:
+    """The run's evaluation folder for ``cfg``: ``eval/``, or ``eval-<acting>/`` for a control."""
+    return run.evaluation_dir("" if cfg.acting == "own" else cfg.acting)
 
 
 def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:
@@ -437,19 +474,23 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     net_ids = _net_ids(load_manifest(cfg.family))
     holdout_hash = manifest_hash(cfg.family)
-    if not force and run.eval_meta_path.is_file():
-        old = run.eval_meta()
+    eval_dir = eval_dir_of(run, cfg)
+    meta_path, episodes_path = eval_dir / RunFolder.META, eval_dir / RunFolder.EVAL_EPISODES
+    if not force and meta_path.is_file():
+        old = read_json(meta_path)
         if (
             old.get("status") == "complete"
             and old.get("holdout_hash") == holdout_hash
             and not eval_config_changes(old.get("eval_config") or {}, to_dict(cfg))
-            and run.eval_episodes_path.is_file()
+            and episodes_path.is_file()
         ):
-            return run.eval_episodes_path
+            return episodes_path
 
     from priqn.env.vector import make_vector_env
 
     policy = run.load_policy(device=cfg.device)
+    if cfg.acting == "near-greedy":
+        policy = policy.near_greedy(cfg.acting_eps)
     # The hold-out family, also for a run trained on its own nets (env.nets).
     env_cfg = dataclasses.replace(policy.env_config, family=cfg.family, nets=())
     if cfg.max_episode_steps:
@@ -459,17 +500,26 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
         # The vector env's own seed only seeds autoresets, whose scenes are discarded.
         return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
 
-    return evaluate_policy(
-        policy,
-        run.eval_dir,
-        cfg,
-        net_ids,
-        holdout_hash,
-        run.name,
-        make_env,
-        extra_meta={"env_config": to_dict(env_cfg)},
-        force=force,
-    )
+    import torch
+
+    # The policy acts on one state at a time: more torch threads only fight the env
+    # workers (and anything else running) for the cores, 10-60x slower on 2 busy cores.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return evaluate_policy(
+            policy,
+            eval_dir,
+            cfg,
+            net_ids,
+            holdout_hash,
+            run.name,
+            make_env,
+            extra_meta={"env_config": to_dict(env_cfg)},
+            force=force,
+        )
+    finally:
+        torch.set_num_threads(threads)
 
 
 def find_runs(paths: Iterable[str | Path]) -> list[Path]:
@@ -489,8 +539,32 @@ def find_runs(paths: Iterable[str | Path]) -> list[Path]:
 
 
 def evaluate(paths: Iterable[str | Path], cfg: EvalConfig, force: bool = False) -> list[Path]:
-    """Evaluate every run under ``paths`` (one after another); returns episode tables."""
-    return [evaluate_run(run, cfg, force=force) for run in find_runs(paths)]
+    """Evaluate every run under ``paths`` (one after another); returns episode tables.
+
+    With near-greedy acting, runs of agents that act on optimal subsets (Pr-IQN) are
+    skipped with a note on stderr: the control is for the greedy baselines.
+    """
+    runs = find_runs(paths)
+    if cfg.acting == "near-greedy":
+        runs = [run for run in runs if _has_scalar_value(run)]
+        if not runs:
+            raise PriqnError(
+                "near-greedy acting: none of these runs is an IQN, Ensemble-IQN or MA-IQN run"
+            )
+    return [evaluate_run(run, cfg, force=force) for run in runs]
+
+
+def _has_scalar_value(run: Path) -> bool:
+    from priqn.agents.config import has_scalar_value
+
+    name = RunFolder(run).config().agent.name
+    if has_scalar_value(name):
+        return True
+    print(
+        f"{run}: skipped ({name} acts on its optimal subsets; near-greedy is for the greedy baselines)",
+        file=sys.stderr,
+    )
+    return False
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -504,6 +578,15 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--densities", help="comma-separated densities (default 0.5,0.75,1.0)")
     parser.add_argument("--seed", type=int, help="evaluation seed (default 2026)")
     parser.add_argument("--workers", type=int, help="environment worker processes")
+    parser.add_argument(
+        "--acting",
+        choices=ACTINGS,
+        help="own (default: the agent's rule, into eval/) or near-greedy (the acting-randomness "
+        "control for the greedy baselines, into eval-near-greedy/)",
+    )
+    parser.add_argument(
+        "--acting-eps", type=float, help="near-greedy tolerance ε [per-state std] (default 0.2)"
+    )
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
     )
@@ -526,6 +609,10 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         sets.append(f"seed={args.seed}")
     if args.workers is not None:
         sets.append(f"num_workers={args.workers}")
+    if args.acting is not None:
+        sets.append(f"acting={args.acting!r}")
+    if args.acting_eps is not None:
+        sets.append(f"acting_eps={args.acting_eps!r}")
     if args.densities:
         try:
             values = [float(x) for x in args.densities.split(",") if x.strip()]

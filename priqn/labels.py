@@ -113,6 +113,12 @@ class PolicyLabel:
         )
 
 
+def near_greedy(label: PolicyLabel, eps: float) -> PolicyLabel:
+    """``label``'s network evaluated with near-greedy acting (``priqn evaluate --acting
+    near-greedy``): the same row with the words ``near-greedy ε=<eps>`` appended."""
+    return dataclasses.replace(label, extra=(*label.extra, "near-greedy", f"ε={eps:g}"))
+
+
 def _missing_to_none(value: Any) -> Any:
     if value is None or value == "" or (isinstance(value, float) and math.isnan(value)):
         return None

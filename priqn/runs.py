@@ -146,7 +146,17 @@ class RunFolder:
 
     @property
     def eval_dir(self) -> Path:
+        """The run's own evaluation (``eval/``); controls live beside it (:meth:`evaluation_dir`)."""
         return self.path / self.EVAL
+
+    def evaluation_dir(self, name: str = "") -> Path:
+        """``eval/`` for ``name`` "", else ``eval-<name>/`` (e.g. ``eval-near-greedy``)."""
+        return self.eval_dir if not name else self.path / f"{self.EVAL}-{name}"
+
+    def control_evaluations(self) -> list[str]:
+        """Names of the control evaluations (``eval-<name>/`` folders beside ``eval/``), sorted."""
+        prefix = f"{self.EVAL}-"
+        return sorted(p.name[len(prefix) :] for p in self.path.glob(prefix + "*") if p.is_dir())
 
     @property
     def eval_meta_path(self) -> Path:
@@ -193,9 +203,10 @@ class RunFolder:
         """meta.json's ``status`` as written (None without a readable meta.json)."""
         return _status_in(self.meta_path)
 
-    def recorded_eval_status(self) -> str | None:
-        """eval/meta.json's ``status`` as written (None when never evaluated or unreadable)."""
-        return _status_in(self.eval_meta_path)
+    def recorded_eval_status(self, name: str = "") -> str | None:
+        """eval/meta.json's ``status`` as written (None when never evaluated or unreadable);
+        ``name``: of the control evaluation ``eval-<name>/`` instead."""
+        return _status_in(self.evaluation_dir(name) / self.META)
 
     def status(self) -> str:
         """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""

@@ -100,6 +100,59 @@ def test_baseline_acting_rules_by_hand():
     assert make_agent("iqn").act(q[:, :1], u).item() == 0
 
 
+def test_near_greedy_set_by_hand():
+    """One state, K = 2, A = 3, both quantiles of action a equal to a: means 0, 1, 2.
+    The 6 entries have population std sqrt(2/3) = 0.816, so action 1 is 1.22 std below
+    the best and action 0 2.45: ε 1.0 keeps {2}, ε 1.3 {1, 2}, ε 2.5 all three."""
+    values_BKA = torch.tensor([[[0.0, 1.0, 2.0], [0.0, 1.0, 2.0]]])
+    sets = {
+        eps: rules.near_greedy_subsets(values_BKA, eps).leaf[0].tolist()
+        for eps in (0.0, 1.0, 1.3, 2.5)
+    }
+    assert sets == {
+        0.0: [False, False, True],
+        1.0: [False, False, True],
+        1.3: [False, True, True],
+        2.5: [True, True, True],
+    }
+
+
+@pytest.mark.parametrize("name", ["iqn", "ensemble-iqn", "ma-iqn"])
+def test_scalar_value_ranks_like_the_greedy_rule(name):
+    """The near-greedy control ranks actions by the value the agent's greedy rule uses:
+    the argmax of its mean is the greedy action, so ε = 0 acts greedily."""
+    agent = make_agent(name)
+    q = torch.randn(64, agent.num_heads, K, A, generator=torch.Generator().manual_seed(3))
+    values = rules.SCALAR_VALUES[agent.spec.acting_rule](q, agent.reward_weights_5)
+    greedy = agent.act(q, torch.zeros(64))
+    assert torch.equal(values.mean(dim=1).argmax(dim=1), greedy)
+    subset = rules.near_greedy_subsets(values, 0.0).leaf
+    assert subset.sum(dim=1).eq(1).all() and torch.equal(subset.long().argmax(dim=1), greedy)
+
+
+def test_near_greedy_policy_label_acting_and_refusal():
+    iqn = make_agent("iqn")
+    policy = Policy(small_net(1), iqn, K, labels=iqn.labels)
+    control = policy.near_greedy(0.2)
+    assert control.labels["label"] == "IQN near-greedy ε=0.2" and policy.labels["label"] == "IQN"
+    assert control.network is policy.network and control.subset_size_names == ("leaf",)
+    rng = np.random.default_rng(0)
+    obs = {
+        "bev": rng.integers(0, 255, (5, 4, 32, 32)).astype(np.uint8),
+        "lidar": rng.integers(0, 255, (5, 2, 32, 32)).astype(np.uint8),
+        "command": np.eye(3, dtype=np.float32)[[0, 1, 2, 0, 1]],
+        "kinematics": rng.normal(size=(5, 4)).astype(np.float32),
+    }
+    values_BKA = policy.quantiles(obs)[:, 0]
+    allowed_BA = rules.near_greedy_subsets(values_BKA, 0.2).leaf.numpy()
+    actions = control.act(obs, rng)
+    assert allowed_BA[np.arange(5), actions].all()
+    assert control.last_subset_sizes.shape == (5, 1)
+    assert (control.last_subset_sizes[:, 0] == allowed_BA.sum(axis=1)).all()
+    with pytest.raises(PriqnError, match="near-greedy acting applies to agents with one scalar"):
+        Policy(small_net(5), make_agent("pr-iqn"), K).near_greedy(0.2)
+
+
 def test_rewards_follow_the_rule():
     r = torch.tensor([[1.0, 2.0, 4.0, 8.0, 16.0]])
     iqn = make_agent("iqn", AgentConfig(reward_weights=(1.0, 0.5, 0.25, 0.125, 0.0625)))

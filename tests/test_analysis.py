@@ -67,8 +67,12 @@ def write_run(
     *,
     holdout=HASH,
     eval_config=None,
+    eval_dir_name="eval",
+    status="complete",
 ):
-    """One evaluated run; ``value(seed, eval_run, density, net, episode) -> dict`` of episode fields."""
+    """One evaluated run; ``value(seed, eval_run, density, net, episode) -> dict`` of episode fields.
+
+    ``eval_dir_name`` ``eval-<name>`` writes a control evaluation beside the run's own."""
     cfg = eval_config or EVAL_CONFIG
     rows = []
     for r in range(cfg["eval_runs"]):
@@ -102,12 +106,12 @@ def write_run(
                             **v,
                         }
                     )
-    eval_dir = root / name / "eval"
+    eval_dir = root / name / eval_dir_name
     eval_dir.mkdir(parents=True)
     (root / name / "config.toml").write_text("")
     pd.DataFrame(rows, columns=list(EPISODE_COLUMNS)).to_csv(eval_dir / "episodes.csv", index=False)
     (eval_dir / "meta.json").write_text(
-        json.dumps({"status": "complete", "holdout_hash": holdout, "eval_config": cfg})
+        json.dumps({"status": status, "holdout_hash": holdout, "eval_config": cfg})
     )
 
 
@@ -326,7 +330,7 @@ def test_errors_are_one_line(tmp_path, runs) -> None:
 
     (runs / "trained_only").mkdir()
     (runs / "trained_only" / "config.toml").write_text("")
-    with pytest.raises(PriqnError, match="1 of 5 runs not .fully. evaluated: trained_only"):
+    with pytest.raises(PriqnError, match="1 of 5 evaluations not complete: trained_only"):
         load_evaluation(runs)
     (runs / "trained_only" / "config.toml").unlink()
     (runs / "trained_only").rmdir()
@@ -457,6 +461,38 @@ def test_partial_report_leaves_out_unevaluated_runs_and_names_them(runs, tmp_pat
     (runs / "still_training" / "config.toml").unlink()  # nothing left out: no banner
     complete = make_report(runs, tmp_path / "whole", seed=0, reps=20, partial=True).read_text()
     assert "(partial)" not in complete and "left out" not in complete
+
+
+def test_control_evaluations_are_their_own_rows(runs, tmp_path) -> None:
+    """eval-near-greedy/ beside eval/: the same network acting otherwise is its own policy
+    row (label with the control's words), named "<run>/eval-near-greedy"; a control that
+    is not complete is refused, or left out with --partial, like a run."""
+    control = "IQN near-greedy ε=0.2"
+    for seed in (0, 1):
+        write_run(
+            runs, f"iqn_s{seed}", control, IQN, seed, pr_value, eval_dir_name="eval-near-greedy"
+        )
+    ev = load_evaluation(runs)
+    assert [r.name for r in ev.runs] == [
+        "iqn_s0",
+        "iqn_s0/eval-near-greedy",
+        "iqn_s1",
+        "iqn_s1/eval-near-greedy",
+        "pr_s0",
+        "pr_s1",
+    ]
+    assert tables.policy_order(ev.episodes) == ["IQN", control, "Pr-IQN QD ✓ 0.2 ✗"]
+    means = ev.episodes.groupby("label")["success"].mean()
+    assert means[control] == means["Pr-IQN QD ✓ 0.2 ✗"]  # its own episodes, not IQN's
+    report = make_report(runs, tmp_path / "rep", seed=0, reps=20).read_text()
+    assert "| iqn_s0/eval-near-greedy | IQN near-greedy ε=0.2 | 0 |" in report
+    assert "acting-randomness control" in report
+    assert "IQN (near-greedy ε=0.2)" in (tmp_path / "rep/tables/table2.md").read_text()
+
+    write_run(runs, "pr_s0", "x", PR, 0, pr_value, eval_dir_name="eval-other", status="running")
+    with pytest.raises(PriqnError, match="1 of 7 evaluations not complete: pr_s0/eval-other"):
+        load_evaluation(runs)
+    assert load_evaluation(runs, partial=True).left_out == ("pr_s0/eval-other",)
 
 
 def test_partial_report_with_nothing_evaluated_is_one_line(tmp_path) -> None:

@@ -7,6 +7,7 @@ info contract (no SUMO), inside gymnasium's SyncVectorEnv with SAME_STEP autores
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 
 import gymnasium as gym
@@ -204,6 +205,35 @@ def test_config_from_args_and_validation(tmp_path) -> None:
         config_from_args(parser.parse_args(["r", "--set", "episodes=3"]))
 
 
+def test_acting_option_validation_flags_and_older_records() -> None:
+    """``acting`` is checked and settable from the CLI; a record written before the field
+    existed reads as its default ("own"), so older evaluations are not stale."""
+    from priqn.evaluate import eval_config_changes
+    from priqn.runs import RunFolder
+
+    with pytest.raises(ValueError, match="acting: 'random' is not one of own, near-greedy"):
+        EvalConfig(acting="random")
+    with pytest.raises(ValueError, match="acting_eps: must be >= 0"):
+        EvalConfig(acting_eps=-0.1)
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    cfg = config_from_args(
+        parser.parse_args(["r", "--acting", "near-greedy", "--acting-eps", "0.1"])
+    )
+    assert (cfg.acting, cfg.acting_eps) == ("near-greedy", 0.1)
+
+    from priqn.config import to_dict
+    from priqn.evaluate import eval_dir_of
+
+    old = {k: v for k, v in to_dict(CFG).items() if k not in ("acting", "acting_eps")}
+    assert eval_config_changes(old, to_dict(CFG)) == ""
+    changed = dataclasses.replace(CFG, acting="near-greedy")
+    assert eval_config_changes(old, to_dict(changed)) == "acting 'own' -> 'near-greedy'"
+    run = RunFolder("runs/x")
+    assert eval_dir_of(run, CFG) == run.path / "eval"
+    assert eval_dir_of(run, changed) == run.path / "eval-near-greedy"
+
+
 def test_evaluate_run_rejects_missing_and_unfinished_runs(tmp_path) -> None:
     from priqn.evaluate import evaluate_run
 
@@ -301,6 +331,13 @@ def test_end_to_end_train_evaluate_report(tiny_runs) -> None:
     keys = ["eval_run", "net", "density", "episode", "reset_seed", "command"]
     pd.testing.assert_frame_equal(a[keys], b[keys])  # same scenes for both policies
 
+    # The acting-randomness control: IQN runs only (Pr-IQN is skipped), same scenes.
+    _priqn(["evaluate", str(runs), *tiny_eval, "--acting", "near-greedy"], root)
+    assert not (runs / "pr-iqn_s0" / "eval-near-greedy").exists()
+    c = pd.read_csv(runs / "iqn_s0" / "eval-near-greedy" / "episodes.csv")
+    pd.testing.assert_frame_equal(a[keys], c[keys])
+    assert set(c["label"]) == {"IQN near-greedy ε=0.2"} and (c["subset_leaf"] >= 1).all()
+
     out = root / "report"
     _priqn(["report", str(runs), "--out", str(out), "--reps", "50"], root)
     expected = [
@@ -325,6 +362,7 @@ def test_end_to_end_train_evaluate_report(tiny_runs) -> None:
     assert not missing, missing
     report = (out / "report.md").read_text()
     assert "| IQN |" in report and "Pr-IQN" in report
+    assert "| IQN (near-greedy ε=0.2) |" in report
 
 
 def test_densities_flag_out_of_range_blames_the_flag(tmp_path) -> None:

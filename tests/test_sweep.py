@@ -297,6 +297,31 @@ def test_cell_state_reads_only_the_run_folder(tmp_path: Path) -> None:
     assert cell_state(run) == "new"
 
 
+def test_control_evaluations_belong_to_the_greedy_baselines_cells(tmp_path: Path) -> None:
+    """table2_cpu asks for the near-greedy control: its IQN / Ensemble / MA-IQN cells are
+    complete only once eval-near-greedy/ is; Pr-IQN cells have no control."""
+    cells = expand(load_experiment(experiments_dir() / "table2_cpu.toml", runs_dir=tmp_path))
+    with_control = {c.agent for c in cells if c.controls == ("near-greedy",)}
+    assert with_control == {"iqn", "ensemble-iqn", "ma-iqn"}
+    assert all(c.controls == () for c in cells if c.agent == "pr-iqn")
+    assert Cell.from_spec(json.loads(json.dumps(cells[0].to_spec()))) == cells[0]
+
+    run = tmp_path / "r"
+    atomic_write_json(run / "meta.json", {"status": "complete"})
+    atomic_write_json(run / "eval" / "meta.json", {"status": "complete"})
+    assert cell_state(run) == "complete"
+    assert cell_state(run, ("near-greedy",)) == "trained"
+    atomic_write_json(run / "eval-near-greedy" / "meta.json", {"status": "complete"})
+    assert is_complete(run, ("near-greedy",))
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[experiment]\nname = "x"\ncontrols = ["coin"]\n[[policy]]\nname = "a"\nagent = "iqn"\n'
+    )
+    with pytest.raises(PriqnError, match="controls: 'coin' is not one of near-greedy"):
+        load_experiment(bad)
+
+
 def test_cell_error_prefers_the_marked_line(tmp_path: Path) -> None:
     from priqn.sweep import ERROR_MARK, cell_error
 

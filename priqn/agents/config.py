@@ -192,6 +192,13 @@ AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
 """Agent name → its :class:`AgentSpec` given the config."""
 
 
+def has_scalar_value(name: str) -> bool:
+    """Agent ``name`` acts greedily on one scalar value (IQN, Ensemble-IQN, MA-IQN), so the
+    near-greedy acting-randomness control applies to it (docs/evaluation.md)."""
+    spec = agent_spec(name)
+    return spec is not None and not spec.uses_preorder
+
+
 def agent_spec(name: str, cfg: AgentConfig | None = None) -> AgentSpec | None:
     """The spec of agent ``name`` (under ``cfg``, else the defaults); None if unknown."""
     make = AGENT_SPECS.get(name)

@@ -8,9 +8,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from priqn.agents import rules
 from priqn.agents.learner import to_tensors
 from priqn.agents.network import QuantileNetwork, tau_grid
 from priqn.agents.registry import Agent
+from priqn.errors import PriqnError
+from priqn.labels import PolicyLabel, near_greedy
 
 
 class Policy:
@@ -20,6 +23,7 @@ class Policy:
     optimal subset using ``rng``; the other agents are deterministic (``rng`` is still
     advanced by one draw per state so every agent consumes the same stream).
     ``env_config`` and ``labels`` are filled by ``priqn.runs.load_policy``.
+    :meth:`near_greedy` gives the same network acting by the near-greedy control rule.
     """
 
     def __init__(
@@ -43,6 +47,8 @@ class Policy:
         names = () if agent.subsets is None else agent.subsets.preorder.objectives
         self.subset_size_names: tuple[str, ...] = tuple(names) + (("leaf",) if names else ())
         """Column names of ``last_subset_sizes``."""
+        self.near_greedy_eps: float | None = None
+        """Set by :meth:`near_greedy`: act uniformly within ε of the best (the control)."""
 
     @torch.no_grad()
     def quantiles(self, obs_batch: Mapping[str, np.ndarray]) -> torch.Tensor:
@@ -51,11 +57,42 @@ class Policy:
         B = obs["command"].shape[0]
         return self.network(obs, self.grid_K.expand(B, -1))
 
+    def near_greedy(self, eps: float) -> Policy:
+        """This network acting by the control rule :func:`rules.near_greedy_subsets` at ``eps``.
+
+        Only for agents with a scalar value (IQN, Ensemble-IQN, MA-IQN); the label gets
+        the words ``near-greedy ε=<eps>`` so its evaluation is its own Table II row, and
+        ``last_subset_sizes`` reports the size of the near-greedy set as ``leaf``.
+        """
+        value_fn = rules.SCALAR_VALUES.get(self.agent.spec.acting_rule)
+        if value_fn is None:
+            raise PriqnError(
+                f"near-greedy acting applies to agents with one scalar value "
+                f"(iqn, ensemble-iqn, ma-iqn), not {self.agent.name!r}, which already "
+                "samples from its optimal subsets"
+            )
+        if not eps >= 0:
+            raise PriqnError(f"near-greedy ε: expected a number >= 0, got {eps!r}")
+        control = Policy(self.network, self.agent, self.grid_K.shape[0], self.device)
+        control.env_config = self.env_config
+        control.labels = dict(self.labels)
+        if self.labels:
+            control.labels.update(near_greedy(PolicyLabel.from_row(self.labels), eps).to_row())
+        control.near_greedy_eps = float(eps)
+        control.subset_size_names = ("leaf",)
+        return control
+
     @torch.no_grad()
     def act(self, obs_batch: Mapping[str, np.ndarray], rng: np.random.Generator) -> np.ndarray:
-        """Greedy actions ``int64 [B]`` for a batch of observations."""
+        """Actions ``int64 [B]`` for a batch of observations (greedy, leaf sample or control)."""
         q_BHKA = self.quantiles(obs_batch)
         u_B = torch.from_numpy(rng.random(q_BHKA.shape[0])).to(self.device)
+        if self.near_greedy_eps is not None:
+            w = self.agent.reward_weights_5.to(q_BHKA.device, q_BHKA.dtype)
+            values_BKA = rules.SCALAR_VALUES[self.agent.spec.acting_rule](q_BHKA, w)
+            out = rules.near_greedy_subsets(values_BKA, self.near_greedy_eps)
+            self.last_subset_sizes = out.leaf.sum(dim=-1, keepdim=True).float().cpu().numpy()
+            return rules.masked_uniform_choice(out.leaf, u_B).cpu().numpy().astype(np.int64)
         actions = self.agent.act(q_BHKA, u_B).cpu().numpy().astype(np.int64)
         subsets = self.agent.subsets
         if subsets is not None and subsets.last is not None:

@@ -9,6 +9,8 @@ Every agent is the same network with ``H`` heads. Agents differ only in
 
 Each rule is a named function in a registry (:data:`REWARD_RULES`, :data:`ACTING_RULES`,
 :data:`TARGET_RULES`); ``priqn.agents.registry`` combines them into agents.
+:data:`SCALAR_VALUES` and :func:`near_greedy_subsets` make the evaluation-only
+acting-randomness control of the greedy agents (docs/evaluation.md).
 
 All quantiles given to the acting and target rules are on the FIXED grid
 τ_k = (k + 0.5)/K (``network.tau_grid``), so selection is deterministic for a network.
@@ -18,6 +20,7 @@ with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.preor
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -120,6 +123,59 @@ ACTING_RULES: dict[str, Callable[..., torch.Tensor]] = {
     "leaf-uniform": act_leaf_uniform,
 }
 """Acting rule name → ``fn(quantiles_BHKA, subsets | None, u_B, weights_5) -> actions_B`` (int64)."""
+
+
+# ----------------------------------------------------------------------------- near-greedy control
+
+
+def value_of_head(quantiles_BHKA: torch.Tensor, weights_5: torch.Tensor | None) -> torch.Tensor:
+    """IQN ranks actions by its one head: ``[B, H, K, A]`` → ``[B, K, A]``."""
+    return quantiles_BHKA[:, 0]
+
+
+def value_mean_of_heads(quantiles_BHKA, weights_5):
+    """Ensemble-IQN ranks actions by the heads' mean: ``[B, H, K, A]`` → ``[B, K, A]``."""
+    return quantiles_BHKA.mean(dim=1)
+
+
+def value_sum_of_heads(quantiles_BHKA, weights_5):
+    """MA-IQN ranks actions by Σ_i w_i Z_i (unweighted sum without weights): ``[B, K, A]``."""
+    if weights_5 is None:
+        return quantiles_BHKA.sum(dim=1)
+    return torch.einsum("bhka,h->bka", quantiles_BHKA, weights_5)
+
+
+SCALAR_VALUES: dict[str, Callable[..., torch.Tensor]] = {
+    "argmax": value_of_head,
+    "argmax-mean-of-heads": value_mean_of_heads,
+    "argmax-sum-of-heads": value_sum_of_heads,
+}
+"""Greedy acting rule name → ``fn(quantiles_BHKA, weights_5) -> values_BKA``: the scalar
+return distribution the rule ranks actions by (the argmax of its mean over K is the
+rule's action, up to float rounding). Agents acting on optimal subsets have none."""
+
+
+def near_greedy_subsets(values_BKA: torch.Tensor, eps: float) -> Any:
+    """The near-greedy set of the acting-randomness control (``.leaf``: bool ``[B, A]``).
+
+    Pr-IQN's own rule for ONE objective: the optimal subset of a one-node preorder
+    under the QD comparator, i.e. every action whose mean return is within ε per-state
+    standard deviations (population std over all K·A quantiles, as the comparators'
+    z-score) of the best mean. It always holds the greedy action; ε = 0 is greedy up
+    to exact ties. A baseline acting uniformly in this set is as stochastic as Pr-IQN
+    while it still ranks actions by its own value (docs/evaluation.md).
+    """
+    from priqn.preorder import optimal_subsets
+
+    return optimal_subsets(values_BKA.unsqueeze(1), _value_preorder(), comparator="qd", eps=eps)
+
+
+@functools.cache
+def _value_preorder() -> Any:
+    """The one-objective preorder of the near-greedy set (built once: it caches its plan)."""
+    from priqn.preorder import Preorder
+
+    return Preorder(["value"], source="near-greedy value")
 
 
 # ----------------------------------------------------------------------------- targets

@@ -18,6 +18,7 @@ import pandas as pd
 
 from priqn.errors import PriqnError
 from priqn.evaluate import EPISODE_COLUMNS
+from priqn.io import read_json
 from priqn.runs import RunFolder
 
 CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
@@ -54,6 +55,8 @@ class RunInfo:
     """Policy-configuration label."""
     train_seed: int
     """Training seed."""
+    eval_dir: str = "eval"
+    """The evaluation folder read (``eval``, or a control such as ``eval-near-greedy``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,25 +104,33 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
         raise PriqnError(
             f"{root}: no runs here; train with 'priqn train' and evaluate with 'priqn evaluate'"
         )
+    # Every evaluation of every run: its own (eval/) and any control (eval-<name>/), each
+    # named like "<run>" or "<run>/eval-<name>" and reported as its own policy row.
+    evaluations: list[tuple[str, Path, Path]] = []
     unevaluated = []
     for run in run_dirs:
-        if RunFolder(run).recorded_eval_status() != "complete":
-            unevaluated.append(run.name)
+        folder = RunFolder(run)
+        for control in ["", *folder.control_evaluations()]:
+            eval_dir = folder.evaluation_dir(control)
+            name = f"{run.name}/{eval_dir.name}" if control else run.name
+            if folder.recorded_eval_status(control) == "complete":
+                evaluations.append((name, run, eval_dir))
+            else:
+                unevaluated.append(name)
     if unevaluated and not partial:
         shown = ", ".join(unevaluated[:5]) + (" ..." if len(unevaluated) > 5 else "")
         raise PriqnError(
-            f"{root}: {len(unevaluated)} of {len(run_dirs)} runs not (fully) evaluated: {shown}; "
+            f"{root}: {len(unevaluated)} of {len(evaluations) + len(unevaluated)} evaluations not complete: {shown}; "
             f"run 'priqn evaluate {root}' first, or report the evaluated ones with --partial"
         )
-    run_dirs = [run for run in run_dirs if run.name not in unevaluated]
-    if not run_dirs:
+    if not evaluations:
         raise PriqnError(f"{root}: none of its {len(unevaluated)} runs is fully evaluated yet")
 
     frames, infos = [], []
-    for run in run_dirs:
-        folder = RunFolder(run)
-        meta = folder.eval_meta()
-        csv = folder.eval_episodes_path
+    for name, run, eval_dir in evaluations:
+        meta_path = eval_dir / RunFolder.META
+        meta = read_json(meta_path)
+        csv = eval_dir / RunFolder.EVAL_EPISODES
         try:
             frame = pd.read_csv(csv, keep_default_na=True)
         except (OSError, ValueError) as exc:
@@ -136,17 +147,18 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
                 raise PriqnError(f"{csv}: column {column!r} is not constant within one run")
         holdout = str(meta.get("holdout_hash"))
         if str(frame["holdout_hash"].iloc[0]) != holdout:
-            raise PriqnError(f"{csv}: holdout_hash differs from {folder.eval_meta_path}")
-        frame["run"] = run.name
+            raise PriqnError(f"{csv}: holdout_hash differs from {meta_path}")
+        frame["run"] = name
         frames.append(frame[list(EPISODE_COLUMNS)])
         infos.append(
             RunInfo(
-                name=run.name,
+                name=name,
                 path=run,
                 holdout_hash=holdout,
                 eval_config=dict(meta.get("eval_config") or {}),
                 label=str(frame["label"].iloc[0]),
                 train_seed=int(frame["train_seed"].iloc[0]),
+                eval_dir=eval_dir.name,
             )
         )
 

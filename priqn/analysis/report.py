@@ -26,6 +26,7 @@ from typing import Any
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
+from priqn.runs import RunFolder
 
 DEFAULT_REPS = 2000
 MIN_SEEDS_FOR_STATISTICS = 2
@@ -250,6 +251,17 @@ def make_report(
         ),
         f"Made by `{cmd}`; episodes by `priqn evaluate` on every run below.",
         "",
+        *(
+            [
+                "Rows with `near-greedy ε=…` in their name are the acting-randomness control: "
+                "the same networks as the rows without it, evaluated acting at random among "
+                "the actions whose mean return is within ε (per-state std) of the best "
+                "(`priqn evaluate --acting near-greedy`; docs/evaluation.md).",
+                "",
+            ]
+            if any(r.eval_dir != RunFolder.EVAL for r in evaluation.runs)
+            else []
+        ),
         f"- **Hold-out set**: family `{ec.get('family')}`, manifest hash `{evaluation.holdout_hash}` "
         "(identical for every run).",
         f"- **Evaluation**: densities {ec.get('densities')}, {ec.get('eval_runs')} evaluation runs, "

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from priqn.agents.config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
 from priqn.runs import RunFolder
@@ -46,6 +47,8 @@ class Cell:
     """EvalConfig fields."""
     source: str
     """Experiment file, named in the child's errors."""
+    controls: tuple[str, ...] = ()
+    """Control evaluations (``EvalConfig.acting``) beside ``eval/``; empty for Pr-IQN rows."""
 
     @property
     def name(self) -> str:
@@ -63,6 +66,7 @@ class Cell:
         kw = {k: v for k, v in spec.items() if k in names}
         kw["run_dir"] = Path(kw["run_dir"])
         kw["overrides"] = tuple(kw["overrides"])
+        kw["controls"] = tuple(kw.get("controls", ()))
         return cls(**kw)
 
 
@@ -86,32 +90,36 @@ def expand(exp: Experiment) -> list[Cell]:
             overrides=tuple(e.set) + tuple(policy_overrides(pol)),
             evaluate=dict(exp.evaluate),
             source=str(exp.path),
+            controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
         )
         for pol, seed in pairs
     ]
 
 
-def cell_state(run_dir: Path) -> str:
-    """``complete`` | ``trained`` (eval missing) | ``running`` | ``interrupted`` (its trainer
-    died) | ``failed`` | ``new``.
+def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> str:
+    """``complete`` | ``trained`` (an evaluation missing) | ``running`` | ``interrupted``
+    (its trainer died) | ``failed`` | ``new``.
 
-    Read from the run folder only: ``meta.json`` and ``eval/meta.json`` statuses.
-    ``running`` may also be a run whose sweep was killed; the next sweep resumes it.
+    Read from the run folder only: ``meta.json``, ``eval/meta.json`` and, for each of
+    ``controls``, ``eval-<control>/meta.json`` statuses. ``running`` may also be a run
+    whose sweep was killed; the next sweep resumes it.
     """
     folder = RunFolder(run_dir)
     run = folder.recorded_status()
     if run == "running" and folder.status() == "interrupted":
         return "interrupted"  # its trainer died (kill -9, crash): the next sweep resumes it
     if run == "complete":
-        return "complete" if folder.recorded_eval_status() == "complete" else "trained"
+        names = ("", *controls)
+        done = all(folder.recorded_eval_status(n) == "complete" for n in names)
+        return "complete" if done else "trained"
     if run in ("running", "failed"):
         return run
     return "new"
 
 
-def is_complete(run_dir: Path) -> bool:
-    """A cell is complete iff training and evaluation both say ``"status": "complete"``."""
-    return cell_state(run_dir) == "complete"
+def is_complete(run_dir: Path, controls: tuple[str, ...] = ()) -> bool:
+    """A cell is complete iff training and every evaluation say ``"status": "complete"``."""
+    return cell_state(run_dir, controls) == "complete"
 
 
 # --------------------------------------------------------------------------- one cell (child)
@@ -147,7 +155,7 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
     """
     out = {}
     for c in expand(exp):
-        if not is_complete(c.run_dir):
+        if not is_complete(c.run_dir, c.controls):
             continue
         try:
             recorded = to_dict(RunFolder(c.run_dir).config())
@@ -158,8 +166,10 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
         diff = config_differences(recorded, wanted, ignore=("device",))
         prefix = ""
         if not diff:
+            from priqn.evaluate import eval_config_differences
+
             recorded = RunFolder(c.run_dir).eval_meta().get("eval_config") or {}
-            diff = config_differences(recorded, to_dict(build_eval_config(c)))
+            diff = eval_config_differences(recorded, to_dict(build_eval_config(c)))
             prefix = "evaluate."
         if diff:
             key, old, new = diff[0]

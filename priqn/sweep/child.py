@@ -7,6 +7,7 @@ cell's one-line error. It imports the cells, never the scheduler.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib
 import json
 import os
@@ -17,16 +18,17 @@ import traceback
 
 from priqn.errors import PriqnError
 from priqn.runs import RunFolder
-from priqn.sweep.cells import Cell, build_eval_config, build_train_config, cell_state, is_complete
+from priqn.sweep.cells import Cell, build_eval_config, build_train_config, cell_state
 from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 
 
 def train_and_evaluate(cell: Cell) -> None:
-    """Run one cell to completion: train (resuming an interrupted run), then evaluate."""
+    """Run one cell to completion: train (resuming an interrupted run), then evaluate
+    (its own acting, then each control evaluation of a baseline cell)."""
     from priqn.evaluate import evaluate_run
     from priqn.train import train
 
-    state = cell_state(cell.run_dir)
+    state = cell_state(cell.run_dir, cell.controls)
     if state not in ("complete", "trained"):
         cfg = build_train_config(cell)
         has_checkpoint = RunFolder(cell.run_dir).latest_checkpoint.is_file()
@@ -35,8 +37,9 @@ def train_and_evaluate(cell: Cell) -> None:
         else:
             # Nothing to resume (new, or killed before its first checkpoint): start over.
             train(cfg, cell.run_dir, force=cell.run_dir.exists())
-    if not is_complete(cell.run_dir):
-        evaluate_run(cell.run_dir, build_eval_config(cell))
+    eval_cfg = build_eval_config(cell)
+    for acting in ("own", *cell.controls):  # each returns at once if already complete
+        evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, acting=acting))
 
 
 def _cell_main(spec_json: str) -> int:

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     if args.list:
         cells = expand(exp)
-        states = [cell_state(c.run_dir) for c in cells]
+        states = [cell_state(c.run_dir, c.controls) for c in cells]
         for c, state in zip(cells, states, strict=True):
             print(f"{c.name:<48} {state:<9} {c.run_dir}")
         counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))

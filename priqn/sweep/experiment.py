@@ -30,6 +30,8 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 CELL_ORDERS: tuple[str, ...] = ("policy", "seed")
 """Values of ``[experiment].order``."""
+CONTROLS: tuple[str, ...] = ("near-greedy",)
+"""Values of ``[experiment].controls``: ``EvalConfig.acting`` values other than "own"."""
 
 
 @dataclass(frozen=True)
@@ -59,10 +61,18 @@ class ExperimentSpec:
     order: str = "policy"
     """Order cells run in: ``policy`` (each row's seeds together) or ``seed`` (every row's
     first seed, then every row's second, ...: an interrupted long grid has all rows)."""
+    controls: tuple[str, ...] = ()
+    """Control evaluations of the greedy baselines' cells (IQN, Ensemble-IQN, MA-IQN):
+    ``near-greedy`` evaluates the same network once more acting at random among its
+    near-best actions, into ``eval-near-greedy/`` (``priqn evaluate --acting``); such a
+    cell is complete once its controls are too. Pr-IQN cells have none."""
 
     def __post_init__(self) -> None:
         if self.order not in CELL_ORDERS:
             raise ValueError(f"order: expected one of {', '.join(CELL_ORDERS)}, got {self.order!r}")
+        bad = [c for c in self.controls if c not in CONTROLS]
+        if bad:
+            raise ValueError(f"controls: {bad[0]!r} is not one of {', '.join(CONTROLS)}")
 
 
 @dataclass(frozen=True)

@@ -108,7 +108,8 @@ def run_cell_process(
                 os.killpg(proc.pid, signal.SIGKILL)  # stragglers of this cell only
     if interrupted is not None:
         raise interrupted
-    return rc, cell_error(log_path), is_complete(Path(spec["run_dir"]))
+    controls = tuple(spec.get("controls", ()))
+    return rc, cell_error(log_path), is_complete(Path(spec["run_dir"]), controls)
 
 
 ERROR_MARK = "priqn sweep: cell failed: "

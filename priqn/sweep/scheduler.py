@@ -116,7 +116,7 @@ def run_sweep(
     with _sweep_lock(exp_dir):
         todo = []
         for c in cells:
-            if is_complete(c.run_dir):
+            if is_complete(c.run_dir, c.controls):
                 result.skipped.append(c.name)
             else:
                 todo.append(c)
@@ -138,7 +138,7 @@ def run_sweep(
             say(f"priqn sweep {exp.experiment.name}: all {len(cells)} cells already complete")
             _write_summary(exp, cells, result)
     if report and not result.interrupted:
-        missing = [c.name for c in expand(exp) if not is_complete(c.run_dir)]
+        missing = [c.name for c in expand(exp) if not is_complete(c.run_dir, c.controls)]
         if missing:
             say(
                 f"priqn sweep: report skipped: {len(missing)} cell(s) not complete "
@@ -234,7 +234,7 @@ def _schedule(
 
 
 def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> None:
-    states = {c.name: cell_state(c.run_dir) for c in cells}
+    states = {c.name: cell_state(c.run_dir, c.controls) for c in cells}
     atomic_write_json(
         exp.runs_dir / _SWEEP_DIR / "summary.json",
         {
