@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import shutil
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -220,9 +221,39 @@ def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
     return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
 
 
+def evaluation_name(cfg: EvalConfig) -> str:
+    """Name of the evaluation ``cfg`` makes: "" (the run's own, ``eval/``), ``near-greedy``
+    (a control at the default ε, ``eval-near-greedy/``) or ``near-greedy-eps<ε>``."""
+    if cfg.acting == "own":
+        return ""
+    if cfg.acting_eps == EvalConfig.acting_eps:
+        return cfg.acting
+    return f"{cfg.acting}-eps{cfg.acting_eps:g}"
+
+
+def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
+    """``cfg`` acting as the control ``name`` says (inverse of :func:`evaluation_name`).
+
+    A one-line PriqnError for a name that is not ``near-greedy`` or ``near-greedy-eps<ε>``.
+    """
+    match = re.fullmatch(r"(?P<acting>[a-z-]+?)(?:-eps(?P<eps>[0-9.e+-]+))?", name)
+    acting = match["acting"] if match else ""
+    if not name:
+        return dataclasses.replace(cfg, acting="own")
+    if acting not in ACTINGS or acting == "own":
+        raise PriqnError(
+            f"control {name!r}: expected near-greedy or near-greedy-eps<ε> (e.g. near-greedy-eps0.01)"
+        )
+    try:
+        eps = float(match["eps"]) if match["eps"] else EvalConfig.acting_eps
+        return dataclasses.replace(cfg, acting=acting, acting_eps=eps)
+    except ValueError as exc:
+        raise PriqnError(f"control {name!r}: {exc}") from None
+
+
 def eval_dir_of(run: RunFolder, cfg: EvalConfig) -> Path:
-    """The run's evaluation folder for ``cfg``: ``eval/``, or ``eval-<acting>/`` for a control."""
-    return run.evaluation_dir("" if cfg.acting == "own" else cfg.acting)
+    """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/`` (:func:`evaluation_name`)."""
+    return run.evaluation_dir(evaluation_name(cfg))
 
 
 def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:

@@ -223,7 +223,7 @@ def test_acting_option_validation_flags_and_older_records() -> None:
     assert (cfg.acting, cfg.acting_eps) == ("near-greedy", 0.1)
 
     from priqn.config import to_dict
-    from priqn.evaluate import eval_dir_of
+    from priqn.evaluate import control_config, eval_dir_of, evaluation_name
 
     old = {k: v for k, v in to_dict(CFG).items() if k not in ("acting", "acting_eps")}
     assert eval_config_changes(old, to_dict(CFG)) == ""
@@ -232,6 +232,13 @@ def test_acting_option_validation_flags_and_older_records() -> None:
     run = RunFolder("runs/x")
     assert eval_dir_of(run, CFG) == run.path / "eval"
     assert eval_dir_of(run, changed) == run.path / "eval-near-greedy"
+    other = dataclasses.replace(changed, acting_eps=0.05)
+    assert eval_dir_of(run, other) == run.path / "eval-near-greedy-eps0.05"
+    for cfg in (CFG, changed, other):  # the control name round-trips
+        assert control_config(CFG, evaluation_name(cfg)) == cfg
+    for bad in ("coin", "own", "near-greedy-eps", "near-greedy-epsx"):
+        with pytest.raises(PriqnError, match=f"control {bad!r}: "):
+            control_config(CFG, bad)
 
 
 def test_evaluate_run_rejects_missing_and_unfinished_runs(tmp_path) -> None:

@@ -298,10 +298,10 @@ def test_cell_state_reads_only_the_run_folder(tmp_path: Path) -> None:
 
 
 def test_control_evaluations_belong_to_the_greedy_baselines_cells(tmp_path: Path) -> None:
-    """table2_cpu asks for the near-greedy control: its IQN / Ensemble / MA-IQN cells are
-    complete only once eval-near-greedy/ is; Pr-IQN cells have no control."""
+    """table2_cpu asks for near-greedy controls: its IQN / Ensemble / MA-IQN cells are
+    complete only once their eval-near-greedy*/ are; Pr-IQN cells have no control."""
     cells = expand(load_experiment(experiments_dir() / "table2_cpu.toml", runs_dir=tmp_path))
-    with_control = {c.agent for c in cells if c.controls == ("near-greedy",)}
+    with_control = {c.agent for c in cells if c.controls == ("near-greedy", "near-greedy-eps0.005")}
     assert with_control == {"iqn", "ensemble-iqn", "ma-iqn"}
     assert all(c.controls == () for c in cells if c.agent == "pr-iqn")
     assert Cell.from_spec(json.loads(json.dumps(cells[0].to_spec()))) == cells[0]
@@ -318,7 +318,10 @@ def test_control_evaluations_belong_to_the_greedy_baselines_cells(tmp_path: Path
     bad.write_text(
         '[experiment]\nname = "x"\ncontrols = ["coin"]\n[[policy]]\nname = "a"\nagent = "iqn"\n'
     )
-    with pytest.raises(PriqnError, match="controls: 'coin' is not one of near-greedy"):
+    with pytest.raises(PriqnError, match="controls: control 'coin': expected near-greedy or"):
+        load_experiment(bad)
+    bad.write_text(bad.read_text().replace('"coin"', '"near-greedy-eps0.2"'))
+    with pytest.raises(PriqnError, match="controls: write 'near-greedy-eps0.2' as 'near-greedy'"):
         load_experiment(bad)
 
 

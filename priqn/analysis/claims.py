@@ -205,6 +205,15 @@ CLAIMS: tuple[Claim, ...] = (
         + _at_densities(PR_IQN_STAR, near_greedy(ENSEMBLE, 0.2)),
     ),
     Claim(
+        "ours-acting-control-matched",
+        "Ours: Pr-IQN* still beats IQN and Ensemble-IQN when they act exactly as randomly "
+        "as Pr-IQN* (near-greedy ε 0.005: mean set ≈ Pr-IQN*'s leaf of 1.2 actions)",
+        "— (the paper's baselines act greedily)",
+        "better",
+        _at_densities(PR_IQN_STAR, near_greedy(IQN, 0.005))
+        + _at_densities(PR_IQN_STAR, near_greedy(ENSEMBLE, 0.005)),
+    ),
+    Claim(
         "ours-fsd",
         "Ours: the distributional fsd comparator beats QD (Pr-IQN*, mean over densities)",
         "— (not in the paper)",

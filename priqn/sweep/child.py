@@ -7,7 +7,6 @@ cell's one-line error. It imports the cells, never the scheduler.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import importlib
 import json
 import os
@@ -25,7 +24,7 @@ from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 def train_and_evaluate(cell: Cell) -> None:
     """Run one cell to completion: train (resuming an interrupted run), then evaluate
     (its own acting, then each control evaluation of a baseline cell)."""
-    from priqn.evaluate import evaluate_run
+    from priqn.evaluate import control_config, evaluate_run
     from priqn.train import train
 
     state = cell_state(cell.run_dir, cell.controls)
@@ -38,8 +37,8 @@ def train_and_evaluate(cell: Cell) -> None:
             # Nothing to resume (new, or killed before its first checkpoint): start over.
             train(cfg, cell.run_dir, force=cell.run_dir.exists())
     eval_cfg = build_eval_config(cell)
-    for acting in ("own", *cell.controls):  # each returns at once if already complete
-        evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, acting=acting))
+    for name in ("", *cell.controls):  # each returns at once if already complete
+        evaluate_run(cell.run_dir, control_config(eval_cfg, name))
 
 
 def _cell_main(spec_json: str) -> int:

@@ -30,8 +30,6 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 CELL_ORDERS: tuple[str, ...] = ("policy", "seed")
 """Values of ``[experiment].order``."""
-CONTROLS: tuple[str, ...] = ("near-greedy",)
-"""Values of ``[experiment].controls``: ``EvalConfig.acting`` values other than "own"."""
 
 
 @dataclass(frozen=True)
@@ -63,16 +61,23 @@ class ExperimentSpec:
     first seed, then every row's second, ...: an interrupted long grid has all rows)."""
     controls: tuple[str, ...] = ()
     """Control evaluations of the greedy baselines' cells (IQN, Ensemble-IQN, MA-IQN):
-    ``near-greedy`` evaluates the same network once more acting at random among its
-    near-best actions, into ``eval-near-greedy/`` (``priqn evaluate --acting``); such a
-    cell is complete once its controls are too. Pr-IQN cells have none."""
+    ``near-greedy`` (or ``near-greedy-eps<ε>``) evaluates the same network once more
+    acting at random among its near-best actions, into ``eval-<control>/`` (``priqn
+    evaluate --acting near-greedy [--acting-eps ε]``); such a cell is complete once its
+    controls are too. Pr-IQN cells have none."""
 
     def __post_init__(self) -> None:
         if self.order not in CELL_ORDERS:
             raise ValueError(f"order: expected one of {', '.join(CELL_ORDERS)}, got {self.order!r}")
-        bad = [c for c in self.controls if c not in CONTROLS]
-        if bad:
-            raise ValueError(f"controls: {bad[0]!r} is not one of {', '.join(CONTROLS)}")
+        from priqn.evaluate import EvalConfig, control_config, evaluation_name
+
+        for name in self.controls:
+            try:
+                canonical = evaluation_name(control_config(EvalConfig(), name))
+            except PriqnError as exc:
+                raise ValueError(f"controls: {exc}") from None
+            if canonical != name:  # the name is the folder the cell's state is read from
+                raise ValueError(f"controls: write {name!r} as {canonical!r}")
 
 
 @dataclass(frozen=True)
