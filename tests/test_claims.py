@@ -194,3 +194,25 @@ def test_seeds_with_different_evaluation_runs_are_one_line() -> None:
     )
     with pytest.raises(PriqnError, match="IQN: training seeds were evaluated on different"):
         run_means(ragged, BASE, "success", 0.5)
+
+
+def test_control_rows_of_the_claims_are_the_labels_evaluation_writes() -> None:
+    """The acting-control claims name rows as `priqn evaluate --acting near-greedy` labels
+    them (Policy.near_greedy -> labels.near_greedy), and the label reads back from a CSV row."""
+    from priqn.analysis.claims import ENSEMBLE, IQN
+    from priqn.labels import PolicyLabel, near_greedy
+
+    rows = {
+        c.second.render()
+        for claim in CLAIMS
+        if claim.key.startswith("ours-acting")
+        for c in claim.comparisons
+    }
+    assert rows == {
+        "IQN near-greedy ε=0.2",
+        "Ensemble near-greedy ε=0.2",
+        "IQN near-greedy ε=0.005",
+        "Ensemble near-greedy ε=0.005",
+    }
+    for row in (near_greedy(IQN, 0.005), near_greedy(ENSEMBLE, 0.2)):
+        assert PolicyLabel.from_row(row.to_row()) == row
