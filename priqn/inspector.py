@@ -17,6 +17,10 @@ added to the training or evaluation hot path — and writes into ``--out``:
 - ``quantiles.npz``: the fixed-grid quantiles ``[T, H, K, A]`` behind every frame, and the
   subsets ``[T, N, A]`` / leaf ``[T, A]`` the page shows (for checks and your own plots).
 - ``summary.png``: how often each level was the one that pruned, and mean |S_r| per level.
+
+``--near-greedy EPS`` inspects a baseline acting as the acting-randomness control of
+``priqn evaluate --acting near-greedy`` (the same scenes and acting seeds): the orange
+dots are then the near-greedy set it sampled from (``size_near_greedy`` in decisions.csv).
 """
 
 from __future__ import annotations
@@ -59,6 +63,9 @@ class InspectConfig:
     """Episodes of the (eval run, net, density) cell to inspect, from the first."""
     frame_dpi: int = 80
     """Resolution of the frame images [dots per inch]."""
+    near_greedy_eps: float | None = None
+    """Inspect the acting-randomness control at this ε (``priqn evaluate --acting
+    near-greedy``; IQN / Ensemble / MA-IQN only): the orange dots are its near-greedy set."""
 
 
 @dataclasses.dataclass
@@ -140,7 +147,9 @@ def rollout(policy: Any, env: Any, scenes: list[Any]) -> list[Decision]:
             q_HKA = policy.quantiles(batch)[0]
             action = int(policy.act(batch, rng)[0])  # the same acting call as evaluate
             per_obj = leaf = None
-            if subsets is not None:  # the subsets the acting rule just used
+            if policy.near_greedy_eps is not None:  # the set the control just sampled from
+                leaf = policy.last_near_greedy_BA[0]
+            elif subsets is not None:  # the subsets the acting rule just used
                 per_obj = subsets.last.per_objective[0].cpu().numpy()
                 leaf = subsets.last.leaf[0].cpu().numpy()
             frame = env.render()
@@ -216,6 +225,8 @@ def decision_rows(decisions: list[Decision], agent: Any, table: np.ndarray) -> l
             row["size_leaf"] = int(d.leaf_A.sum())
             for o, level in pruned_by(d, preorder).items():
                 row[f"pruned_by_{o}"] = level
+        elif d.leaf_A is not None:  # the near-greedy control
+            row["size_near_greedy"] = int(d.leaf_A.sum())
         rows.append(row)
     return rows
 
@@ -414,6 +425,7 @@ def _page_rows(rows: list[dict], decisions: list[Decision]) -> list[dict]:
         r = dict(r)
         if d.subsets_NA is not None:
             r["subsets"] = [[bool(x) for x in s] for s in d.subsets_NA]
+        if d.leaf_A is not None:
             r["leaf"] = [bool(x) for x in d.leaf_A]
         out.append(r)
     return out
@@ -434,6 +446,8 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
         raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
     scenes, eval_cfg = inspection_scenes(run_dir, cfg)
     policy = run.load_policy(device="cpu")
+    if cfg.near_greedy_eps is not None:
+        policy = policy.near_greedy(cfg.near_greedy_eps)
     env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=())
     if eval_cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
@@ -455,6 +469,7 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     }
     if agent.subsets is not None:
         arrays["subsets_TNA"] = np.stack([d.subsets_NA for d in decisions])
+    if decisions[0].leaf_A is not None:
         arrays["leaf_TA"] = np.stack([d.leaf_A for d in decisions])
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
@@ -477,7 +492,8 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
         f"density {scenes[0].density:g}, evaluation seed {eval_cfg.seed}; "
         f"{len(decisions)} decisions. Heat maps: mean of each head's K quantiles over the "
         "action grid (rows v_f, columns d_f); cyan boxes: that level's optimal subset; "
-        "orange dots: the leaf set; red box: the chosen action."
+        "orange dots: the leaf set (the near-greedy set for the acting-randomness control); "
+        "red box: the chosen action."
     )
     data = json.dumps(_page_rows(rows, decisions)).replace("</", "<\\/")
     page = PAGE.format(title=title, about=about, last=len(decisions) - 1, data=data)
@@ -494,6 +510,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
     parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
     parser.add_argument("--episodes", type=int, default=1, help="episodes to inspect")
+    parser.add_argument(
+        "--near-greedy",
+        type=float,
+        metavar="EPS",
+        help="inspect the acting-randomness control at this ε (as priqn evaluate --acting "
+        "near-greedy --acting-eps EPS; IQN / Ensemble / MA-IQN runs)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -506,6 +529,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         eval_run=args.eval_run,
         episodes=args.episodes,
+        near_greedy_eps=args.near_greedy,
     )
     page = inspect_run(args.run, args.out, cfg)
     print(f"priqn inspect: wrote {page} (open it in a browser)")

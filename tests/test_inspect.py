@@ -122,3 +122,37 @@ def test_page_slider_changes_the_frame_in_headless_chromium(evaluated_run, tmp_p
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert "<title>frame=frames/0001.png</title>" in res.stdout
+
+
+def test_inspect_the_near_greedy_control_replays_its_evaluated_episode(evaluated_run, tmp_path):
+    """--near-greedy EPS inspects the acting-randomness control: the episode evaluate
+    --acting near-greedy played (same scene, same acting seed), with the set it sampled
+    from as the leaf; a Pr-IQN run is refused in one line."""
+    root = tmp_path / "runs"
+    cli("train", "--agent", "iqn", "--steps", "120", "--runs-dir", str(root), "--name", "iqn",
+        "--device", "cpu", *TINY)  # fmt: skip
+    run = root / "iqn"
+    cli("evaluate", str(run), "--episodes", "1", "--eval-runs", "1", "--densities", "0.5",
+        "--acting", "near-greedy", "--acting-eps", "0.5")  # fmt: skip
+    scene = pd.read_csv(run / "eval-near-greedy-eps0.5" / "episodes.csv").iloc[0]
+    assert scene["label"] == "IQN near-greedy ε=0.5"
+    out = tmp_path / "out"
+    cli("inspect", str(run), "--net", scene["net"], "--density", "0.5", "--near-greedy", "0.5",
+        "--out", str(out))  # fmt: skip
+    decisions = pd.read_csv(out / "decisions.csv")
+    assert len(decisions) == int(scene["steps"])
+    for o in OBJECTIVES:
+        last = decisions.iloc[-1][f"return_{o}"]
+        assert last == pytest.approx(scene[f"return_{o}"], abs=1e-5), o
+    leaf = np.load(out / "quantiles.npz")["leaf_TA"]
+    assert all(leaf[t, a] for t, a in enumerate(decisions["action"]))
+    assert decisions["size_near_greedy"].tolist() == leaf.sum(axis=1).tolist()
+    assert scene["subset_leaf"] == pytest.approx(decisions["size_near_greedy"].mean(), abs=1e-3)
+
+    refused = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "inspect", str(evaluated_run), "--near-greedy",
+         "0.2", "--out", str(tmp_path / "pr")],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert refused.returncode != 0 and len(refused.stderr.strip().splitlines()) == 1
+    assert "near-greedy acting applies to agents with one scalar value" in refused.stderr

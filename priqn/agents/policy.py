@@ -49,6 +49,8 @@ class Policy:
         """Column names of ``last_subset_sizes``."""
         self.near_greedy_eps: float | None = None
         """Set by :meth:`near_greedy`: act uniformly within ε of the best (the control)."""
+        self.last_near_greedy_BA: np.ndarray | None = None
+        """bool ``[B, A]`` after :meth:`act` of a near-greedy policy: the set it sampled from."""
 
     @torch.no_grad()
     def quantiles(self, obs_batch: Mapping[str, np.ndarray]) -> torch.Tensor:
@@ -91,7 +93,8 @@ class Policy:
             w = self.agent.reward_weights_5.to(q_BHKA.device, q_BHKA.dtype)
             values_BKA = rules.SCALAR_VALUES[self.agent.spec.acting_rule](q_BHKA, w)
             out = rules.near_greedy_subsets(values_BKA, self.near_greedy_eps)
-            self.last_subset_sizes = out.leaf.sum(dim=-1, keepdim=True).float().cpu().numpy()
+            self.last_near_greedy_BA = out.leaf.cpu().numpy()
+            self.last_subset_sizes = self.last_near_greedy_BA.sum(axis=-1, keepdims=True)
             return rules.masked_uniform_choice(out.leaf, u_B).cpu().numpy().astype(np.int64)
         actions = self.agent.act(q_BHKA, u_B).cpu().numpy().astype(np.int64)
         subsets = self.agent.subsets
