@@ -236,17 +236,16 @@ def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
 
     A one-line PriqnError for a name that is not ``near-greedy`` or ``near-greedy-eps<ε>``.
     """
-    match = re.fullmatch(r"(?P<acting>[a-z-]+?)(?:-eps(?P<eps>[0-9.e+-]+))?", name)
-    acting = match["acting"] if match else ""
     if not name:
         return dataclasses.replace(cfg, acting="own")
-    if acting not in ACTINGS or acting == "own":
+    match = re.fullmatch(r"(?P<acting>[a-z-]+?)(?:-eps(?P<eps>[0-9.e+-]+))?", name)
+    if match is None or match["acting"] not in ACTINGS or match["acting"] == "own":
         raise PriqnError(
             f"control {name!r}: expected near-greedy or near-greedy-eps<ε> (e.g. near-greedy-eps0.01)"
         )
     try:
         eps = float(match["eps"]) if match["eps"] else EvalConfig.acting_eps
-        return dataclasses.replace(cfg, acting=acting, acting_eps=eps)
+        return dataclasses.replace(cfg, acting=match["acting"], acting_eps=eps)
     except ValueError as exc:
         raise PriqnError(f"control {name!r}: {exc}") from None
 

@@ -66,8 +66,7 @@ class Policy:
         the words ``near-greedy ε=<eps>`` so its evaluation is its own Table II row, and
         ``last_subset_sizes`` reports the size of the near-greedy set as ``leaf``.
         """
-        value_fn = rules.SCALAR_VALUES.get(self.agent.spec.acting_rule)
-        if value_fn is None:
+        if self.agent.spec.acting_rule not in rules.SCALAR_VALUES:
             raise PriqnError(
                 f"near-greedy acting applies to agents with one scalar value "
                 f"(iqn, ensemble-iqn, ma-iqn), not {self.agent.name!r}, which already "

@@ -162,8 +162,9 @@ def near_greedy_subsets(values_BKA: torch.Tensor, eps: float) -> Any:
     under the QD comparator, i.e. every action whose mean return is within ε per-state
     standard deviations (population std over all K·A quantiles, as the comparators'
     z-score) of the best mean. It always holds the greedy action; ε = 0 is greedy up
-    to exact ties. A baseline acting uniformly in this set is as stochastic as Pr-IQN
-    while it still ranks actions by its own value (docs/evaluation.md).
+    to exact ties. A baseline acting uniformly in this set is stochastic like Pr-IQN
+    while it still ranks actions by its own value; how stochastic depends on ε
+    (docs/evaluation.md).
     """
     from priqn.preorder import optimal_subsets
 

@@ -48,7 +48,8 @@ class Cell:
     source: str
     """Experiment file, named in the child's errors."""
     controls: tuple[str, ...] = ()
-    """Control evaluations (``EvalConfig.acting``) beside ``eval/``; empty for Pr-IQN rows."""
+    """Control evaluations beside ``eval/``, by name (``near-greedy``, ``near-greedy-eps0.005``:
+    ``priqn.evaluate.control_config``); empty for Pr-IQN rows."""
 
     @property
     def name(self) -> str:
