@@ -642,6 +642,11 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     if args.acting is not None:
         sets.append(f"acting={args.acting!r}")
     if args.acting_eps is not None:
+        if not args.acting_eps >= 0:
+            raise PriqnError(
+                f"--acting-eps {args.acting_eps:g}: expected a tolerance >= 0 "
+                "(per-state standard deviations), e.g. 0.2"
+            )
         sets.append(f"acting_eps={args.acting_eps!r}")
     if args.densities:
         try:

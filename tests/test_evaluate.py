@@ -221,6 +221,8 @@ def test_acting_option_validation_flags_and_older_records() -> None:
         parser.parse_args(["r", "--acting", "near-greedy", "--acting-eps", "0.1"])
     )
     assert (cfg.acting, cfg.acting_eps) == ("near-greedy", 0.1)
+    with pytest.raises(PriqnError, match=r"^--acting-eps -1: expected a tolerance >= 0"):
+        config_from_args(parser.parse_args(["r", "--acting", "near-greedy", "--acting-eps", "-1"]))
 
     from priqn.config import to_dict
     from priqn.evaluate import control_config, eval_dir_of, evaluation_name
