@@ -216,3 +216,57 @@ def test_control_rows_of_the_claims_are_the_labels_evaluation_writes() -> None:
     }
     for row in (near_greedy(IQN, 0.005), near_greedy(ENSEMBLE, 0.2)):
         assert PolicyLabel.from_row(row.to_row()) == row
+
+
+def test_seed_interval_by_hand() -> None:
+    # Per-seed means 0.6 / 0.8 / 1.0 (s² = 0.04) against a constant 0.5: difference 0.3,
+    # se = √(0.04 / 3) = 0.11547, Welch dof = 2 (all variance on one side), t₀.₉₇₅(2) = 4.3027.
+    first_SR = np.array([[0.5, 0.7], [0.8, 0.8], [1.0, 1.0]])
+    second_SR = np.full((3, 2), 0.5)
+    lo, hi = claims.seed_interval(first_SR, second_SR)
+    assert (lo, hi) == pytest.approx((0.3 - 0.49683, 0.3 + 0.49683), abs=1e-5)
+    # Evaluation runs are averaged first: spreading them within a seed changes nothing.
+    assert claims.seed_interval(first_SR.mean(axis=1, keepdims=True).repeat(2, 1), second_SR) == (
+        pytest.approx((lo, hi))
+    )
+    # Seeds that agree exactly: a zero-width interval at the difference.
+    assert claims.seed_interval(np.full((3, 2), 0.75), second_SR) == (0.25, 0.25)
+
+
+def test_seeds_needed_by_hand() -> None:
+    # (z₀.₉₇₅ + z₀.₈)² = (1.95996 + 0.84162)² = 7.8489; spread 0.04 + 0; effect 0.077:
+    # 7.8489 × 0.04 / 0.077² = 52.95 -> 53 seeds per row.
+    first_SR = np.array([[0.6], [0.8], [1.0]])
+    second_SR = np.full((3, 1), 0.5)
+    assert claims.seeds_needed(first_SR, second_SR, 0.077) == 53
+    assert claims.seeds_needed(first_SR, second_SR, 0.5) == 2  # 1.26 -> at least MIN_SEEDS
+    assert claims.seeds_needed(second_SR, second_SR, 0.077) == claims.MIN_SEEDS
+
+
+def test_the_second_look_reports_where_it_disagrees() -> None:
+    # 3 seeds, every seed of Pr-IQN* succeeds at least as often as IQN's best seed but
+    # one seed much more: the seed bootstrap is all positive, the t-interval is not.
+    table = pd.concat(
+        [
+            episodes(STAR, lambda s, r, d: (0.5, 0.5, 1.0)[s], seeds=(0, 1, 2)),
+            episodes(BASE, lambda s, r, d: 0.25, seeds=(0, 1, 2)),
+        ]
+    )
+    result = evaluate_claim(star_vs_iqn(), table, reps=500)
+    assert result.verdict == "reproduced"
+    for x in result.results:
+        # per-seed differences 0.25, 0.25, 0.75: mean 5/12, s² = 1/12, dof 2.
+        half = 4.302653 * np.sqrt(1 / 12 / 3)
+        assert (x.seed_lo, x.seed_hi) == pytest.approx((5 / 12 - half, 5 / 12 + half), abs=1e-5)
+        assert x.seed_outcome == "unclear"
+    assert result.seed_verdict == "inconclusive at this budget"
+    md = claims.to_markdown([result], reps=500, seed=0)
+    assert "star-vs-iqn (reproduced → inconclusive at this budget)" in md
+    frame = claims.to_frame([result])
+    assert (frame["seed_verdict"] == "inconclusive at this budget").all()
+    assert list(frame["seeds_needed"]) == [
+        claims.seeds_needed(
+            run_means(table, STAR, "success", d), run_means(table, BASE, "success", d), p
+        )
+        for d, p in ((0.5, 0.077), (0.75, 0.166), (1.0, 0.203))
+    ]

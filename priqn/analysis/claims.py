@@ -23,15 +23,26 @@ runs within each drawn seed — of the mean over (net, episode) at the claim's d
 evaluation runs of one seed share its network. The two policies are resampled
 independently (their training seeds are unrelated). Resampling uses
 ``numpy.random.default_rng(seed)``; the seed is recorded in the report.
+
+**A second look, not the rule.** With 3 training seeds a percentile bootstrap over seeds
+is too narrow: it can draw only 10 distinct seed multisets, and the variance it gives a
+mean is (S − 1)/S of the usual s²/S. So every comparison also gets a Welch t-interval over
+the training seeds alone (one number per seed: its mean over evaluation runs) and the
+outcome the same rule would give on that interval, and — where the paper gives a
+difference — how many training seeds per row would see the paper's difference with
+80 % power at our seed-to-seed spread (:func:`seeds_needed`). The verdict stays the
+rule's; the report says where the second look disagrees.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Literal
 
 import numpy as np
 import pandas as pd
+from scipy import stats as scipy_stats
 
 from priqn.errors import PriqnError
 from priqn.labels import PolicyLabel, near_greedy
@@ -41,6 +52,8 @@ EQUIVALENCE_MARGIN: dict[str, float] = {"success": 0.05}
 Metrics without a margin (objective returns) are judged on the sign of the CI alone."""
 MIN_SEEDS = 2
 """Training seeds every row of a claim needs before its verdict is computed."""
+POWER = 0.8
+"""Power the seed estimate of :func:`seeds_needed` asks for (two-sided 5 % test)."""
 DENSITIES_ALL: float | None = None
 """``Comparison.density`` value meaning "mean over every evaluated density"."""
 
@@ -247,6 +260,13 @@ class ComparisonResult:
     hi: float
     outcome: str
     """``holds``, ``contradicted`` or ``unclear``."""
+    seed_lo: float
+    seed_hi: float
+    """Welch t 95 % interval of first − second over training seeds only (second look)."""
+    seed_outcome: str
+    """The rule's outcome on ``[seed_lo, seed_hi]``."""
+    seeds_needed: int | None
+    """Training seeds per row to see the paper's difference (None: the paper gives none)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -261,6 +281,13 @@ class ClaimResult:
     results: tuple[ComparisonResult, ...] = ()
     missing: tuple[str, ...] = ()
     """Rows of the claim with no evaluated runs in the report."""
+
+    @property
+    def seed_verdict(self) -> str:
+        """The verdict the rule gives on the seeds-only t-intervals (the second look)."""
+        if not self.results:
+            return self.verdict
+        return verdict([r.seed_outcome for r in self.results])
 
 
 def run_means(episodes: pd.DataFrame, label: str, metric: str, density: float | None) -> np.ndarray:
@@ -285,6 +312,36 @@ def bootstrap_means(scores_SR: np.ndarray, reps: int, rng: np.random.Generator) 
     seeds_BS = rng.integers(S, size=(reps, S))
     runs_BSR = rng.integers(R, size=(reps, S, R))
     return scores_SR[seeds_BS[:, :, None], runs_BSR].mean(axis=(1, 2))
+
+
+def seed_interval(first_SR: np.ndarray, second_SR: np.ndarray) -> tuple[float, float]:
+    """Welch t 95 % interval of mean(first) − mean(second) over training seeds only.
+
+    Each training seed counts once, as its mean over evaluation runs; the two rows'
+    seeds are independent samples with unequal variances (Welch-Satterthwaite degrees of
+    freedom). Seeds that agree exactly give a zero-width interval.
+    """
+    a_S, b_S = first_SR.mean(axis=1), second_SR.mean(axis=1)
+    var_a, var_b = a_S.var(ddof=1) / a_S.size, b_S.var(ddof=1) / b_S.size
+    diff = float(a_S.mean() - b_S.mean())
+    se2 = var_a + var_b
+    if se2 == 0:
+        return diff, diff
+    dof = se2**2 / (var_a**2 / (a_S.size - 1) + var_b**2 / (b_S.size - 1))
+    half = float(scipy_stats.t.ppf(0.975, dof)) * math.sqrt(se2)
+    return diff - half, diff + half
+
+
+def seeds_needed(first_SR: np.ndarray, second_SR: np.ndarray, effect: float) -> int:
+    """Training seeds per row for a two-sided 5 % test to see ``effect`` with POWER.
+
+    Normal approximation with our seed-to-seed standard deviations ``s`` (of the per-seed
+    means): n = ⌈(z₀.₉₇₅ + z_POWER)² (s_first² + s_second²) / effect²⌉, at least MIN_SEEDS.
+    With 3 seeds each ``s`` is itself uncertain: an order of magnitude, not a plan.
+    """
+    spread = first_SR.mean(axis=1).var(ddof=1) + second_SR.mean(axis=1).var(ddof=1)
+    z = scipy_stats.norm.ppf(0.975) + scipy_stats.norm.ppf(POWER)
+    return max(MIN_SEEDS, math.ceil(z**2 * spread / effect**2))
 
 
 def outcome(kind: str, lo: float, hi: float, margin: float) -> str:
@@ -342,7 +399,20 @@ def evaluate_claim(
         lo, hi = (float(q) for q in np.percentile(diff_B, [2.5, 97.5]))
         diff = float(first.mean() - second.mean())
         margin = EQUIVALENCE_MARGIN.get(c.metric, 0.0)
-        results.append(ComparisonResult(c, diff, lo, hi, outcome(claim.kind, lo, hi, margin)))
+        seed_lo, seed_hi = seed_interval(first, second)
+        results.append(
+            ComparisonResult(
+                c,
+                diff,
+                lo,
+                hi,
+                outcome(claim.kind, lo, hi, margin),
+                seed_lo,
+                seed_hi,
+                outcome(claim.kind, seed_lo, seed_hi, margin),
+                None if c.paper is None else seeds_needed(first, second, c.paper),
+            )
+        )
     return ClaimResult(claim, verdict([r.outcome for r in results]), "", tuple(results))
 
 
@@ -402,10 +472,51 @@ def to_markdown(results: list[ClaimResult], reps: int, seed: int) -> str:
         "training seeds.",
         "",
     ]
+    lines += _second_look(results)
     unchecked = [r.claim.key for r in results if r.missing]
     if unchecked:
         lines += [f"Not checked here (rows not in this report): {', '.join(unchecked)}.", ""]
     return "\n".join(lines)
+
+
+def _second_look(results: list[ClaimResult]) -> list[str]:
+    """Markdown lines: every measured comparison with its seeds-only t-interval."""
+    measured = [r for r in results if r.results]
+    if not measured:
+        return []
+    lines = [
+        "**A second look, not the rule: training seeds only.** With this few training "
+        "seeds the seed bootstrap is too narrow, so each comparison also gets a Welch "
+        "t 95 % CI over the per-seed means (evaluation runs averaged) and the rule's "
+        f"outcome on it; the last column is the training seeds per row that would see the "
+        f"paper's difference with {100 * POWER:g} % power at our seed-to-seed spread (an "
+        "order of magnitude: the spread itself comes from few seeds).",
+        "",
+        "| comparison | difference | bootstrap CI (rule) | t CI, seeds only | outcome, seeds "
+        "only | seeds per row for the paper's difference |",
+        "|:--|--:|:--|:--|:--|--:|",
+    ]
+    for r in measured:
+        for x in r.results:
+            m = x.comparison.metric
+            lines.append(
+                f"| {_where(x.comparison)} | {_fmt(x.diff, m)} | [{_fmt(x.lo, m)}, "
+                f"{_fmt(x.hi, m)}] ({x.outcome}) | [{_fmt(x.seed_lo, m)}, {_fmt(x.seed_hi, m)}] "
+                f"| {x.seed_outcome} | {'–' if x.seeds_needed is None else x.seeds_needed} |"
+            )
+    changed = [
+        f"{r.claim.key} ({r.verdict} → {r.seed_verdict})"
+        for r in measured
+        if r.seed_verdict != r.verdict
+    ]
+    lines += [
+        "",
+        "Verdicts the second look would change: "
+        + (", ".join(changed) if changed else "none")
+        + ".",
+        "",
+    ]
+    return lines
 
 
 def to_frame(results: list[ClaimResult]) -> pd.DataFrame:
@@ -429,7 +540,15 @@ def to_frame(results: list[ClaimResult]) -> pd.DataFrame:
                     "ci_lo": x.lo,
                     "ci_hi": x.hi,
                     "outcome": x.outcome,
+                    "seed_ci_lo": x.seed_lo,
+                    "seed_ci_hi": x.seed_hi,
+                    "seed_outcome": x.seed_outcome,
+                    "seed_verdict": r.seed_verdict,
+                    "seeds_needed": x.seeds_needed,
                 }
             )
     columns = ["claim", "verdict", "why", "first", "second", "metric", "density", "paper"]
-    return pd.DataFrame(rows, columns=[*columns, "diff", "ci_lo", "ci_hi", "outcome"])
+    measured = ["diff", "ci_lo", "ci_hi", "outcome"]
+    second_look = ["seed_ci_lo", "seed_ci_hi", "seed_outcome", "seed_verdict", "seeds_needed"]
+    frame = pd.DataFrame(rows, columns=[*columns, *measured, *second_look])
+    return frame.astype({"seeds_needed": "Int64"})
