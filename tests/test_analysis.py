@@ -516,6 +516,9 @@ def test_report_checks_the_papers_claims_its_rows_allow(runs, tmp_path) -> None:
     # Risk −3 (Pr-IQN) vs −2 (IQN) everywhere: the opposite of the claim, so not reproduced.
     table1 = frame[frame["claim"] == "table1"]
     assert set(table1["verdict"]) == {"not reproduced"}
+    # Only return comparisons were measured: the success-rate forest plot has nothing to draw.
+    assert not (tmp_path / "out" / "figures" / "claims.png").exists()
+    assert "figures/claims.png" not in report
 
 
 def test_outcomes_by_command_by_hand(runs, tmp_path) -> None:

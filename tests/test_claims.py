@@ -270,3 +270,19 @@ def test_the_second_look_reports_where_it_disagrees() -> None:
         )
         for d, p in ((0.5, 0.077), (0.75, 0.166), (1.0, 0.203))
     ]
+
+
+def test_claims_figure_draws_each_measured_success_comparison() -> None:
+    from priqn.analysis import figures
+
+    table = pd.concat([episodes(STAR, lambda s, r, d: 0.75), episodes(BASE, lambda s, r, d: 0.25)])
+    results = claims.evaluate_claims(table, reps=100)
+    fig = figures.claims_figure(results)
+    (ax,) = fig.axes
+    # star-vs-iqn at three densities; table1 compares returns and is not drawn.
+    labels = [t.get_text() for t in ax.get_yticklabels()]
+    assert labels == [f"star-vs-iqn: {STAR} − IQN, d {d}" for d in ("0.5", "0.75", "1")]
+    assert ax.get_xlim() == (-100, 100)
+    figures.plt.close(fig)
+    returns_only = [r for r in results if r.claim.key == "table1"]
+    assert returns_only[0].results and figures.claims_figure(returns_only) is None

@@ -195,6 +195,7 @@ def make_report(
     figures.save_figure(figures.outcomes_figure(outcomes, order), fdir, "outcomes_by_command")
     claim_results = claims.evaluate_claims(episodes, reps, seed)
     claims_checked = any(not r.missing for r in claim_results)
+    claims_fig = figures.claims_figure(claim_results) if claims_checked else None
     if claims_checked:
         atomic_write_text(
             tdir / "claims.csv",
@@ -202,6 +203,8 @@ def make_report(
                 index=False, float_format="%.10g", lineterminator="\n"
             ),
         )
+        if claims_fig is not None:
+            figures.save_figure(claims_fig, fdir, "claims")
     curves, curve_notes = load_learning_curves(find_run_dirs(runs_root), evaluation)
     if len(curves):
         figures.save_figure(figures.learning_curves_figure(curves, order), fdir, "learning_curves")
@@ -295,7 +298,16 @@ def make_report(
         "",
         tables.to_markdown(t1),
         *(
-            ["## The paper's claims", "", claims.to_markdown(claim_results, reps, seed)]
+            [
+                "## The paper's claims",
+                "",
+                claims.to_markdown(claim_results, reps, seed),
+                *(
+                    ["![The claims](figures/claims.png) ([pdf](figures/claims.pdf))", ""]
+                    if claims_fig is not None
+                    else []
+                ),
+            ]
             if claims_checked
             else []
         ),
