@@ -56,6 +56,14 @@ class Cell:
         """``<experiment>/<policy>__seed<k>``: unique, readable, filesystem-safe."""
         return f"{self.experiment}/{self.policy}__seed{self.seed}"
 
+    def state(self) -> str:
+        """The cell's state, read from its run folder (:func:`cell_state`)."""
+        return cell_state(self.run_dir, self.controls)
+
+    def is_complete(self) -> bool:
+        """Trained and every evaluation (its own and each control) complete."""
+        return self.state() == "complete"
+
     def to_spec(self) -> dict[str, Any]:
         """JSON-able description handed to the cell's child process."""
         return {**to_dict(self), "name": self.name}
@@ -156,7 +164,7 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
     """
     out = {}
     for c in expand(exp):
-        if not is_complete(c.run_dir, c.controls):
+        if not c.is_complete():
             continue
         try:
             recorded = to_dict(RunFolder(c.run_dir).config())

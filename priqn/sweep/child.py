@@ -17,7 +17,7 @@ import traceback
 
 from priqn.errors import PriqnError
 from priqn.runs import RunFolder
-from priqn.sweep.cells import Cell, build_eval_config, build_train_config, cell_state
+from priqn.sweep.cells import Cell, build_eval_config, build_train_config
 from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 
 
@@ -27,7 +27,7 @@ def train_and_evaluate(cell: Cell) -> None:
     from priqn.evaluate import control_config, evaluate_run
     from priqn.train import train
 
-    state = cell_state(cell.run_dir, cell.controls)
+    state = cell.state()
     if state not in ("complete", "trained"):
         cfg = build_train_config(cell)
         has_checkpoint = RunFolder(cell.run_dir).latest_checkpoint.is_file()

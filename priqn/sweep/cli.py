@@ -9,7 +9,7 @@ import threading
 from typing import Any
 
 from priqn.errors import PriqnError
-from priqn.sweep.cells import cell_state, expand, stale_cells, validate
+from priqn.sweep.cells import expand, stale_cells, validate
 from priqn.sweep.experiment import load_experiment
 from priqn.sweep.process import DEFAULT_CELL_FN
 from priqn.sweep.scheduler import _SWEEP_DIR, run_sweep
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     if args.list:
         cells = expand(exp)
-        states = [cell_state(c.run_dir, c.controls) for c in cells]
+        states = [c.state() for c in cells]
         for c, state in zip(cells, states, strict=True):
             print(f"{c.name:<48} {state:<9} {c.run_dir}")
         counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))

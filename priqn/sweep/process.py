@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from priqn.io import atomic_open
-from priqn.sweep.cells import is_complete
+from priqn.sweep.cells import Cell
 
 DEFAULT_CELL_FN = "priqn.sweep.child:train_and_evaluate"
 """Import path of the function a cell's child process runs (tests substitute fast ones)."""
@@ -108,8 +108,7 @@ def run_cell_process(
                 os.killpg(proc.pid, signal.SIGKILL)  # stragglers of this cell only
     if interrupted is not None:
         raise interrupted
-    controls = tuple(spec.get("controls", ()))
-    return rc, cell_error(log_path), is_complete(Path(spec["run_dir"]), controls)
+    return rc, cell_error(log_path), Cell.from_spec(spec).is_complete()
 
 
 ERROR_MARK = "priqn sweep: cell failed: "

@@ -21,7 +21,7 @@ from typing import Any
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.sweep.backends import Backend, LocalBackend, RayBackend
-from priqn.sweep.cells import Cell, cell_state, expand, is_complete
+from priqn.sweep.cells import Cell, expand
 from priqn.sweep.experiment import Experiment, ResourceSpec
 from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
 
@@ -116,7 +116,7 @@ def run_sweep(
     with _sweep_lock(exp_dir):
         todo = []
         for c in cells:
-            if is_complete(c.run_dir, c.controls):
+            if c.is_complete():
                 result.skipped.append(c.name)
             else:
                 todo.append(c)
@@ -138,7 +138,7 @@ def run_sweep(
             say(f"priqn sweep {exp.experiment.name}: all {len(cells)} cells already complete")
             _write_summary(exp, cells, result)
     if report and not result.interrupted:
-        missing = [c.name for c in expand(exp) if not is_complete(c.run_dir, c.controls)]
+        missing = [c.name for c in expand(exp) if not c.is_complete()]
         if missing:
             say(
                 f"priqn sweep: report skipped: {len(missing)} cell(s) not complete "
@@ -234,7 +234,7 @@ def _schedule(
 
 
 def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> None:
-    states = {c.name: cell_state(c.run_dir, c.controls) for c in cells}
+    states = {c.name: c.state() for c in cells}
     atomic_write_json(
         exp.runs_dir / _SWEEP_DIR / "summary.json",
         {
