@@ -516,6 +516,7 @@ def test_report_checks_the_papers_claims_its_rows_allow(runs, tmp_path) -> None:
     # Risk −3 (Pr-IQN) vs −2 (IQN) everywhere: the opposite of the claim, so not reproduced.
     table1 = frame[frame["claim"] == "table1"]
     assert set(table1["verdict"]) == {"not reproduced"}
+    assert (tmp_path / "out" / "figures" / "seeds.png").is_file()
     # Only return comparisons were measured: the success-rate forest plot has nothing to draw.
     assert not (tmp_path / "out" / "figures" / "claims.png").exists()
     assert "figures/claims.png" not in report
@@ -535,3 +536,26 @@ def test_outcomes_by_command_by_hand(runs, tmp_path) -> None:
     make_report(runs, tmp_path / "out", seed=0, reps=20)
     assert (tmp_path / "out" / "figures" / "outcomes_by_command.png").is_file()
     assert "## How episodes end, by route command" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_seed_success_figure_by_hand() -> None:
+    from priqn.analysis import figures
+
+    # A: seed 0 succeeds 1 of 4 episodes, seed 1 2 of 4 -> dots at 0.25 and 0.5, mean 0.375.
+    # B: one seed, 4 of 4. Order puts B first; C is in the order but has no episodes.
+    rows = [("A", 0, e < 1) for e in range(4)] + [("A", 1, e < 2) for e in range(4)]
+    rows += [("B", 0, True) for _ in range(4)]
+    episodes = pd.DataFrame(rows, columns=["label", "train_seed", "success"])
+    fig = figures.seed_success_figure(episodes, ["B", "C", "A"])
+    (ax,) = fig.axes
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["B", "A"]
+    dots = sorted(
+        (float(x), float(y))
+        for ln in ax.lines
+        if ln.get_marker() == "o"
+        for x, y in ln.get_xydata()
+    )
+    assert dots == [(0.25, 1.0), (0.5, 1.0), (1.0, 0.0)]
+    means = sorted({float(ln.get_xdata()[0]) for ln in ax.lines if ln.get_marker() != "o"})
+    assert means == [0.375, 1.0]
+    figures.plt.close(fig)

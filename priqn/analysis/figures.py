@@ -365,3 +365,38 @@ def claims_figure(results: Sequence[ClaimResult]) -> plt.Figure | None:
         frameon=False,
     )
     return fig
+
+
+def seed_success_figure(episodes: pd.DataFrame, order: list[str]) -> plt.Figure:
+    """Each policy's success rate per training seed (every density, net and evaluation
+    run pooled): one dot per seed, a bar at their mean. Shows at a glance how far apart
+    training seeds land next to how far apart the rows are."""
+    rates = episodes.groupby(["label", "train_seed"])["success"].mean().astype(float)
+    labels = [label for label in order if label in rates.index.get_level_values("label")]
+    seeds = sorted(rates.index.get_level_values("train_seed").unique())
+    colors = dict(zip(seeds, plt.get_cmap("tab10").colors, strict=False))
+    fig, ax = plt.subplots(figsize=(6.5, 0.3 * len(labels) + 1.2))
+    for i, label in enumerate(labels):
+        mine = rates.loc[label]
+        ax.plot([mine.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.5, zorder=2)
+        for seed, rate in mine.items():
+            ax.plot(rate, i, "o", color=colors[seed], ms=5, alpha=0.85, zorder=3)
+    ax.set_yticks(range(len(labels)), labels, fontsize=7)
+    ax.set_ylim(len(labels) - 0.5, -0.5)
+    ax.set_xlim(0, 1)
+    ax.grid(axis="x", color="0.9")
+    ax.set_xlabel("success rate (all densities)")
+    handles = [
+        plt.Line2D([], [], ls="", marker="o", color=colors[s], label=f"seed {s}") for s in seeds
+    ] + [plt.Line2D([], [], color="black", lw=1.5, label="mean over seeds")]
+    ax.legend(
+        handles=handles,
+        fontsize=7,
+        loc="lower center",
+        ncol=len(handles),
+        bbox_to_anchor=(0.5, 1.0),
+        title="Success rate per training seed",
+        title_fontsize="medium",
+        frameon=False,
+    )
+    return fig

@@ -12,7 +12,8 @@
                                       report holds every row of at least one claim
     out_dir/figures/{probability_of_improvement,iqm_optimality_gap,
                      performance_profile,learning_curves,
-                     outcomes_by_command}.{png,pdf}
+                     outcomes_by_command,seeds}.{png,pdf}
+    out_dir/figures/claims.{png,pdf}  the claims' success-rate comparisons, when measured
 
 Same inputs and seed give byte-identical tables and report.md (no timestamps).
 """
@@ -187,6 +188,7 @@ def make_report(
         )
         figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
         figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
+    figures.save_figure(figures.seed_success_figure(episodes, order), fdir, "seeds")
     outcomes = tables.outcomes_by_command(episodes, order)
     atomic_write_text(
         tdir / "outcomes_by_command.csv",
@@ -285,6 +287,8 @@ def make_report(
         "## Table II — driving metrics",
         "",
         tables.to_markdown(t2),
+        "![Success rate per training seed](figures/seeds.png) ([pdf](figures/seeds.pdf))",
+        "",
         "## How episodes end, by route command",
         "",
         "Densities pooled; every episode ends in exactly one outcome (timeout = the "
