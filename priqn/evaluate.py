@@ -30,6 +30,7 @@ import dataclasses
 import re
 import shutil
 import sys
+import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -409,8 +410,10 @@ def evaluate_policy(
         "run": run_name,
         **(extra_meta or {}),
     }
+    earlier_s = 0.0  # evaluation time already spent on the kept cells (a resumed evaluation)
     if meta_path.is_file() and not force:
         old = read_json(meta_path)
+        earlier_s = float(old.get("wall_s") or 0.0)
         if old.get("holdout_hash") != holdout_hash:
             raise PriqnError(
                 f"{meta_path}: this run was evaluated on a different hold-out set (holdout_hash "
@@ -455,6 +458,7 @@ def evaluate_policy(
         if len(pending[scene.cell]) == len(cells[scene.cell]):
             _write_cell(cell_file(eval_dir, scene.cell), pending.pop(scene.cell))
 
+    started = time.perf_counter()
     if todo:
         num_envs = min(cfg.num_workers, len(todo))
         vec_env = make_env(num_envs)
@@ -470,6 +474,7 @@ def evaluate_policy(
     atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
     meta["status"] = "complete"
     meta["episodes"] = len(episodes)
+    meta["wall_s"] = round(earlier_s + time.perf_counter() - started, 1)
     atomic_write_json(meta_path, meta)
     return out
 

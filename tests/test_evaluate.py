@@ -139,6 +139,7 @@ def test_episode_table_columns_and_meta(tmp_path) -> None:
     meta = json.loads((out.parent / "meta.json").read_text())
     assert meta["status"] == "complete" and meta["holdout_hash"] == "h" * 64
     assert meta["eval_config"]["episodes_per_cell"] == 3 and meta["eval_seed"] == 2026
+    assert meta["wall_s"] >= 0.0  # the evaluation's own time, for the grid's cost accounting
 
 
 def test_results_do_not_depend_on_worker_count(tmp_path) -> None:
@@ -163,7 +164,8 @@ def test_resume_redoes_only_missing_cells(tmp_path) -> None:
     scene = make_scenes(CFG, NETS)[5]
     cell_file(eval_dir, scene.cell).unlink()
     meta = json.loads((eval_dir / "meta.json").read_text())
-    (eval_dir / "meta.json").write_text(json.dumps({**meta, "status": "running"}))
+    # an interrupted evaluation that had already spent 1000 s on the kept cells
+    (eval_dir / "meta.json").write_text(json.dumps({**meta, "status": "running", "wall_s": 1000.0}))
     again = FakePolicy()
     out2 = evaluate_policy(again, eval_dir, CFG, NETS, "h" * 64, "run", make_env)
     redone = full[
@@ -173,7 +175,9 @@ def test_resume_redoes_only_missing_cells(tmp_path) -> None:
     ]
     assert again.calls == redone["steps"].sum()  # one act per step of the redone cell only
     pd.testing.assert_frame_equal(pd.read_csv(out2), full)
-    assert json.loads((eval_dir / "meta.json").read_text())["status"] == "complete"
+    resumed = json.loads((eval_dir / "meta.json").read_text())
+    assert resumed["status"] == "complete"
+    assert 1000.0 <= resumed["wall_s"] < 1100.0  # time spent before the stop is kept
 
 
 def test_refuses_to_mix_with_other_holdout_or_config(tmp_path) -> None:
