@@ -427,7 +427,14 @@ def evaluate_policy(
             )
     if force and eval_dir.exists():
         shutil.rmtree(eval_dir)
-    atomic_write_json(meta_path, meta)
+    started = time.perf_counter()
+
+    def write_meta(**fields: Any) -> None:
+        """Write meta.json with the evaluation's time so far (kept across interruptions)."""
+        meta.update(fields, wall_s=round(earlier_s + time.perf_counter() - started, 1))
+        atomic_write_json(meta_path, meta)
+
+    write_meta()
 
     labels = dict(getattr(policy, "labels", {}) or {})
     fixed = {key: labels.get(key) for key in LABEL_KEYS}
@@ -457,8 +464,8 @@ def evaluate_policy(
         pending[scene.cell].append(row)
         if len(pending[scene.cell]) == len(cells[scene.cell]):
             _write_cell(cell_file(eval_dir, scene.cell), pending.pop(scene.cell))
+            write_meta()
 
-    started = time.perf_counter()
     if todo:
         num_envs = min(cfg.num_workers, len(todo))
         vec_env = make_env(num_envs)
@@ -472,10 +479,7 @@ def evaluate_policy(
     episodes = pd.concat(frames, ignore_index=True)
     out = eval_dir / RunFolder.EVAL_EPISODES
     atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
-    meta["status"] = "complete"
-    meta["episodes"] = len(episodes)
-    meta["wall_s"] = round(earlier_s + time.perf_counter() - started, 1)
-    atomic_write_json(meta_path, meta)
+    write_meta(status="complete", episodes=len(episodes))
     return out
 
 

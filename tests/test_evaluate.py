@@ -180,6 +180,33 @@ def test_resume_redoes_only_missing_cells(tmp_path) -> None:
     assert 1000.0 <= resumed["wall_s"] < 1100.0  # time spent before the stop is kept
 
 
+class StopsAfter(FakePolicy):
+    """A policy whose process is stopped (Ctrl-C) after ``calls_left`` decisions."""
+
+    def __init__(self, calls_left: int) -> None:
+        super().__init__()
+        self.calls_left = calls_left
+
+    def act(self, obs, rng):
+        if self.calls == self.calls_left:
+            raise KeyboardInterrupt
+        return super().act(obs, rng)
+
+
+def test_an_interrupted_evaluation_keeps_its_time(tmp_path) -> None:
+    eval_dir = tmp_path / "run" / "eval"
+    with pytest.raises(KeyboardInterrupt):
+        evaluate_policy(StopsAfter(40), eval_dir, CFG, NETS, "h" * 64, "run", make_env)
+    stopped = json.loads((eval_dir / "meta.json").read_text())
+    assert stopped["status"] == "running" and list((eval_dir / "cells").iterdir())
+    assert stopped["wall_s"] >= 0.0  # written when the last finished cell landed
+    # the stopped attempt's time, as if it had been long, is carried into the resumed one
+    (eval_dir / "meta.json").write_text(json.dumps({**stopped, "wall_s": 1000.0}))
+    evaluate_policy(FakePolicy(), eval_dir, CFG, NETS, "h" * 64, "run", make_env)
+    resumed = json.loads((eval_dir / "meta.json").read_text())
+    assert resumed["status"] == "complete" and 1000.0 <= resumed["wall_s"] < 1100.0
+
+
 def test_refuses_to_mix_with_other_holdout_or_config(tmp_path) -> None:
     out, _ = _evaluate(tmp_path)
     with pytest.raises(PriqnError, match="different hold-out set"):
