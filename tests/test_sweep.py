@@ -217,8 +217,127 @@ def test_seed_order_runs_every_row_before_the_next_seed(tmp_path: Path) -> None:
     bad.write_text(
         '[experiment]\nname = "x"\norder = "random"\n[[policy]]\nname = "a"\nagent = "iqn"\n'
     )
-    with pytest.raises(PriqnError, match="order: expected one of policy, seed, got 'random'"):
+    with pytest.raises(PriqnError, match="order: expected one of policy, seed, cost, got 'random'"):
         load_experiment(bad)
+
+
+def _grid(tmp_path: Path, body: str, name: str = "g.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(body)
+    return path
+
+
+_COSTED = """
+[experiment]
+name = "x"
+seeds = [0, 1]
+order = "{order}"
+[[policy]]
+name = "cheap"
+agent = "iqn"
+[[policy]]
+name = "dear"
+agent = "ensemble-iqn"
+cost = 2.5
+[[policy]]
+name = "mid"
+agent = "ma-iqn"
+cost = 1.5
+"""
+
+
+def test_cost_orders_start_the_costliest_cells_first(tmp_path: Path) -> None:
+    def order(kind: str) -> list[str]:
+        exp = load_experiment(_grid(tmp_path, _COSTED.format(order=kind)), runs_dir=tmp_path)
+        return [c.name.split("/")[1] for c in expand(exp)]
+
+    assert order("cost") == [
+        "dear__seed0",
+        "dear__seed1",
+        "mid__seed0",
+        "mid__seed1",
+        "cheap__seed0",
+        "cheap__seed1",
+    ]
+    assert order("seed") == [
+        "dear__seed0",
+        "mid__seed0",
+        "cheap__seed0",
+        "dear__seed1",
+        "mid__seed1",
+        "cheap__seed1",
+    ]
+    assert order("policy") == [  # file order, as before
+        "cheap__seed0",
+        "cheap__seed1",
+        "dear__seed0",
+        "dear__seed1",
+        "mid__seed0",
+        "mid__seed1",
+    ]
+
+
+def test_headline_design_parses_and_matches_table2_cpu_rows(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from priqn.config import config_differences, to_dict
+    from priqn.sweep.cells import build_train_config
+
+    exp = load_experiment(experiments_dir() / "headline.toml", runs_dir=tmp_path)
+    seq = exp.sequential
+    assert seq is not None and seq.seeds_per_look == 5 and seq.interims == (5, 10, 15, 20)
+    assert {f: len(c) for f, c in seq.families().items()} == {"primary": 2, "secondary": 2}
+    assert list(seq.prior_seeds) + list(exp.experiment.seeds) == list(range(20))
+    # The rows train exactly as table2_cpu's (only the seed differs), so its seeds 0-2 count.
+    old = {c.policy: c for c in expand(load_experiment(experiments_dir() / "table2_cpu.toml"))}
+    for cell in expand(exp)[:4]:
+        twin = old[cell.policy]
+        mine = build_train_config(replace(cell, seed=twin.seed))
+        assert config_differences(to_dict(build_train_config(twin)), to_dict(mine)) == []
+
+
+_SEQ = """
+[experiment]
+name = "x"
+seeds = [2, 3]
+[[policy]]
+name = "a"
+agent = "iqn"
+[[policy]]
+name = "b"
+agent = "ma-iqn"
+[sequential]
+interims = {interims}
+prior_runs = "old"
+prior_seeds = [0, 1]
+[[sequential.comparison]]
+name = "a > b"
+family = "primary"
+a = "a"
+b = "{b}"
+"""
+
+
+@pytest.mark.parametrize(
+    ("interims", "b", "message"),
+    [
+        (
+            "[2, 4]",
+            "c",
+            r"\[\[sequential.comparison\]\] #1.b: no \[\[policy\]\] named 'c' \(valid: a, b\)",
+        ),
+        ("[2, 3]", "b", r"\[sequential\].interims: expected equally spaced looks n, 2n"),
+        ("[3, 6]", "b", r"prior_seeds \+ \[experiment\].seeds must be 0, 1, ..., 5"),
+        ("[2, 4]", "a", r"a and b are the same policy 'a'"),
+    ],
+)
+def test_sequential_design_mistakes_are_one_line(
+    tmp_path: Path, interims: str, b: str, message: str
+) -> None:
+    with pytest.raises(PriqnError, match=message):
+        load_experiment(_grid(tmp_path, _SEQ.format(interims=interims, b=b)))
+    ok = load_experiment(_grid(tmp_path, _SEQ.format(interims="[2, 4]", b="b"), "ok.toml"))
+    assert ok.sequential is not None and ok.sequential.comparisons[0].b == "b"
 
 
 def test_smoke_grid_is_small(tmp_path: Path) -> None:

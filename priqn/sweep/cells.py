@@ -81,11 +81,18 @@ class Cell:
 
 def expand(exp: Experiment) -> list[Cell]:
     """All cells of the grid in run order: policies in file order with their seeds in
-    file order (``order = "policy"``), or seed by seed over every policy (``"seed"``)."""
+    file order (``order = "policy"``); seed by seed over every policy, the costliest rows
+    of a seed first (``"seed"``); or the costliest cells first over the whole grid
+    (``"cost"``: longest-processing-time first, so parallel slots end together). Ties
+    keep file order (stable sorts)."""
     e = exp.experiment
     pairs = [(pol, seed) for pol in exp.policies for seed in e.seeds]
+    by_cost = sorted(exp.policies, key=lambda pol: -pol.cost)
     if e.order == "seed":
+        pairs = [(pol, seed) for seed in e.seeds for pol in by_cost]
+    elif e.order == "cost":
         pairs = [(pol, seed) for seed in e.seeds for pol in exp.policies]
+        pairs.sort(key=lambda ps: -ps[0].cost)
     return [
         Cell(
             experiment=e.name,

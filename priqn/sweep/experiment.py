@@ -28,7 +28,7 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 # --------------------------------------------------------------------------- experiment file
 
 
-CELL_ORDERS: tuple[str, ...] = ("policy", "seed")
+CELL_ORDERS: tuple[str, ...] = ("policy", "seed", "cost")
 """Values of ``[experiment].order``."""
 
 
@@ -57,8 +57,10 @@ class ExperimentSpec:
     description: str = ""
     """Free text: what this grid reproduces."""
     order: str = "policy"
-    """Order cells run in: ``policy`` (each row's seeds together) or ``seed`` (every row's
-    first seed, then every row's second, ...: an interrupted long grid has all rows)."""
+    """Order cells run in: ``policy`` (each row's seeds together), ``seed`` (every row's
+    first seed, then every row's second, ...: an interrupted long grid has all rows; within
+    a seed the costliest rows first) or ``cost`` (the costliest cells first over the whole
+    grid, so parallel slots finish together instead of one long cell running alone)."""
     controls: tuple[str, ...] = ()
     """Control evaluations of the greedy baselines' cells (IQN, Ensemble-IQN, MA-IQN):
     ``near-greedy`` (or ``near-greedy-eps<ε>``) evaluates the same network once more
@@ -110,6 +112,81 @@ class PolicySpec:
     """Pr-IQN: quantile normalisation, ``zscore`` (the paper) | ``scaled`` (docs/preorder.md)."""
     set: tuple[str, ...] = ()
     """Further TrainConfig overrides ``KEY=VALUE`` for this row (after the experiment's)."""
+    cost: float = 1.0
+    """Relative wall time of one cell of this row (scheduling only: ``order = "seed"`` and
+    ``"cost"`` start the costliest cells first), e.g. 2.5 for Ensemble-IQN on 2 cores."""
+
+
+SEQUENTIAL_METHODS: tuple[str, ...] = ("adastop",)
+"""Values of ``[sequential].method``."""
+ENDPOINTS: tuple[str, ...] = ("success",)
+"""Values of ``[sequential].endpoint``: ``success`` = one training seed's hold-out success
+rate, averaged over the evaluation densities (each density weighted equally)."""
+
+
+@dataclass(frozen=True)
+class ComparisonSpec:
+    """One ``[[sequential.comparison]]``: a pre-registered difference ``a − b`` of the endpoint."""
+
+    name: str
+    """What the comparison claims, as the report prints it (``Pr-IQN* > IQN``)."""
+    family: str
+    """Family it belongs to; each family controls its own family-wise error at ``alpha``."""
+    a: str
+    """Policy (row) name on the left of the difference."""
+    b: str
+    """Policy (row) name on the right."""
+    paper_difference: float | None = None
+    """The paper's reported ``a − b`` on the endpoint, in success-rate units (0.149 = 14.9
+    points); unset for a comparison the paper does not make (ours: two-sided, no claim)."""
+
+
+@dataclass(frozen=True)
+class SequentialSpec:
+    """The ``[sequential]`` table: a pre-registered group-sequential design over seeds.
+
+    Interim ``k`` (k = 1..K) looks at the first ``interims[k-1]`` seeds of every row still
+    in play; the seeds come in order ``prior_seeds + [experiment].seeds``. Written and
+    committed before any of the experiment's own cells train (docs/results.md, "Headline").
+    """
+
+    comparisons: tuple[ComparisonSpec, ...]
+    """The pre-registered comparisons (``[[sequential.comparison]]``)."""
+    method: str = "adastop"
+    """Group-sequential test: ``adastop`` (Mathieu et al. 2023, permutation tests with a
+    linear α-spending rule and step-down family-wise error control; the ``adastop`` package)."""
+    endpoint: str = "success"
+    """Per-seed score every comparison uses (:data:`ENDPOINTS`)."""
+    interims: tuple[int, ...] = (5, 10, 15, 20)
+    """Seeds per row at each interim look: n, 2n, ..., Kn (AdaStop adds n seeds a look)."""
+    alpha: float = 0.05
+    """Family-wise error rate of each family (two-sided)."""
+    beta: float = 0.0
+    """AdaStop's power spent on early 'equal' decisions (0: equality only at the last look)."""
+    permutations: int = 10000
+    """AdaStop's B: random permutations once the exact set is larger."""
+    seed: int = 0
+    """Seed of AdaStop's permutation draws (numpy RandomState): the decisions replay exactly."""
+    prior_runs: str | None = None
+    """Folder of an earlier grid whose cells of the same rows supply ``prior_seeds``
+    (relative to the working directory), e.g. ``results/table2_cpu``."""
+    prior_seeds: tuple[int, ...] = ()
+    """Seeds taken from ``prior_runs`` (they come first in the seed order)."""
+    code_commits: tuple[str, ...] = ()
+    """Git commits a cell may have trained at (its ``meta.json`` ``git_sha``); the report
+    refuses any other. Empty: not checked."""
+
+    @property
+    def seeds_per_look(self) -> int:
+        """AdaStop's n: seeds added per row at each interim."""
+        return self.interims[0]
+
+    def families(self) -> dict[str, list[ComparisonSpec]]:
+        """Family name -> its comparisons, in file order."""
+        out: dict[str, list[ComparisonSpec]] = {}
+        for c in self.comparisons:
+            out.setdefault(c.family, []).append(c)
+        return out
 
 
 _PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
@@ -143,6 +220,8 @@ class Experiment:
     """EvalConfig fields (``priqn.evaluate.EvalConfig``) for every cell."""
     resources: ResourceSpec = ResourceSpec()
     """Per-cell resource needs."""
+    sequential: SequentialSpec | None = None
+    """The pre-registered sequential design (``[sequential]``), if the grid has one."""
 
     @property
     def runs_dir(self) -> Path:
@@ -184,7 +263,7 @@ def load_experiment(
     """
     p = resolve_experiment_path(path)
     data = load_toml(p)
-    sections = {"experiment", "policy", "evaluate", "resources"}
+    sections = {"experiment", "policy", "evaluate", "resources", "sequential"}
     unknown = sorted(set(data) - sections)
     if unknown:
         raise PriqnError(
@@ -260,9 +339,72 @@ def load_experiment(
             f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
             f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
         )
+    sequential = None
+    if "sequential" in data:
+        sequential = _load_sequential(data["sequential"], exp, policies, p)
     # Absolute, so Ray workers (whose working directory differs) write to the same place.
     exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
-    return Experiment(p, exp, tuple(policies), dict(evaluate), resources)
+    return Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
+
+
+def _load_sequential(
+    raw: Any, exp: ExperimentSpec, policies: Sequence[PolicySpec], p: Path
+) -> SequentialSpec:
+    """Parse and check ``[sequential]`` and its ``[[sequential.comparison]]`` tables."""
+    where = f"{p} [sequential]"
+    if not isinstance(raw, dict):
+        raise PriqnError(f"{where}: expected a table")
+    raw = dict(raw)
+    raw_comparisons = raw.pop("comparison", None)
+    if not isinstance(raw_comparisons, list) or not raw_comparisons:
+        raise PriqnError(
+            f"{where}: expected one or more [[sequential.comparison]] tables (name, family, a, b)"
+        )
+    names = {pol.name for pol in policies}
+    comparisons = []
+    for i, rc in enumerate(raw_comparisons, start=1):
+        cw = f"{p} [[sequential.comparison]] #{i}"
+        c = from_dict(ComparisonSpec, rc, where=cw)
+        for side in ("a", "b"):
+            if getattr(c, side) not in names:
+                raise PriqnError(
+                    f"{cw}.{side}: no [[policy]] named {getattr(c, side)!r} "
+                    f"(valid: {', '.join(sorted(names))})"
+                )
+        if c.a == c.b:
+            raise PriqnError(f"{cw}: a and b are the same policy {c.a!r}")
+        comparisons.append(c)
+    seq = from_dict(SequentialSpec, {**raw, "comparisons": ()}, where=where)
+    seq = dataclasses.replace(seq, comparisons=tuple(comparisons))
+    if seq.method not in SEQUENTIAL_METHODS:
+        raise PriqnError(
+            f"{where}.method: expected one of {', '.join(SEQUENTIAL_METHODS)}, got {seq.method!r}"
+        )
+    if seq.endpoint not in ENDPOINTS:
+        raise PriqnError(
+            f"{where}.endpoint: expected one of {', '.join(ENDPOINTS)}, got {seq.endpoint!r}"
+        )
+    n = seq.interims[0] if seq.interims else 0
+    if n < 2 or list(seq.interims) != [n * (k + 1) for k in range(len(seq.interims))]:
+        raise PriqnError(
+            f"{where}.interims: expected equally spaced looks n, 2n, ..., Kn with n >= 2 "
+            f"(AdaStop adds n seeds per look), got {list(seq.interims)}"
+        )
+    if not 0 < seq.alpha < 1 or not 0 <= seq.beta < 1:
+        raise PriqnError(f"{where}: expected 0 < alpha < 1 and 0 <= beta < 1")
+    if seq.permutations < 100:
+        raise PriqnError(f"{where}.permutations: expected at least 100, got {seq.permutations}")
+    order = list(seq.prior_seeds) + list(exp.seeds)
+    if order != list(range(seq.interims[-1])):
+        raise PriqnError(
+            f"{where}: prior_seeds + [experiment].seeds must be 0, 1, ..., {seq.interims[-1] - 1} "
+            f"(one seed per row per slot of the last look), got {order}"
+        )
+    if seq.prior_seeds and not seq.prior_runs:
+        raise PriqnError(
+            f"{where}.prior_runs: required with prior_seeds (the earlier grid's folder)"
+        )
+    return seq
 
 
 def _preorder_agents() -> str:
