@@ -16,7 +16,8 @@ __all__ = ["OBJECTIVES", "__version__"]
 if "priqn/Intersection-v0" not in gymnasium.registry:
     gymnasium.register(
         id="priqn/Intersection-v0",
-        entry_point="priqn.env.intersection:IntersectionEnv",
+        # IntersectionEnv, fitting make_vec's "sync" / "async" modes to the 5-vector reward.
+        entry_point="priqn.env.vector:make_env",
         # gymnasium.make_vec(...) builds worker processes (libsumo: one SUMO per process).
         vector_entry_point="priqn.env.vector:make_vec",
         # The reward is a 5-vector by design; gymnasium's passive checker would warn

@@ -505,7 +505,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="a run folder made by 'priqn train'")
     parser.add_argument("--out", required=True, help="output folder (index.html, frames, ...)")
     parser.add_argument("--net", default="", help="net '<family>/<net_id>' (default: first)")
-    parser.add_argument("--density", type=float, default=0.0, help="traffic density")
+    parser.add_argument(
+        "--density", type=float, default=0.0, help="traffic density in (0, 1] (default: first)"
+    )
     parser.add_argument("--command", default="", choices=["", "left", "straight", "right"])
     parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
     parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
@@ -522,6 +524,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
+    if args.density and not 0.0 < args.density <= 1.0:  # 0 = the first evaluation density
+        raise PriqnError(
+            f"--density {args.density:g}: expected a traffic density in (0, 1] "
+            "(active actors / maximum actors), e.g. 0.5"
+        )
     cfg = InspectConfig(
         net=args.net,
         density=args.density,

@@ -125,25 +125,57 @@ def test_an_error_in_a_worker_names_it_without_a_traceback(capfd) -> None:
         venv.close()
 
 
-def test_gymnasium_make_vec_builds_the_process_isolated_env() -> None:
+@pytest.mark.parametrize(("mode", "kind"), [(None, "PriqnVectorEnv"), ("async", "AsyncVectorEnv")])
+def test_gymnasium_make_vec_runs_past_an_episode_end(mode: str | None, kind: str) -> None:
     import gymnasium
+    from gymnasium.vector import AutoresetMode
 
     import priqn  # noqa: F401  (registers the env)
 
     venv = gymnasium.make_vec(
-        "priqn/Intersection-v0", num_envs=2, obs_size_px=32, max_episode_steps=4, seed=3
+        "priqn/Intersection-v0",
+        num_envs=2,
+        vectorization_mode=mode,
+        obs_size_px=32,
+        max_episode_steps=4,
+        seed=3,
     )
     try:
-        assert type(venv).__name__ == "PriqnVectorEnv" and venv.num_envs == 2
+        assert type(venv).__name__ == kind and venv.num_envs == 2
+        assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
         venv.reset()
         ended = 0
         for _ in range(6):  # past the 4-decision limit: the autoreset keeps vector rewards
-            _, rewards, term, trunc, _ = venv.step(np.array([12, 12]))
-            assert rewards.shape == (2, 5)
+            _, rewards, term, trunc, infos = venv.step(np.array([12, 12]))
+            assert rewards.shape == (2, 5)  # NEXT_STEP would give (2,) on the reset step
+            if (term | trunc).any():
+                assert "final_obs" in infos and "final_info" in infos
             ended += int((term | trunc).sum())
         assert ended >= 2
     finally:
         venv.close()
+
+
+def test_gymnasium_make_vec_refuses_sync_and_next_step_in_one_line() -> None:
+    import gymnasium
+    from gymnasium.vector import AutoresetMode
+
+    import priqn  # noqa: F401  (registers the env)
+    from priqn.env.intersection import IntersectionEnv
+    from priqn.env.vector import GYMNASIUM_SYNC_REFUSED, NEXT_STEP_REFUSED, make_env
+
+    assert make_env.metadata == IntersectionEnv.metadata
+    with pytest.raises(PriqnError) as sync:
+        gymnasium.make_vec("priqn/Intersection-v0", num_envs=2, vectorization_mode="sync")
+    assert str(sync.value) == GYMNASIUM_SYNC_REFUSED and "\n" not in str(sync.value)
+    with pytest.raises(PriqnError) as next_step:  # refused before any worker starts
+        gymnasium.make_vec(
+            "priqn/Intersection-v0",
+            num_envs=2,
+            vectorization_mode="async",
+            vector_kwargs={"autoreset_mode": AutoresetMode.NEXT_STEP},
+        )
+    assert str(next_step.value) == NEXT_STEP_REFUSED and "SAME_STEP" in NEXT_STEP_REFUSED
 
 
 def test_env_config_from_dict_and_keywords_and_reward_space() -> None:

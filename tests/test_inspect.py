@@ -156,3 +156,20 @@ def test_inspect_the_near_greedy_control_replays_its_evaluated_episode(evaluated
     )  # fmt: skip
     assert refused.returncode != 0 and len(refused.stderr.strip().splitlines()) == 1
     assert "near-greedy acting applies to agents with one scalar value" in refused.stderr
+
+
+@pytest.mark.parametrize("density", ["2", "-0.5", "nan"])
+def test_inspect_refuses_a_bad_density_in_one_line_before_reading_the_run(
+    density, tmp_path, capsys
+):
+    from priqn.cli import main
+
+    # No run folder: --density is checked first, so no trained run is needed.
+    argv = ["inspect", str(tmp_path / "no-run"), "--net", "holdout/fourway_00", "--density"]
+    assert main([*argv, density, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == [
+        f"priqn: error: --density {float(density):g}: expected a traffic density in (0, 1] "
+        "(active actors / maximum actors), e.g. 0.5"
+    ]
+    assert "Traceback" not in err and not (tmp_path / "x").exists()

@@ -17,6 +17,10 @@ when it dies while the parent waits on it; a worker whose env raises a
 :class:`~priqn.errors.PriqnError` is reported as ``vector env worker <i>: <message>``
 (no traceback); any other exception keeps its type, gets the worker's name and its
 traceback is printed (an internal error). The vector env is closed either way.
+
+``gymnasium.make_vec`` builds this vector env by default; its ``vectorization_mode="async"``
+(gymnasium's own ``AsyncVectorEnv``) gets ``SAME_STEP`` autoreset as well, and ``"sync"`` is
+refused in one line (:func:`fit_gymnasium_vectorizer`).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
-from gymnasium.vector import AsyncVectorEnv, AutoresetMode
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, VectorEnv
 from gymnasium.vector.async_vector_env import AsyncState
 
 from priqn.errors import PriqnError
@@ -184,13 +188,95 @@ def make_vec(
 ) -> PriqnVectorEnv:
     """``gymnasium.make_vec("priqn/Intersection-v0", num_envs=N, ...)`` (vector entry point).
 
-    The process-isolated vector env of :func:`make_vector_env`: libsumo runs one
-    simulation per process, so gymnasium's ``"sync"`` mode cannot work (the second env
-    takes the simulation over and the first refuses to step), and ``"async"`` needs
-    ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}`` (gymnasium's default
-    NEXT_STEP mode mixes a scalar 0 into the 5-vector rewards). ``config`` and keyword
+    The process-isolated vector env of :func:`make_vector_env` (gymnasium's default mode
+    here). ``vectorization_mode="async"`` works too, with ``SAME_STEP`` autoreset, and
+    ``"sync"`` is refused (:func:`fit_gymnasium_vectorizer`). ``config`` and keyword
     overrides are as for the single env; ``seed`` derives every worker's seeds.
     """
     from priqn.env.intersection import make_config  # pure-python; no SUMO import
 
     return make_vector_env(make_config(config, overrides), num_envs, seed, render_mode)
+
+
+def make_env(*args: Any, **kwargs: Any):  # noqa: ANN201 - returns an IntersectionEnv
+    """``gymnasium.make("priqn/Intersection-v0", ...)`` (entry point): an ``IntersectionEnv``.
+
+    Same arguments as :class:`~priqn.env.intersection.IntersectionEnv`; first
+    :func:`fit_gymnasium_vectorizer`, as ``gymnasium.make_vec``'s ``"sync"`` and
+    ``"async"`` modes make their envs through here.
+    """
+    fit_gymnasium_vectorizer()
+    from priqn.env.intersection import IntersectionEnv
+
+    return IntersectionEnv(*args, **kwargs)
+
+
+# IntersectionEnv.metadata: gymnasium.make reads the render modes before it makes the env.
+make_env.metadata = {"render_modes": ["rgb_array"], "render_fps": 2}  # type: ignore[attr-defined]
+
+GYMNASIUM_SYNC_REFUSED = (
+    "gymnasium.make_vec('priqn/Intersection-v0', vectorization_mode='sync') cannot run this "
+    "env: libsumo runs one SUMO simulation per process and SyncVectorEnv keeps one number "
+    "per env as the reward; leave vectorization_mode out (worker processes) or use 'async'"
+)
+NEXT_STEP_REFUSED = (
+    "gymnasium.make_vec('priqn/Intersection-v0', vectorization_mode='async'): autoreset_mode "
+    "NEXT_STEP puts a scalar 0 reward beside the other envs' 5-vector rewards; use "
+    "vector_kwargs={'autoreset_mode': AutoresetMode.SAME_STEP} (the default here)"
+)
+
+
+def fit_gymnasium_vectorizer() -> None:
+    """Fit the vector env that ``gymnasium.make_vec`` is building around this env, if any.
+
+    gymnasium shows an env nothing of its vectorizer, so this reads the call stack: the
+    ``make_vec`` call's arguments and the ``SyncVectorEnv`` / ``AsyncVectorEnv`` whose
+    ``__init__`` is making the env. Outside ``make_vec``'s ``"sync"`` / ``"async"`` modes
+    (``gymnasium.make``, the default vector entry point, a worker) it does nothing.
+
+    * ``"async"`` without an ``autoreset_mode`` in ``vector_kwargs``: switches the
+      ``AsyncVectorEnv`` to ``SAME_STEP`` before it starts its workers (gymnasium's default
+      ``NEXT_STEP`` answers a reset step with a scalar 0 reward, and the batch of 5-vectors
+      breaks); an explicit ``NEXT_STEP`` is refused in one line unless ``wrappers`` (which
+      may make the reward one number) are given.
+    * ``"sync"``: refused in one line, unless one env with ``wrappers``: libsumo runs one
+      simulation per process and ``SyncVectorEnv`` stores one float reward per env.
+    """
+    found = _gymnasium_make_vec_call()
+    if found is None:
+        return
+    call, venv = found
+    mode = getattr(call.get("vectorization_mode"), "value", call.get("vectorization_mode"))
+    wrapped = bool(call.get("wrappers"))
+    if mode == "sync" and (call.get("num_envs") != 1 or not wrapped):
+        raise PriqnError(GYMNASIUM_SYNC_REFUSED)
+    if mode != "async" or not isinstance(venv, AsyncVectorEnv):
+        return
+    if getattr(venv, "autoreset_mode", None) != AutoresetMode.NEXT_STEP:
+        return
+    if "autoreset_mode" not in (call.get("vector_kwargs") or {}):
+        venv.autoreset_mode = AutoresetMode.SAME_STEP  # read when the workers start
+    elif not wrapped:
+        raise PriqnError(NEXT_STEP_REFUSED)
+
+
+def _gymnasium_make_vec_call() -> tuple[dict[str, Any], VectorEnv | None] | None:
+    """The locals of the enclosing ``gymnasium.make_vec`` call and the gymnasium vector env
+    under construction below it (None when not called from ``make_vec``)."""
+    venv = None
+    frame = sys._getframe(1)
+    try:
+        while frame is not None:
+            name = frame.f_code.co_name
+            if name == "__init__" and venv is None:
+                obj = frame.f_locals.get("self")
+                if isinstance(obj, VectorEnv):
+                    venv = obj
+            elif name == "make_vec" and (
+                frame.f_globals.get("__name__") == "gymnasium.envs.registration"
+            ):
+                return dict(frame.f_locals), venv
+            frame = frame.f_back
+        return None
+    finally:
+        del frame
