@@ -74,6 +74,13 @@ def fake(cell):
         atomic_write_text(cell.run_dir / "orphan_pid", str(child.pid))
     if p.startswith("nap"):
         time.sleep(8)  # long enough that two cells overlap
+    if p.startswith("doze"):  # first attempt: runs until stopped; a resumed one completes
+        marker = cell.run_dir.parent / f"{p}__seed{cell.seed}.dozed"
+        if not marker.exists():
+            atomic_write_text(marker, "1")
+            _meta(cell, "running")
+            atomic_write_text(cell.run_dir / "pid", str(os.getpid()))
+            time.sleep(120)
     if p.startswith("sleepy"):
         _meta(cell, "running")
         atomic_write_text(cell.run_dir / "pid", str(os.getpid()))
@@ -867,3 +874,186 @@ def test_unknown_agent_names_the_file_and_the_policy(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert out.returncode == 2 and "new" not in out.stdout  # no cell listed as if it were fine
+
+
+# --------------------------------------------------------------------------- two cells at a time
+
+
+def test_ctrl_c_with_two_cells_in_flight_then_resume(tmp_path: Path, fake_cells: str) -> None:
+    """jobs=2: a second sweep of the folder is refused while two cells run; Ctrl-C stops
+    both (incomplete, never started cells untouched); the next sweep completes them all."""
+    exp_path = write_experiment(tmp_path, ["doze", "ok"], [0, 1])
+    sweep = subprocess.Popen(
+        _sweep_cli(exp_path, "--cell-fn", fake_cells, "--jobs", "2"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    runs = tmp_path / "runs" / "fake"
+    pid_files = [runs / f"doze__seed{s}" / "pid" for s in (0, 1)]
+    try:
+        deadline = time.monotonic() + 60
+        while not all(p.exists() for p in pid_files) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert all(p.exists() for p in pid_files), "the two cells never ran together"
+        second = subprocess.run(
+            _sweep_cli(exp_path, "--cell-fn", fake_cells),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert second.returncode == 2
+        assert "another 'priqn sweep' is running this experiment" in second.stderr
+        cell_pids = [int(p.read_text()) for p in pid_files]
+        os.killpg(sweep.pid, signal.SIGINT)
+        _, err = sweep.communicate(timeout=60)
+    finally:
+        if sweep.poll() is None:
+            os.killpg(sweep.pid, signal.SIGKILL)
+            sweep.wait()
+    assert sweep.returncode == 130, err
+    assert "stopping 2 running cell(s)" in err
+    for pid in cell_pids:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+    summary = json.loads((runs / ".sweep" / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    states = {name: cell["state"] for name, cell in summary["cells"].items()}
+    assert states == {
+        "fake/doze__seed0": "running",
+        "fake/doze__seed1": "running",
+        "fake/ok__seed0": "new",
+        "fake/ok__seed1": "new",
+    }
+    for s in (0, 1):
+        log = runs / ".sweep" / "logs" / f"doze__seed{s}.attempt1.log"
+        assert log.read_text().rstrip().endswith("priqn sweep: cell failed: interrupted")
+    assert calls(tmp_path) == ["doze__seed0", "doze__seed1"]  # the queued cells never started
+
+    res = run_sweep(
+        load_experiment(exp_path),
+        jobs=2,
+        cell_fn=fake_cells,
+        report=False,
+        progress=False,
+        log=lambda m: None,
+    )
+    assert res.skipped == [] and not res.failed and not res.interrupted
+    assert sorted(res.completed) == sorted(states)
+    assert calls(tmp_path) == ["doze__seed0"] * 2 + ["doze__seed1"] * 2 + ["ok__seed0", "ok__seed1"]
+
+
+def test_default_preset_cells_count_as_one_cpu(
+    tmp_path: Path, fake_cells: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two default-preset cells at a time on 2 cores (docs/sweeps.md, "Local machine");
+    ``--jobs`` still overrides the default."""
+    import dataclasses
+
+    from priqn.sweep import ResourceSpec
+
+    assert ResourceSpec().cpus_per_cell == 1
+    shipped = {
+        name: load_experiment(experiments_dir() / f"{name}.toml", runs_dir=tmp_path)
+        for name in ("smoke", "readme", "sensitivity", "headline", "table2_cpu", "table2")
+    }
+    for name in ("smoke", "readme", "sensitivity", "headline"):
+        assert shipped[name].experiment.preset == "default"
+        assert shipped[name].resources.cpus_per_cell == 1, name
+    assert shipped["table2_cpu"].resources.cpus_per_cell == 2  # complete; ran one at a time
+    assert shipped["table2"].resources.cpus_per_cell == 8  # paper preset: 8 env workers
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert default_jobs(shipped["smoke"].resources) == 2
+    assert default_jobs(shipped["table2_cpu"].resources) == 1
+    exp = load_experiment(write_experiment(tmp_path, ["ok"], [0]))
+    exp = dataclasses.replace(exp, resources=ResourceSpec())
+    for jobs, expected in ((None, "2 cell(s) at a time"), (1, "1 cell(s) at a time")):
+        messages: list[str] = []
+        sub = dataclasses.replace(
+            exp, experiment=dataclasses.replace(exp.experiment, name=f"fake-{jobs}")
+        )
+        res = run_sweep(
+            sub, jobs=jobs, cell_fn=fake_cells, report=False, progress=False, log=messages.append
+        )
+        assert res.completed == [f"fake-{jobs}/ok__seed0"]
+        assert expected in messages[0], messages
+
+
+def test_bench_sweep_arithmetic() -> None:
+    """Cells per hour, the concurrent / sequential ratio and the jobs it recommends."""
+    from priqn.bench.sweep import (
+        RECOMMEND_THRESHOLD,
+        cells_per_hour,
+        concurrency_ratio,
+        recommend_jobs,
+    )
+
+    assert cells_per_hour(2, 3600.0) == pytest.approx(2.0)
+    assert cells_per_hour(2, 1800.0) == pytest.approx(4.0)
+    sequential, concurrent = cells_per_hour(2, 200.0), cells_per_hour(2, 128.0)
+    assert concurrency_ratio(sequential, concurrent) == pytest.approx(200.0 / 128.0)
+    assert concurrency_ratio(sequential, sequential) == pytest.approx(1.0)
+    assert RECOMMEND_THRESHOLD == 1.05
+    assert recommend_jobs(1.56, 2) == 2
+    assert recommend_jobs(1.06, 3) == 3
+    assert recommend_jobs(1.05, 2) == 1  # within the noise: one at a time
+    assert recommend_jobs(0.8, 2) == 1
+    for bad in ((2, 0.0), (-1, 10.0)):
+        with pytest.raises(ValueError):
+            cells_per_hour(*bad)
+    with pytest.raises(ValueError):
+        concurrency_ratio(0.0, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--steps", "0"], "--steps 0: expected a positive number"),
+        (["--jobs", "1"], "--jobs 1: expected 2 or more"),
+        (["--cells", "2", "--jobs", "3"], "--cells 2: expected at least --jobs (3) cells"),
+    ],
+)
+def test_bench_sweep_rejects_options_that_measure_nothing(argv: list[str], message: str) -> None:
+    """A one-line error before any cell starts."""
+    import argparse
+
+    from priqn.bench import sweep as bench_sweep
+
+    parser = argparse.ArgumentParser()
+    bench_sweep.configure_parser(parser)
+    with pytest.raises(PriqnError) as err:
+        bench_sweep.run(parser.parse_args(argv))
+    assert str(err.value).startswith(message)
+
+
+@pytest.mark.slow
+def test_bench_sweep_times_real_cells_one_then_two_at_a_time(tmp_path: Path) -> None:
+    """``priqn bench sweep`` end to end with a tiny budget: both modes, same cells."""
+    from priqn.bench.sweep import cells_per_hour, concurrency_ratio, recommend_jobs
+
+    out = tmp_path / "bench.json"
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    cmd = [sys.executable, "-m", "priqn.cli", "bench", "sweep", "--steps", "300", "--cells", "2",
+           "--device", "cpu", "--json", str(out)]  # fmt: skip
+    env = dict(os.environ, TMPDIR=str(scratch))
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    data = json.loads(out.read_text())
+    seq, conc = data["sequential"], data["concurrent"]
+    assert (seq["jobs"], conc["jobs"]) == (1, 2)
+    for mode in (seq, conc):
+        assert [c["seed"] for c in mode["cells"]] == [0, 1]
+        assert all(c["decisions_per_s"] > 0 and c["elapsed_s"] > 0 for c in mode["cells"])
+        assert mode["cells_per_hour"] == pytest.approx(cells_per_hour(2, mode["wall_s"]))
+    assert data["ratio"] == pytest.approx(
+        concurrency_ratio(seq["cells_per_hour"], conc["cells_per_hour"])
+    )
+    assert data["recommended_jobs"] == recommend_jobs(data["ratio"], 2)
+    assert data["cores"] >= 1
+    assert "concurrent / sequential:" in proc.stdout
+    assert f"recommended: jobs={data['recommended_jobs']}" in proc.stdout
+    assert proc.stderr.count(" done in ") == 4  # a line per finished cell
+    assert list(scratch.iterdir()) == []  # the temporary runs folder is gone

@@ -86,8 +86,12 @@ class ExperimentSpec:
 class ResourceSpec:
     """The ``[resources]`` table: what one cell needs (local pool size, Ray task options)."""
 
-    cpus_per_cell: float = 2.0
-    """CPU cores one cell keeps busy (learner + env worker processes)."""
+    cpus_per_cell: float = 1.0
+    """CPU cores one cell counts for: the local pool runs ``cores // cpus_per_cell`` cells at
+    a time, Ray reserves it as ``num_cpus``. 1 for the default preset: a cell is one learner
+    thread plus env workers that mostly wait on it, so one cell alone leaves a second core
+    partly idle and two cells on 2 cores give 1.56x the decisions per hour of one
+    (``priqn bench sweep``; docs/sweeps.md, "Local machine")."""
     gpus_per_cell: float = 0.0
     """GPUs one cell needs (Ray ``num_gpus``; fractions share a GPU)."""
 

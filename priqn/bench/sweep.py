@@ -1,0 +1,340 @@
+"""``priqn bench sweep``: cells per hour running sweep cells one at a time vs ``--jobs`` at a time.
+
+Runs the same short training cells twice in one command: first one at a time (the
+baseline), then ``--jobs`` at a time. Each cell is its own ``priqn train`` child process
+(libsumo allows one simulation per process; a sweep cell is one too) with the default
+preset, no in-training evaluation and no checkpoint before the last, writing into a
+temporary runs folder. The wall clock of each mode, from the first cell's start to the
+last cell's end, gives cells per hour; the ratio concurrent / sequential says whether
+``priqn sweep --jobs N`` (or ``[resources].cpus_per_cell``) should put more cells on this
+machine at once. The ratio, not the absolute figures, is the result: both modes run under
+the same machine load, in the same command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from priqn.errors import PriqnError
+
+RECOMMEND_THRESHOLD = 1.05
+"""Concurrent / sequential cells per hour above which running ``jobs`` cells at a time pays
+(a smaller gain is within the noise of a loaded machine and costs ``jobs`` x the memory)."""
+
+
+# --------------------------------------------------------------------------- arithmetic
+
+
+def cells_per_hour(cells: int, wall_s: float) -> float:
+    """Cells finished per hour when ``cells`` cells took ``wall_s`` seconds of wall clock."""
+    if cells < 0 or wall_s <= 0:
+        raise ValueError(f"expected cells >= 0 and wall_s > 0, got {cells} and {wall_s}")
+    return 3600.0 * cells / wall_s
+
+
+def concurrency_ratio(sequential_per_hour: float, concurrent_per_hour: float) -> float:
+    """Concurrent cells per hour over sequential cells per hour (> 1: concurrency pays)."""
+    if sequential_per_hour <= 0:
+        raise ValueError(f"expected sequential cells per hour > 0, got {sequential_per_hour}")
+    return concurrent_per_hour / sequential_per_hour
+
+
+def recommend_jobs(ratio: float, jobs: int, threshold: float = RECOMMEND_THRESHOLD) -> int:
+    """Cells at a time to use: ``jobs`` if ``ratio`` (concurrent / sequential) beats
+    ``threshold``, else 1."""
+    return jobs if ratio > threshold else 1
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (what ``priqn sweep``'s local default divides)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+# --------------------------------------------------------------------------- running cells
+
+
+@dataclass
+class CellRun:
+    """One finished cell of one mode."""
+
+    index: int
+    """Cell number (0-based; also its training seed)."""
+    elapsed_s: float
+    """Wall clock of its ``priqn train`` process, start to exit."""
+    decisions_per_s: float | None = None
+    """Env decisions per second of its training loop (``meta.json`` steps_done / wall_s)."""
+
+
+def train_command(
+    runs_dir: Path, name: str, seed: int, agent: str, net: str, steps: int, device: str
+) -> list[str]:
+    """The ``priqn train`` command of one benchmark cell: default preset, ``steps``
+    decisions, learning from decision ``min(500, steps // 4)`` on, no evaluation during
+    training, one checkpoint (the last, without the replay buffer)."""
+    sets = [
+        "evaluation.interval_steps=0",
+        f"checkpoint.interval_steps={10 * steps}",
+        "checkpoint.save_replay=false",
+        f"replay.learning_starts={min(500, steps // 4)}",
+    ]
+    return [
+        sys.executable, "-m", "priqn.cli", "train",
+        "--preset", "default", "--agent", agent, "--net", net, "--seed", str(seed),
+        "--steps", str(steps), "--device", device,
+        "--runs-dir", str(runs_dir), "--name", name,
+        *(arg for s in sets for arg in ("--set", s)),
+    ]  # fmt: skip
+
+
+def _stop(proc: subprocess.Popen, grace_s: float = 10.0) -> None:
+    """SIGINT a cell's process group (training stops cleanly), SIGKILL what is left."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            pass
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGKILL)  # env workers left behind
+    proc.wait()
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a log (a failed cell's error)."""
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines()]
+    except OSError:
+        return ""
+    lines = [ln for ln in lines if ln]
+    return lines[-1] if lines else ""
+
+
+def run_cells(
+    commands: list[list[str]],
+    logs: list[Path],
+    jobs: int,
+    on_done: Callable[[int, float], None] | None = None,
+) -> tuple[float, list[float]]:
+    """Run ``commands`` ``jobs`` at a time, in order, each in its own process group with its
+    output in ``logs[i]``; returns (wall clock of the whole batch, each command's elapsed s).
+
+    ``on_done(i, elapsed_s)`` is called as each command ends. A command that fails stops
+    the others and raises :class:`PriqnError` naming its log; Ctrl-C stops them all.
+    """
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    queue = list(range(len(commands)))
+    running: dict[int, tuple[subprocess.Popen, float, Any]] = {}
+    elapsed = [0.0] * len(commands)
+    t0 = time.perf_counter()
+    try:
+        while queue or running:
+            while queue and len(running) < jobs:
+                i = queue.pop(0)
+                logs[i].parent.mkdir(parents=True, exist_ok=True)
+                fh = logs[i].open("w")
+                proc = subprocess.Popen(
+                    commands[i],
+                    stdout=fh,
+                    stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL,
+                    env=env,
+                    start_new_session=True,  # its env workers form one group with it
+                )
+                running[i] = (proc, time.perf_counter(), fh)
+            time.sleep(0.1)
+            for i, (proc, started, fh) in list(running.items()):
+                rc = proc.poll()
+                if rc is None:
+                    continue
+                elapsed[i] = time.perf_counter() - started
+                del running[i]
+                fh.close()
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(proc.pid, signal.SIGKILL)  # stragglers of this cell only
+                if rc != 0:
+                    raise PriqnError(
+                        f"benchmark cell {i} failed (exit status {rc}): "
+                        f"{_last_line(logs[i]) or 'no output'} (log: {logs[i]})"
+                    )
+                if on_done is not None:
+                    on_done(i, elapsed[i])
+    finally:
+        for proc, _, fh in running.values():
+            _stop(proc)
+            fh.close()
+    return time.perf_counter() - t0, elapsed
+
+
+def _decisions_per_s(run_dir: Path) -> float | None:
+    """Env decisions/s of a finished training run, from its ``meta.json`` (None if absent)."""
+    try:
+        meta = json.loads((run_dir / "meta.json").read_text())
+        return float(meta["steps_done"]) / float(meta["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
+        return None
+
+
+def measure_mode(
+    root: Path,
+    mode: str,
+    jobs: int,
+    cells: int,
+    agent: str,
+    net: str,
+    steps: int,
+    device: str,
+) -> dict[str, Any]:
+    """Run ``cells`` benchmark cells ``jobs`` at a time into ``root/mode``; their timings."""
+    runs_dir = root / mode
+    commands = [
+        train_command(runs_dir, f"cell{i}", i, agent, net, steps, device) for i in range(cells)
+    ]
+    logs = [runs_dir / f"cell{i}.log" for i in range(cells)]
+    finished = []
+
+    def done(i: int, elapsed_s: float) -> None:
+        finished.append(i)
+        rate = _decisions_per_s(runs_dir / f"cell{i}")
+        rate_text = f", {rate:.1f} decisions/s" if rate is not None else ""
+        print(
+            f"  {mode}: cell {len(finished)}/{cells} (seed {i}) done in {elapsed_s:.1f} s"
+            f"{rate_text}",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    print(f"{mode}: {cells} cells, {jobs} at a time ...", file=sys.stderr, flush=True)
+    wall_s, elapsed = run_cells(commands, logs, jobs, done)
+    runs = [CellRun(i, elapsed[i], _decisions_per_s(runs_dir / f"cell{i}")) for i in range(cells)]
+    return {
+        "mode": mode,
+        "jobs": jobs,
+        "wall_s": wall_s,
+        "cells_per_hour": cells_per_hour(cells, wall_s),
+        "cells": [
+            {"seed": r.index, "elapsed_s": r.elapsed_s, "decisions_per_s": r.decisions_per_s}
+            for r in runs
+        ],
+    }
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Options of ``priqn bench sweep``."""
+    parser.add_argument(
+        "--steps", type=int, default=4000, help="training decisions per cell (default 4000)"
+    )
+    parser.add_argument("--cells", type=int, default=2, help="cells per mode (default 2)")
+    parser.add_argument("--agent", default="iqn", help="agent every cell trains (default iqn)")
+    parser.add_argument("--net", default="tjunction", help="training pool (default tjunction)")
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="cells at a time in the concurrent mode (default 2)"
+    )
+    parser.add_argument("--device", default="auto", help="auto | cpu | cuda (as priqn train)")
+    parser.add_argument(
+        "--keep", action="store_true", help="keep the temporary runs folder (its path is printed)"
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+
+
+def _check(args: argparse.Namespace) -> None:
+    """One-line errors for options that cannot measure anything."""
+    if args.steps < 1:
+        raise PriqnError(f"--steps {args.steps}: expected a positive number of decisions")
+    if args.jobs < 2:
+        raise PriqnError(f"--jobs {args.jobs}: expected 2 or more (1 is the baseline mode)")
+    if args.cells < args.jobs:
+        raise PriqnError(
+            f"--cells {args.cells}: expected at least --jobs ({args.jobs}) cells, "
+            "else the concurrent mode never runs that many at a time"
+        )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``priqn bench sweep``."""
+    from priqn.sweep.experiment import ResourceSpec
+    from priqn.sweep.scheduler import default_jobs
+
+    _check(args)
+    cores = usable_cores()
+    print(
+        f"priqn bench sweep: {args.cells} {args.agent} cells on {args.net}, {args.steps} "
+        f"decisions each (default preset, no evaluation), one at a time then {args.jobs} at "
+        f"a time; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
+        flush=True,
+    )
+    root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
+    keep = args.keep
+    try:
+        modes = [
+            measure_mode(
+                root, name, jobs, args.cells, args.agent, args.net, args.steps, args.device
+            )
+            for name, jobs in (("sequential", 1), ("concurrent", args.jobs))
+        ]
+    except PriqnError:
+        keep = True  # the failed cell's log is in there
+        raise
+    finally:
+        if keep:
+            print(f"runs folder kept: {root}", file=sys.stderr)
+        else:
+            shutil.rmtree(root, ignore_errors=True)
+    seq, conc = modes
+    ratio = concurrency_ratio(seq["cells_per_hour"], conc["cells_per_hour"])
+    best = recommend_jobs(ratio, args.jobs)
+    print(f"{'mode':<11} {'jobs':>4} {'wall s':>8} {'cells/h':>8}   decisions/s per cell")
+    for m in modes:
+        rates = ", ".join(
+            "-" if c["decisions_per_s"] is None else f"{c['decisions_per_s']:.1f}"
+            for c in m["cells"]
+        )
+        print(
+            f"{m['mode']:<11} {m['jobs']:>4} {m['wall_s']:>8.1f} {m['cells_per_hour']:>8.1f}   "
+            f"{rates}"
+        )
+    print(f"concurrent / sequential: {ratio:.2f}x cells per hour")
+    verdict = "<=" if best == 1 else ">"
+    print(
+        f"recommended: jobs={best} (ratio {ratio:.2f} {verdict} {RECOMMEND_THRESHOLD}) on "
+        f"{cores} cores; priqn sweep's local default here with the default [resources] "
+        f"(cpus_per_cell = {ResourceSpec().cpus_per_cell:g}): "
+        f"{default_jobs(ResourceSpec())} at a time; --jobs N overrides it"
+    )
+    if args.json is not None:
+        args.json.write_text(
+            json.dumps(
+                {
+                    "agent": args.agent,
+                    "net": args.net,
+                    "steps": args.steps,
+                    "cells": args.cells,
+                    "cores": cores,
+                    "sequential": seq,
+                    "concurrent": conc,
+                    "ratio": ratio,
+                    "recommended_jobs": best,
+                },
+                indent=2,
+            )
+            + "\n"
+        )
+    return 0
