@@ -13,6 +13,26 @@ import numpy as np
 
 from priqn.objectives import OBJECTIVES
 
+OUTCOME_PRECEDENCE: tuple[str, ...] = ("collision", "off_road", "timeout", "success")
+"""How an episode ends, first match wins: an episode that both collides and leaves the
+road (the same decision) counts as a collision only, so the outcome rates sum to 1."""
+
+
+def resolve_outcomes(episodes: Any) -> Any:
+    """A copy of an episode table (pandas) whose flags obey :data:`OUTCOME_PRECEDENCE`.
+
+    Each flag is cleared where an earlier one is set. Used by the report's loader, so
+    episode tables written before the precedence existed (committed results are never
+    re-run) are read with one outcome per episode.
+    """
+    out = episodes.copy()
+    earlier = np.zeros(len(out), dtype=bool)
+    for flag in OUTCOME_PRECEDENCE:
+        value = out[flag].astype(bool).to_numpy() & ~earlier
+        out[flag] = value if out[flag].dtype == bool else value.astype(out[flag].dtype)
+        earlier |= value
+    return out
+
 
 def final_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
     """The terminal info of env ``i`` from a SAME_STEP vector-env info dict."""

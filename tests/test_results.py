@@ -28,9 +28,12 @@ def test_committed_report_regenerates_byte_identically(report: Path, tmp_path: P
     assert argv[:2] == ["priqn", "report"], command
     runs = Path(argv[2])
     # The same relative paths in a scratch folder: results/<grid> points at the committed
-    # runs, the report goes to docs/results/<grid> there (so the recorded command matches).
+    # runs (every grid: a sequential experiment also reads its prior grid's cells), the
+    # report goes to docs/results/<grid> there (so the recorded command matches).
     (tmp_path / runs).parent.mkdir(parents=True)
-    (tmp_path / runs).symlink_to(REPO / runs, target_is_directory=True)
+    for grid in (REPO / runs.parent).iterdir():
+        if grid.is_dir():
+            (tmp_path / runs.parent / grid.name).symlink_to(grid, target_is_directory=True)
     env = dict(os.environ, MPLBACKEND="Agg")
     proc = subprocess.run(
         [sys.executable, "-m", "priqn.cli", *argv[1:]],

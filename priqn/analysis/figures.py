@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from priqn.analysis.claims import EQUIVALENCE_MARGIN, ClaimResult  # noqa: E402
+from priqn.analysis.claims import ClaimResult  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
@@ -307,37 +307,39 @@ def outcomes_figure(frame: pd.DataFrame, order: list[str]) -> plt.Figure:
     return fig
 
 
-CLAIM_OUTCOME_COLORS = {"holds": "tab:green", "contradicted": "tab:red", "unclear": "tab:gray"}
-"""Colour of a comparison in the claims figure, by the rule's outcome."""
+CLAIM_WORD_COLORS = {
+    "reproduced": "tab:green",
+    "contradicted": "tab:red",
+    "paper's effect ruled out": "tab:orange",
+    "equivalent": "tab:cyan",
+    "inconclusive": "tab:gray",
+}
+"""Colour of each verdict word in :func:`claims_figure`."""
 
 
 def claims_figure(results: Sequence[ClaimResult]) -> plt.Figure | None:
-    """Every measured success-rate comparison of the claims as a forest plot, in points.
+    """Every measured primary success-rate comparison of the claims as a forest plot.
 
-    Thick bar: the rule's two-level bootstrap CI (coloured by its outcome); thin line:
-    the seeds-only Welch t-interval (the second look), cut at ±100 points (a difference of
-    two rates cannot leave them); diamond: the paper's difference where it gives one;
-    grey band: ±δ, no practical difference. None when no success comparison is measured.
+    Bar: the Welch 95 % interval over training seeds (coloured by the comparison's verdict
+    word), cut at ±100 points (a difference of two rates cannot leave them); dot: the
+    difference; diamond: the paper's difference where it gives one. None when no success
+    comparison is measured.
     """
     rows = [
         (r.claim.key, x) for r in results for x in r.results if x.comparison.metric == "success"
     ]
     if not rows:
         return None
-    margin = 100 * EQUIVALENCE_MARGIN["success"]
     fig, ax = plt.subplots(figsize=(8.5, 0.32 * len(rows) + 1.4))
-    ax.axvspan(-margin, margin, color="0.9", zorder=0)
     ax.axvline(0, color="0.4", lw=0.8, zorder=1)
     labels = []
     for i, (key, x) in enumerate(rows):
         c = x.comparison
-        at = "all d" if c.density is None else f"d {c.density:g}"
-        labels.append(f"{key}: {c.first.render()} − {c.second.render()}, {at}")
-        lo, hi = (float(np.clip(100 * v, -100, 100)) for v in (x.seed_lo, x.seed_hi))
-        ax.plot([lo, hi], [i, i], color="0.35", lw=0.8, zorder=2)
-        ax.plot(
-            [100 * x.lo, 100 * x.hi], [i, i], color=CLAIM_OUTCOME_COLORS[x.outcome], lw=4, zorder=3
+        labels.append(
+            f"{key}: {c.first.render()} − {c.second.render()} ({x.n_first} vs {x.n_second})"
         )
+        lo, hi = (float(np.clip(100 * v, -100, 100)) for v in (x.lo, x.hi))
+        ax.plot([lo, hi], [i, i], color=CLAIM_WORD_COLORS[x.word], lw=4, zorder=3)
         ax.plot(100 * x.diff, i, "o", color="black", ms=3, zorder=4)
         if c.paper is not None:
             ax.plot(100 * c.paper, i, "D", mfc="none", mec="tab:blue", ms=6, zorder=4)
@@ -346,21 +348,20 @@ def claims_figure(results: Sequence[ClaimResult]) -> plt.Figure | None:
     ax.set_yticks(range(len(rows)), labels, fontsize=7)
     ax.set_ylim(len(rows) - 0.5, -0.5)
     ax.set_xlim(-100, 100)
-    ax.set_xlabel("success-rate difference, first − second (points)")
+    ax.set_xlabel("success-rate difference on the endpoint (mean over densities), points")
+    used = {x.word for _, x in rows}
     handles = [
-        plt.Line2D([], [], color=color, lw=4, label=f"bootstrap CI: {name}")
-        for name, color in CLAIM_OUTCOME_COLORS.items()
-    ] + [
-        plt.Line2D([], [], color="0.35", lw=0.8, label="t CI, training seeds only"),
-        plt.Line2D([], [], ls="", marker="D", mfc="none", mec="tab:blue", label="paper"),
-    ]
+        plt.Line2D([], [], color=color, lw=4, label=word)
+        for word, color in CLAIM_WORD_COLORS.items()
+        if word in used
+    ] + [plt.Line2D([], [], ls="", marker="D", mfc="none", mec="tab:blue", label="paper")]
     ax.legend(
         handles=handles,
         fontsize=7,
         loc="lower center",
         ncol=3,
         bbox_to_anchor=(0.5, 1.0),
-        title=f"The paper's claims: success-rate comparisons (grey band ±{margin:g} points)",
+        title="The paper's claims: Welch 95 % intervals over training seeds (seeds per row)",
         title_fontsize="medium",
         frameon=False,
     )

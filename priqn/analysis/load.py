@@ -16,6 +16,7 @@ from typing import Any
 
 import pandas as pd
 
+from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
 from priqn.evaluate import EPISODE_COLUMNS
 from priqn.io import read_json
@@ -170,7 +171,7 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
             infos, key, lambda i, k=key: i.eval_config.get(k), f"evaluated with different {key}"
         )
 
-    episodes = pd.concat(frames, ignore_index=True)
+    episodes = resolve_outcomes(pd.concat(frames, ignore_index=True))
     _check_policies(episodes)
     episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort").reset_index(drop=True)
     return Evaluation(

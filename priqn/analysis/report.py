@@ -21,6 +21,7 @@ Same inputs and seed give byte-identical tables and report.md (no timestamps).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shlex
 from pathlib import Path
 from typing import Any
@@ -30,9 +31,9 @@ from priqn.io import atomic_write_json, atomic_write_text
 from priqn.runs import RunFolder
 
 DEFAULT_REPS = 2000
+"""Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
 MIN_SEEDS_FOR_STATISTICS = 2
 """Fewer training seeds per policy: no best/second marks and no CIs in the report."""
-"""Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
 
 
 def _fmt_ci(point: float, lo: float, hi: float) -> str:
@@ -80,41 +81,57 @@ def _poi_matrix_markdown(result: Any, order: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def make_report(
-    runs_dir: str | Path,
-    out_dir: str | Path,
-    seed: int = 0,
-    reps: int = DEFAULT_REPS,
-    min_seeds: int | None = None,
-    command: str | None = None,
-    partial: bool = False,
-) -> Path:
-    """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
+@dataclasses.dataclass
+class ReportInputs:
+    """Step 1 (:func:`load_inputs`): what the report reads, and what it must say about it."""
 
-    ``min_seeds``: refuse when a policy has fewer training seeds. ``seed`` goes to
-    ``np.random.seed`` before every rliable call (recorded in the report). ``partial``:
-    report the fully evaluated runs of a grid still running, and say which were left out.
-    """
-    import pandas as pd
+    runs_root: Path
+    """The folder of runs reported."""
+    evaluation: Any
+    """The loaded :class:`priqn.analysis.load.Evaluation`."""
+    notes: list[str]
+    """Sentences for the report's Notes (partial grid, unequal seeds, ...)."""
+    ranked: bool
+    """At least MIN_SEEDS_FOR_STATISTICS training seeds per policy (marks and CIs)."""
+    unranked_why: str = ""
+    """Why not ranked (empty when ranked)."""
 
-    from priqn.analysis import claims, figures, tables
-    from priqn.analysis.load import (
-        check_seeds,
-        find_run_dirs,
-        load_evaluation,
-        load_learning_curves,
-    )
-    from priqn.analysis.stats import (
-        RUN_AXIS,
-        SCORE_METRICS,
-        SEED_AXIS,
-        TASK_AXIS,
-        aggregate_estimates,
-        rliable_statistics,
-        score_matrices,
-    )
+    @property
+    def episodes(self) -> Any:
+        """The episode table (one row per hold-out episode)."""
+        return self.evaluation.episodes
 
-    out = Path(out_dir)
+
+@dataclasses.dataclass
+class ReportTables:
+    """Step 2 (:func:`build_tables`): Table II, Table I and how episodes end."""
+
+    table2: Any
+    table1: Any
+    outcomes: Any
+    order: list[str]
+    """Policy labels in Table II order (every later step uses it)."""
+
+
+@dataclasses.dataclass
+class ReportStatistics:
+    """Step 3 (:func:`compute_statistics`): rliable (descriptive) and the claims (verdicts)."""
+
+    rliable: dict[str, Any]
+    """Metric -> :class:`priqn.analysis.stats.RliableResult` (empty when not ranked)."""
+    claims: list[Any]
+    """:class:`priqn.analysis.claims.ClaimResult` per claim."""
+
+    @property
+    def claims_checked(self) -> bool:
+        """At least one claim has every row in the report."""
+        return any(not r.missing for r in self.claims)
+
+
+def load_inputs(runs_dir: str | Path, partial: bool, min_seeds: int | None) -> ReportInputs:
+    """Load every evaluated run, check seeds, and collect the notes the report must carry."""
+    from priqn.analysis.load import check_seeds, load_evaluation
+
     runs_root = Path(runs_dir)
     evaluation = load_evaluation(runs_root, partial=partial)
     episodes = evaluation.episodes
@@ -132,126 +149,151 @@ def make_report(
             "Policies have different numbers of training seeds: "
             + ", ".join(f"{k}: {v}" for k, v in seeds_per_policy.sort_index().items())
         )
-
     # Ranking or bootstrapping one training seed per policy would dress noise up as a
     # result: with fewer than 2 seeds the tables carry no marks and no CIs are printed.
-    seeds_min = int(seeds_per_policy.min())
-    ranked = seeds_min >= MIN_SEEDS_FOR_STATISTICS
+    ranked = int(seeds_per_policy.min()) >= MIN_SEEDS_FOR_STATISTICS
+    unranked_why = ""
     if not ranked:
         short = seeds_per_policy[seeds_per_policy < MIN_SEEDS_FOR_STATISTICS]
         unranked_why = (
             f"No best/second marks and no confidence intervals: {short.index[0]!r} has "
             f"{int(short.iloc[0])} training seed(s) (at least {MIN_SEEDS_FOR_STATISTICS} per "
-            "policy are needed to rank policies or bootstrap over runs)."
+            "policy are needed to rank policies or compute intervals over seeds)."
         )
         notes.append(unranked_why)
-    t2, t1 = tables.table2(episodes, ranked), tables.table1(episodes, ranked)
+    return ReportInputs(runs_root, evaluation, notes, ranked, unranked_why)
+
+
+def build_tables(inputs: ReportInputs) -> ReportTables:
+    """Table II, Table I and the outcome breakdown, in Table II's row order."""
+    from priqn.analysis import tables
+
+    t2 = tables.table2(inputs.episodes, inputs.ranked)
+    t1 = tables.table1(inputs.episodes, inputs.ranked)
     order = list(t2.configs)
     if tables.reference_label(t2.configs) is None:
-        notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
-    tdir, fdir = out / "tables", out / "figures"
-    for name, table in (("table2", t2), ("table1", t1)):
+        inputs.notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
+    return ReportTables(t2, t1, tables.outcomes_by_command(inputs.episodes, order), order)
+
+
+def compute_statistics(
+    inputs: ReportInputs, order: list[str], reps: int, seed: int
+) -> ReportStatistics:
+    """rliable over training seeds (when ranked) and every claim's verdict."""
+    from priqn.analysis import claims
+    from priqn.analysis.stats import SCORE_METRICS, rliable_statistics
+
+    rliable = {}
+    if inputs.ranked:
+        rliable = {
+            m: rliable_statistics(inputs.episodes, m, order, reps, seed) for m in SCORE_METRICS
+        }
+    return ReportStatistics(rliable, claims.evaluate_claims(inputs.episodes, seed))
+
+
+def draw_figures(
+    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics
+) -> tuple[dict[str, Any], Any, list[str]]:
+    """Every figure by file stem, the learning curves' table and their notes."""
+    from priqn.analysis import figures
+    from priqn.analysis.load import find_run_dirs, load_learning_curves
+
+    out: dict[str, Any] = {}
+    if stats.rliable:
+        sr = stats.rliable["success"]
+        out["probability_of_improvement"] = figures.probability_of_improvement_figure(sr)
+        out["iqm_optimality_gap"] = figures.aggregates_figure(stats.rliable)
+        out["performance_profile"] = figures.performance_profile_figure(sr)
+    out["seeds"] = figures.seed_success_figure(inputs.episodes, tabs.order)
+    out["outcomes_by_command"] = figures.outcomes_figure(tabs.outcomes, tabs.order)
+    if stats.claims_checked:
+        out["claims"] = figures.claims_figure(stats.claims)
+    curves, notes = load_learning_curves(find_run_dirs(inputs.runs_root), inputs.evaluation)
+    if len(curves):
+        out["learning_curves"] = figures.learning_curves_figure(curves, tabs.order)
+    return {k: v for k, v in out.items() if v is not None}, curves, notes
+
+
+def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics) -> None:
+    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable and claims CSVs."""
+    import pandas as pd
+
+    from priqn.analysis import claims, tables
+
+    tdir = out / "tables"
+    for name, table in (("table2", tabs.table2), ("table1", tabs.table1)):
         atomic_write_text(tdir / f"{name}.md", tables.to_markdown(table))
         atomic_write_text(tdir / f"{name}.tex", tables.to_latex(table))
         atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
+    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+    if stats.rliable:
+        for name, part in (
+            ("rliable_aggregates", "aggregates"),
+            ("probability_of_improvement", "improvement"),
+            ("performance_profiles", "profiles"),
+        ):
+            frame = pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
+            atomic_write_text(tdir / f"{name}.csv", frame.to_csv(**csv_kw))
+    atomic_write_text(tdir / "outcomes_by_command.csv", tabs.outcomes.to_csv(**csv_kw))
+    if stats.claims_checked:
+        atomic_write_text(tdir / "claims.csv", claims.to_frame(stats.claims).to_csv(**csv_kw))
 
-    results: dict[str, Any] = {}
-    if ranked:
-        results = {m: rliable_statistics(episodes, m, order, reps, seed) for m in SCORE_METRICS}
-        seed_only = {
-            m: aggregate_estimates(score_matrices(episodes, m, order, SEED_AXIS)[0], reps, seed)
-            for m in SCORE_METRICS
-        }
-        csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
-        atomic_write_text(
-            tdir / "rliable_aggregates.csv",
-            pd.concat([r.aggregates.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
-        )
-        atomic_write_text(
-            tdir / "rliable_aggregates_seeds.csv",
-            pd.concat([a.assign(metric=m) for m, a in seed_only.items()]).to_csv(**csv_kw),
-        )
-        atomic_write_text(
-            tdir / "probability_of_improvement.csv",
-            pd.concat([r.improvement.assign(metric=m) for m, r in results.items()]).to_csv(
-                **csv_kw
-            ),
-        )
-        atomic_write_text(
-            tdir / "performance_profiles.csv",
-            pd.concat([r.profiles.assign(metric=m) for m, r in results.items()]).to_csv(**csv_kw),
-        )
 
-        sr = results["success"]
-        figures.save_figure(
-            figures.probability_of_improvement_figure(sr), fdir, "probability_of_improvement"
-        )
-        figures.save_figure(figures.aggregates_figure(results), fdir, "iqm_optimality_gap")
-        figures.save_figure(figures.performance_profile_figure(sr), fdir, "performance_profile")
-    figures.save_figure(figures.seed_success_figure(episodes, order), fdir, "seeds")
-    outcomes = tables.outcomes_by_command(episodes, order)
-    atomic_write_text(
-        tdir / "outcomes_by_command.csv",
-        outcomes.to_csv(index=False, float_format="%.10g", lineterminator="\n"),
-    )
-    figures.save_figure(figures.outcomes_figure(outcomes, order), fdir, "outcomes_by_command")
-    claim_results = claims.evaluate_claims(episodes, reps, seed)
-    claims_checked = any(not r.missing for r in claim_results)
-    claims_fig = figures.claims_figure(claim_results) if claims_checked else None
-    if claims_checked:
-        atomic_write_text(
-            tdir / "claims.csv",
-            claims.to_frame(claim_results).to_csv(
-                index=False, float_format="%.10g", lineterminator="\n"
-            ),
-        )
-        if claims_fig is not None:
-            figures.save_figure(claims_fig, fdir, "claims")
-    curves, curve_notes = load_learning_curves(find_run_dirs(runs_root), evaluation)
-    if len(curves):
-        figures.save_figure(figures.learning_curves_figure(curves, order), fdir, "learning_curves")
-    notes += curve_notes
+def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> list[str]:
+    """Markdown lines of the rliable section."""
+    if not stats.rliable:
+        return ["## rliable", "", f"Not computed. {inputs.unranked_why}", ""]
+    return [
+        "## rliable (descriptive)",
+        "",
+        "One score per training seed and task (evaluation runs averaged within a seed); the "
+        "stratified bootstrap resamples seeds, so with few seeds these intervals are too "
+        "narrow: they describe, the claims section decides.",
+        "",
+        _rliable_markdown({m: r.aggregates for m, r in stats.rliable.items()}, order),
+        "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
+        "",
+        _poi_matrix_markdown(stats.rliable["success"], order),
+        "![P(X > Y)](figures/probability_of_improvement.png) "
+        "([pdf](figures/probability_of_improvement.pdf))",
+        "",
+        "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
+        "",
+        "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
+        "",
+    ]
 
-    cmd = (
-        command
-        or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
-    )
-    ec = evaluation.eval_config
-    if ranked:
+
+def report_markdown(
+    inputs: ReportInputs,
+    tabs: ReportTables,
+    stats: ReportStatistics,
+    has_curves: bool,
+    cmd: str,
+    seed: int,
+    reps: int,
+) -> str:
+    """``report.md``: everything at a glance, in reading order."""
+    from priqn.analysis import claims, tables
+    from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
+
+    evaluation, ec = inputs.evaluation, inputs.evaluation.eval_config
+    axes = ""
+    if stats.rliable:
+        sr = stats.rliable["success"]
         n_runs, n_tasks = len(next(iter(sr.scores.values()))), len(sr.tasks)
-        axes = f"e.g. {n_runs} runs × {n_tasks} tasks for {order[0]}. "
-        rliable_md = [
-            "## rliable",
-            "",
-            _rliable_markdown({m: r.aggregates for m, r in results.items()}, order),
-            f"Over training seeds only (run = {' × '.join(SEED_AXIS)}; evaluation runs averaged "
-            "within a seed, so the CI reflects training-seed variation alone):",
-            "",
-            _rliable_markdown(seed_only, order),
-            "Probability of improvement P(X > Y) on success rate (row X, column Y) [95% CI]:",
-            "",
-            _poi_matrix_markdown(sr, order),
-            "![P(X > Y)](figures/probability_of_improvement.png) "
-            "([pdf](figures/probability_of_improvement.pdf))",
-            "",
-            "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
-            "",
-            "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
-            "",
-        ]
-    else:
-        axes = ""
-        rliable_md = ["## rliable", "", f"Not computed. {unranked_why}", ""]
+        axes = f"e.g. {n_runs} runs × {n_tasks} tasks for {tabs.order[0]}. "
+    partial = evaluation.left_out
     md = [
-        "# priqn evaluation report" + (" (partial)" if evaluation.left_out else ""),
+        "# priqn evaluation report" + (" (partial)" if partial else ""),
         "",
         *(
             [
                 f"**Partial:** {len(evaluation.runs)} evaluated run(s); "
-                f"{len(evaluation.left_out)} not yet evaluated left out (see Notes).",
+                f"{len(partial)} not yet evaluated left out (see Notes).",
                 "",
             ]
-            if evaluation.left_out
+            if partial
             else []
         ),
         f"Made by `{cmd}`; episodes by `priqn evaluate` on every run below.",
@@ -280,47 +322,45 @@ def make_report(
         "- **Tables**: mean ± sample std (ddof=1) over training seeds × evaluation runs; "
         + (
             "**best** / <u>second</u> per column and density on the printed means (ties share)."
-            if ranked
+            if inputs.ranked
             else "no best / second marks (too few training seeds; see rliable)."
         ),
         "",
         "## Table II — driving metrics",
         "",
-        tables.to_markdown(t2),
+        tables.to_markdown(tabs.table2),
         "![Success rate per training seed](figures/seeds.png) ([pdf](figures/seeds.pdf))",
         "",
         "## How episodes end, by route command",
         "",
-        "Densities pooled; every episode ends in exactly one outcome (timeout = the "
-        "time limit reached without finishing the route).",
+        "Densities pooled; every episode ends in exactly one outcome, by precedence "
+        "collision > off-road > timeout > success (timeout = the time limit reached "
+        "without finishing the route).",
         "",
-        tables.outcomes_markdown(outcomes),
+        tables.outcomes_markdown(tabs.outcomes),
         "![Outcomes by command](figures/outcomes_by_command.png) "
         "([pdf](figures/outcomes_by_command.pdf))",
         "",
         "## Table I — objective returns",
         "",
-        tables.to_markdown(t1),
+        tables.to_markdown(tabs.table1),
         *(
             [
                 "## The paper's claims",
                 "",
-                claims.to_markdown(claim_results, reps, seed),
-                *(
-                    ["![The claims](figures/claims.png) ([pdf](figures/claims.pdf))", ""]
-                    if claims_fig is not None
-                    else []
-                ),
+                claims.to_markdown(stats.claims, seed),
+                "![The claims](figures/claims.png) ([pdf](figures/claims.pdf))",
+                "",
             ]
-            if claims_checked
+            if stats.claims_checked
             else []
         ),
-        *rliable_md,
+        *_rliable_section(inputs, tabs.order, stats),
         "## Learning curves",
         "",
         (
             "![Learning curves](figures/learning_curves.png) ([pdf](figures/learning_curves.pdf))"
-            if len(curves)
+            if has_curves
             else "No usable metrics.csv in any run; no learning curves."
         ),
         "",
@@ -334,14 +374,50 @@ def make_report(
         ],
         "",
     ]
-    if notes:
-        md += ["## Notes", "", *[f"- {n}" for n in notes], ""]
-    md += [
-        "Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.",
-        "",
-    ]
+    if inputs.notes:
+        md += ["## Notes", "", *[f"- {n}" for n in inputs.notes], ""]
+    md += ["Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.", ""]
+    return "\n".join(md)
+
+
+def make_report(
+    runs_dir: str | Path,
+    out_dir: str | Path,
+    seed: int = 0,
+    reps: int = DEFAULT_REPS,
+    min_seeds: int | None = None,
+    command: str | None = None,
+    partial: bool = False,
+) -> Path:
+    """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
+
+    load → tables → statistics → figures → write. ``min_seeds``: refuse when a policy has
+    fewer training seeds. ``seed`` goes to ``np.random.seed`` before every rliable call
+    and seeds Monte-Carlo permutation tests (recorded in the report). ``partial``: report
+    the fully evaluated runs of a grid still running, and say which were left out.
+    """
+    from priqn.analysis import figures
+    from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
+
+    out, runs_root = Path(out_dir), Path(runs_dir)
+    inputs = load_inputs(runs_root, partial, min_seeds)
+    tabs = build_tables(inputs)
+    stats = compute_statistics(inputs, tabs.order, reps, seed)
+    figs, curves, curve_notes = draw_figures(inputs, tabs, stats)
+    inputs.notes.extend(curve_notes)
+
+    write_tables(out, tabs, stats)
+    for name, fig in figs.items():
+        figures.save_figure(fig, out / "figures", name)
+    cmd = (
+        command
+        or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
+    )
     report = out / "report.md"
-    atomic_write_text(report, "\n".join(md))
+    atomic_write_text(
+        report, report_markdown(inputs, tabs, stats, len(curves) > 0, cmd, seed, reps)
+    )
+    evaluation = inputs.evaluation
     atomic_write_json(
         out / "meta.json",
         {
@@ -352,7 +428,7 @@ def make_report(
             "run_axis": list(RUN_AXIS),
             "task_axis": list(TASK_AXIS),
             "holdout_hash": evaluation.holdout_hash,
-            "eval_config": ec,
+            "eval_config": evaluation.eval_config,
             "runs": [
                 {
                     "name": r.name,
@@ -362,9 +438,9 @@ def make_report(
                 }
                 for r in evaluation.runs
             ],
-            "policies": order,
+            "policies": tabs.order,
             "left_out": list(evaluation.left_out),
-            "notes": notes,
+            "notes": inputs.notes,
         },
     )
     return report
@@ -383,16 +459,53 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--seeds", type=int, default=None, help="refuse if a policy has fewer training seeds"
     )
     parser.add_argument(
+        "--experiment",
+        default=None,
+        metavar="NAME",
+        help="the runs are a sequential experiment's (default: the experiment file named like "
+        "the runs folder, if it has a [sequential] design): report its looks and verdicts",
+    )
+    parser.add_argument(
         "--partial",
         action="store_true",
         help="report the fully evaluated runs of a grid still running; name the rest",
     )
 
 
+def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
+    """The experiment with a ``[sequential]`` design whose runs live in ``runs``: the one
+    named ``name``, else the experiment file named like the folder (``results/headline`` ->
+    ``headline``) if it has such a design; None otherwise."""
+    from priqn.sweep.experiment import load_experiment
+
+    folder = Path(runs)
+    if name is None:
+        try:
+            exp = load_experiment(folder.name, runs_dir=folder.parent)
+        except PriqnError:
+            return None
+        return exp if exp.sequential is not None else None
+    exp = load_experiment(name, runs_dir=folder.parent)
+    if exp.sequential is None:
+        raise PriqnError(f"--experiment {name}: {exp.path} has no [sequential] design")
+    if exp.runs_dir.resolve() != folder.resolve():
+        raise PriqnError(
+            f"--experiment {name}: its cells live in {exp.runs_dir.name}/, not {folder.name}/"
+        )
+    return exp
+
+
 def run(args: argparse.Namespace) -> int:
     if args.reps < 1:
         raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
     out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
+    exp = sequential_experiment(args.runs, args.experiment)
+    if exp is not None:
+        from priqn.analysis import sequential
+
+        command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
+        print(sequential.write_report(exp, out, command))
+        return 0
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "
         f"--seed {args.seed} --reps {args.reps}"

@@ -1,15 +1,19 @@
-"""Reliable aggregate statistics with rliable: IQM, optimality gap, P(X > Y), profiles.
+"""rliable statistics, descriptive: IQM, optimality gap, P(X > Y), performance profiles.
 
 Axes (the choice matters, rliable issue #20: bootstrapping the wrong axis gives CIs
 that are too narrow):
 
-- a **run** (rows, R) is one (training seed, evaluation run) pair — the independent
-  repetitions of the whole pipeline the paper reports over;
+- a **run** (rows, R) is one **training seed**: its evaluation runs share one trained
+  network and add almost no variance (docs/statistics.md), so they are averaged within
+  the seed, never counted as independent runs;
 - a **task** (columns, T) is one (density, hold-out net) pair;
 - a cell's score is the episode mean of a metric (success → success rate, route
-  progress → mean route progress) over that run's episodes on that task.
+  progress → mean route progress) over that seed's episodes on that task.
 
-The stratified bootstrap resamples runs within each task, never episodes.
+The stratified bootstrap resamples training seeds within each task, never episodes or
+evaluation runs. With few seeds a bootstrap over them is too narrow (3 seeds: 10
+distinct multisets), so these figures describe; verdicts come from
+:mod:`priqn.analysis.claims` (Welch intervals and permutation tests over seeds).
 
 rliable 1.2 draws bootstrap indices from numpy's *global* RNG (its ``random_state``
 does not reach the bootstrap), so every rliable call below is preceded by
@@ -27,12 +31,11 @@ import pandas as pd
 
 from priqn.errors import PriqnError
 
-RUN_AXIS: tuple[str, ...] = ("train_seed", "eval_run")
-"""Columns whose combinations form rliable's run axis."""
-SEED_AXIS: tuple[str, ...] = ("train_seed",)
-"""Run axis of the seed-only statistics: evaluation runs averaged within a training seed,
-so the CI reflects only training-seed variation (the paper's axis also counts evaluation
-runs, which share one trained network and can make CIs look narrower than they are)."""
+RUN_AXIS: tuple[str, ...] = ("train_seed",)
+"""Columns whose combinations form rliable's run axis: one run per training seed."""
+SEED_RUN_AXIS: tuple[str, ...] = ("train_seed", "eval_run")
+"""The paper's run axis (training seed × evaluation run), which counts a seed's evaluation
+runs as independent and so gives intervals too narrow; kept for comparison only."""
 TASK_AXIS: tuple[str, ...] = ("density", "net")
 """Columns whose combinations form rliable's task axis."""
 SCORE_METRICS: dict[str, str] = {"success": "SR", "route_progress": "RP"}
@@ -50,11 +53,10 @@ def score_matrices(
     """Per-policy ``scores_RT`` matrices of the episode mean of ``metric``.
 
     Returns ``(scores, runs, tasks)``. ``scores[label]`` has shape ``[R_label, T]``:
-    one row per (train_seed, eval_run) pair of that policy (per ``run_axis`` value: with
-    :data:`SEED_AXIS`, per training seed, averaged over its episodes), sorted; one column per
-    (density, net) task in the order of ``tasks``, shared by every policy. ``runs``
-    is the sorted union of the (train_seed, eval_run) pairs over policies (policies
-    may have different seeds). A policy lacking a task in some run raises.
+    one row per ``run_axis`` value of that policy (default: per training seed, averaged
+    over its episodes), sorted; one column per (density, net) task in the order of
+    ``tasks``, shared by every policy. ``runs`` is the sorted union of the run keys over
+    policies (policies may have different seeds). A policy lacking a task in some run raises.
     """
     cells = (
         episodes.groupby(["label", *run_axis, *TASK_AXIS], sort=True)[metric].mean().astype(float)

@@ -6,6 +6,7 @@ import argparse
 import signal
 import sys
 import threading
+from pathlib import Path
 from typing import Any
 
 from priqn.errors import PriqnError
@@ -62,6 +63,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--list", action="store_true", help="list the cells and their state; run nothing"
     )
     parser.add_argument(
+        "--code",
+        default=None,
+        metavar="DIR",
+        help="run every cell with the priqn checkout at DIR (a snapshot worktree: "
+        "git worktree add --detach DIR COMMIT), so a long grid trains at one frozen commit "
+        "while this checkout changes; each cell records DIR's commit",
+    )
+    parser.add_argument(
         "--cell-fn",
         default=DEFAULT_CELL_FN,
         metavar="MODULE:FUNC",
@@ -82,14 +91,11 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--jobs {args.jobs}: expected a positive number of cells")
     if args.retries < 0:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
+    code_dir = _code_dir(args.code)
+    if exp.sequential is not None:
+        _check_code_commit(exp, code_dir)
     if args.list:
-        cells = expand(exp)
-        states = [c.state() for c in cells]
-        for c, state in zip(cells, states, strict=True):
-            print(f"{c.name:<48} {state:<9} {c.run_dir}")
-        counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
-        # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
-        print(f"{exp.experiment.name}: {len(cells)} cells: {counts}", file=sys.stderr)
+        _list(exp)
         return 0
     if args.cell_fn == DEFAULT_CELL_FN:
         validate(exp)
@@ -103,16 +109,22 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     _sigterm_as_interrupt()
-    result = run_sweep(
-        exp,
-        jobs=args.jobs,
-        use_ray=args.ray is not None,
-        ray_address=args.ray or None,
-        retries=args.retries,
-        only=args.only,
-        report=not args.no_report,
-        cell_fn=args.cell_fn,
-    )
+    kw: dict[str, Any] = {
+        "jobs": args.jobs,
+        "use_ray": args.ray is not None,
+        "ray_address": args.ray or None,
+        "retries": args.retries,
+        "cell_fn": args.cell_fn,
+        "code_dir": code_dir,
+    }
+    if exp.sequential is not None and not args.only:
+        return _run_sequential(exp, report=not args.no_report, **kw)
+    result = run_sweep(exp, only=args.only, report=not args.no_report, **kw)
+    return _summarise(exp, result)
+
+
+def _summarise(exp: Any, result: Any) -> int:
+    """Print the sweep's outcome; the exit status (1 when a cell failed)."""
     print(
         f"priqn sweep {exp.experiment.name}: {len(result.complete)} complete "
         f"({len(result.skipped)} skipped, {len(result.completed)} run now), "
@@ -123,6 +135,88 @@ def run(args: argparse.Namespace) -> int:
     if result.failed:
         print(f"  logs: {exp.runs_dir / _SWEEP_DIR / 'logs'}")
     return 1 if result.failed else 0
+
+
+def _list(exp: Any) -> None:
+    """``--list``: every cell and its state (stdout); for a sequential design, which cells
+    the next look needs; the tally on stderr."""
+    needed: set[str] = set()
+    if exp.sequential is not None:
+        from priqn.analysis import sequential
+
+        plan = sequential.replay(exp, sequential.collect_scores(exp))
+        needed = {f"{p}__seed{s}" for p, s in sequential.next_cells(exp, plan)}
+    cells = expand(exp)
+    states = [c.state() for c in cells]
+    for c, state in zip(cells, states, strict=True):
+        mark = "  <- next look" if c.run_dir.name in needed else ""
+        print(f"{c.name:<48} {state:<9} {c.run_dir}{mark}")
+    counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
+    # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
+    print(f"{exp.experiment.name}: {len(cells)} cells: {counts}", file=sys.stderr)
+    if exp.sequential is not None:
+        where = (
+            "finished" if plan.finished else f"look {plan.next_look} needs {len(needed)} cell(s)"
+        )
+        print(f"{exp.experiment.name}: sequential design: {where}", file=sys.stderr)
+
+
+def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
+    """A pre-registered sequential design: train the cells the next look needs, take the
+    look, and go on until every comparison is decided or the last look is taken."""
+    from priqn.analysis import sequential
+
+    while True:
+        plan = sequential.replay(exp, sequential.collect_scores(exp))
+        cells = sequential.next_cells(exp, plan)
+        if not cells:
+            state = "finished" if plan.finished else f"waiting for look {plan.next_look}"
+            print(
+                f"priqn sweep {exp.experiment.name}: sequential design {state} after "
+                f"{len(plan.looks)} look(s): "
+                + "; ".join(f"{k}: {v}" for k, v in plan.decisions.items())
+            )
+            break
+        print(
+            f"priqn sweep {exp.experiment.name}: look {plan.next_look} needs {len(cells)} "
+            f"cell(s) of {', '.join(plan.open_rows)}",
+            file=sys.stderr,
+        )
+        only = [f"{exp.experiment.name}/{p}__seed{s}" for p, s in cells]
+        result = run_sweep(exp, only=only, report=False, **kw)
+        if result.failed or result.interrupted:
+            return _summarise(exp, result)
+    if report:
+        path = sequential.write_report(exp, exp.report_dir)
+        print(f"priqn sweep: report in {path}", file=sys.stderr)
+    return 0
+
+
+def _code_dir(arg: str | None) -> Path | None:
+    """``--code DIR`` checked: a priqn checkout (absolute, so children find it anywhere)."""
+    if arg is None:
+        return None
+    path = Path(arg).absolute()
+    if not (path / "priqn" / "__init__.py").is_file():
+        raise PriqnError(f"--code {arg}: no priqn package there (expected {path}/priqn/)")
+    return path
+
+
+def _check_code_commit(exp: Any, code_dir: Path | None) -> None:
+    """A sequential design lists the commits its cells may train at: refuse any other."""
+    from priqn.provenance import git_sha
+
+    listed = exp.sequential.code_commits
+    if not listed:
+        return
+    sha = git_sha(code_dir)
+    if sha not in listed:
+        where = f"--code {code_dir}" if code_dir else "this checkout"
+        raise PriqnError(
+            f"{exp.path} [sequential].code_commits: cells would train at {sha[:12]} ({where}), "
+            f"which the design does not list; run them from a snapshot of the frozen commit "
+            f"{listed[-1][:12]}: --code DIR (docs/sweeps.md)"
+        )
 
 
 def _sigterm_as_interrupt() -> None:

@@ -74,9 +74,14 @@ def run_cell_process(
     child ends. ``stop`` (or an exception such as KeyboardInterrupt in this thread)
     stops the child's whole process group; the log is kept and the exception re-raised.
     When the child ends, whatever is left of its process group (env workers) is
-    killed. A negative status is the signal that killed the child.
+    killed. A negative status is the signal that killed the child. ``spec["code_dir"]``
+    (optional) goes first on the child's ``PYTHONPATH``: the cell runs that copy of priqn.
     """
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    if spec.get("code_dir"):  # cells run a frozen snapshot of priqn (priqn sweep --code)
+        env["PYTHONPATH"] = os.pathsep.join(
+            p for p in (str(spec["code_dir"]), env.get("PYTHONPATH", "")) if p
+        )
     spec = {**spec, "parent_pid": os.getpid()}
     log_path.parent.mkdir(parents=True, exist_ok=True)
     interrupted: BaseException | None = None

@@ -94,13 +94,16 @@ def run_sweep(
     progress: bool | None = None,
     cell_fn: str = DEFAULT_CELL_FN,
     log: Callable[[str], None] | None = None,
+    code_dir: Path | None = None,
 ) -> SweepResult:
     """Train and evaluate every incomplete cell, retrying failures ``retries`` times, then report.
 
     ``use_ray`` runs cells as Ray tasks (``ray_address`` None: a new local Ray cluster;
     ``"auto"`` or an address: an existing one); otherwise a local pool of ``jobs``
     child processes (default :func:`default_jobs`). ``only`` keeps cells whose name
-    matches one of the glob patterns. A failing cell never stops the others.
+    matches one of the glob patterns. ``code_dir``: every cell's child runs the priqn
+    found there (a snapshot worktree) instead of this one. A failing cell never stops the
+    others.
     Ctrl-C stops the running cells (they stay incomplete) and re-raises
     KeyboardInterrupt after writing the sweep summary.
     """
@@ -130,7 +133,7 @@ def run_sweep(
                 f"{len(result.skipped)} already complete, {len(todo)} to run ({backend.describe()})"
             )
             try:
-                _schedule(backend, todo, exp, result, retries, cell_fn, progress, say)
+                _schedule(backend, todo, exp, result, retries, cell_fn, progress, say, code_dir)
             finally:
                 backend.close()
                 _write_summary(exp, cells, result)
@@ -158,6 +161,7 @@ def _schedule(
     cell_fn: str,
     progress: bool | None,
     say: Callable[[str], None],
+    code_dir: Path | None = None,
 ) -> None:
     from tqdm.auto import tqdm
 
@@ -200,6 +204,8 @@ def _schedule(
             while queue and (slots is None or len(inflight) < slots):
                 cell, attempt = queue.pop(0)
                 spec = {**cell.to_spec(), "attempt": attempt, "cell_fn": cell_fn}
+                if code_dir is not None:
+                    spec["code_dir"] = str(code_dir)
                 log_path = (
                     exp.runs_dir
                     / _SWEEP_DIR

@@ -1,0 +1,569 @@
+"""A pre-registered group-sequential experiment over training seeds, replayed from its cells.
+
+The design lives in the experiment file's ``[sequential]`` table
+(:class:`priqn.sweep.experiment.SequentialSpec`); this module only reads it. From the
+run folders it
+
+1. collects one **endpoint** score per (row, training seed): the hold-out success rate
+   averaged over the evaluation densities (:func:`collect_scores`), refusing any cell
+   trained at a commit the design does not list;
+2. **replays AdaStop** look by look on those scores (:func:`replay`): each family gets its
+   own ``adastop.MultipleAgentsComparator`` with the design's n, K, B, α, β and seed, and
+   look k is taken once every row still in an open comparison has its first k·n seeds
+   — the decisions are a pure function of the committed scores, so a report regenerates
+   them exactly;
+3. says which cells the next look needs (:func:`next_cells`), which is what ``priqn
+   sweep`` trains for such an experiment;
+4. gives each comparison its pre-registered **verdict word** (:func:`verdict`).
+
+Arrays: ``scores_S`` is one row's per-seed scores in seed order (seed 0 first).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from priqn.analysis import inference
+from priqn.episodes import resolve_outcomes
+from priqn.errors import PriqnError
+from priqn.runs import RunFolder
+
+DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
+"""AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at
+the last look with β = 0), or undecided yet."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Score:
+    """One cell's endpoint."""
+
+    policy: str
+    seed: int
+    score: float
+    """Hold-out success rate averaged over the evaluation densities."""
+    episodes: int
+    """Hold-out episodes behind it."""
+    git_sha: str
+    """The commit the cell trained at (``meta.json``)."""
+    run_dir: str
+    """The run folder, relative to the working directory when possible."""
+
+
+def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
+    """The endpoint of one complete cell, or None when it is not complete yet."""
+    folder = RunFolder(run_dir)
+    if not run_dir.is_dir() or folder.recorded_status() != "complete":
+        return None
+    if folder.recorded_eval_status() != "complete":
+        return None
+    csv = folder.evaluation_dir() / RunFolder.EVAL_EPISODES
+    try:
+        episodes = resolve_outcomes(pd.read_csv(csv))
+    except (OSError, ValueError, KeyError) as exc:
+        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+    per_density = episodes.groupby("density")["success"].mean().astype(float)
+    return Score(
+        policy,
+        seed,
+        float(per_density.mean()),
+        len(episodes),
+        str(folder.meta().get("git_sha", "")),
+        _relative(run_dir),
+    )
+
+
+def _relative(path: Path) -> str:
+    """``path`` relative to the working directory when inside it (reports stay portable)."""
+    try:
+        return str(Path(path).absolute().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def collect_scores(exp: Any) -> pd.DataFrame:
+    """Endpoint scores of every complete cell of the design's rows and seeds.
+
+    Seeds in ``prior_seeds`` come from ``<prior_runs>/<policy>__seed<k>``, the others from
+    the experiment's own folder. A cell trained at a commit not in ``code_commits`` (when
+    the design lists any) is refused in one line. Columns: those of :class:`Score`.
+    """
+    seq = exp.sequential
+    rows = []
+    for pol in exp.policies:
+        for seed in [*seq.prior_seeds, *exp.experiment.seeds]:
+            root = Path(seq.prior_runs) if seed in seq.prior_seeds else exp.runs_dir
+            run_dir = root / f"{pol.name}__seed{seed}"
+            score = _cell_score(run_dir, pol.name, seed)
+            if score is None:
+                continue
+            if seq.code_commits and score.git_sha.removesuffix("-dirty") not in seq.code_commits:
+                raise PriqnError(
+                    f"{run_dir}: trained at commit {score.git_sha[:12]}, which "
+                    f"{exp.path} [sequential].code_commits does not list; a sequential "
+                    "experiment never mixes code versions (retrain it at the frozen commit)"
+                )
+            if score.git_sha.endswith("-dirty"):
+                raise PriqnError(
+                    f"{run_dir}: trained from a checkout with uncommitted changes "
+                    f"({score.git_sha}); retrain it from the frozen commit"
+                )
+            rows.append(dataclasses.asdict(score))
+    columns = [f.name for f in dataclasses.fields(Score)]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def scores_by_policy(scores: pd.DataFrame, policies: list[str]) -> dict[str, np.ndarray]:
+    """Policy -> ``scores_S`` of its *contiguous* seeds 0, 1, ... (a gap ends the run)."""
+    out = {}
+    for policy in policies:
+        mine = scores[scores["policy"] == policy].set_index("seed")["score"]
+        n = 0
+        while n in mine.index:
+            n += 1
+        out[policy] = mine.reindex(range(n)).to_numpy(dtype=float)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class ComparisonLook:
+    """One comparison at one look."""
+
+    name: str
+    family: str
+    a: str
+    b: str
+    n_a: int
+    n_b: int
+    """Seeds of each row used at this look."""
+    diff: float
+    """mean(a) − mean(b) over those seeds."""
+    lo: float
+    hi: float
+    """Welch 95 % interval of the difference (descriptive: not adjusted for the looks)."""
+    hi_family: float
+    """One-sided Welch upper bound at α / m (m: the family's comparisons), which decides
+    "paper's effect ruled out" for a comparison AdaStop left undecided at the last look."""
+    decision: str
+    """AdaStop's decision after this look (:data:`DECISIONS`)."""
+    decided_at: int | None
+    """The look (1-based) at which it was decided; None while open."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Look:
+    """One interim analysis."""
+
+    k: int
+    """Look number, 1-based."""
+    seeds_per_row: dict[str, int]
+    """Seeds each row had in play at this look."""
+    comparisons: tuple[ComparisonLook, ...]
+    level_spent: dict[str, float]
+    """Family -> α spent so far (AdaStop's linear spending: at most α k / K)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Replay:
+    """The experiment as far as its committed cells go."""
+
+    looks: tuple[Look, ...]
+    """Looks taken, in order."""
+    decisions: dict[str, str]
+    """Comparison name -> decision after the last look taken."""
+    finished: bool
+    """Every comparison decided (or the last look taken)."""
+    open_rows: tuple[str, ...]
+    """Rows that still need seeds (in an open comparison)."""
+    next_look: int | None
+    """The next look (1-based) that needs cells; None when finished."""
+
+
+def _family_comparator(seq: Any, comparisons: list[Any]) -> tuple[Any, list[str]]:
+    """A fresh AdaStop comparator of one family and its agent order."""
+    try:
+        from adastop import MultipleAgentsComparator
+    except ModuleNotFoundError:
+        raise PriqnError(
+            "the sequential design needs the adastop package: pip install adastop==0.1.3"
+        ) from None
+    agents: list[str] = []
+    for c in comparisons:
+        for row in (c.a, c.b):
+            if row not in agents:
+                agents.append(row)
+    pairs = np.array([(agents.index(c.a), agents.index(c.b)) for c in comparisons])
+    comparator = MultipleAgentsComparator(
+        n=seq.seeds_per_look,
+        K=len(seq.interims),
+        B=seq.permutations,
+        comparisons=pairs,
+        alpha=seq.alpha,
+        beta=seq.beta,
+        seed=seq.seed,
+    )
+    return comparator, agents
+
+
+def replay(exp: Any, scores: pd.DataFrame) -> Replay:
+    """AdaStop, look by look, on the committed scores (see the module docstring)."""
+    import contextlib
+    import io
+
+    seq = exp.sequential
+    n, K = seq.seeds_per_look, len(seq.interims)
+    policies = [p.name for p in exp.policies]
+    by_policy = scores_by_policy(scores, policies)
+    families = seq.families()
+    state = {f: _family_comparator(seq, cs) for f, cs in families.items()}
+    decisions = {c.name: "continue" for c in seq.comparisons}
+    decided_at: dict[str, int] = {}
+    looks: list[Look] = []
+    for k in range(K):
+        open_rows = {
+            r for c in seq.comparisons if decisions[c.name] == "continue" for r in (c.a, c.b)
+        }
+        if not open_rows or any(len(by_policy[r]) < (k + 1) * n for r in open_rows):
+            break
+        level: dict[str, float] = {}
+        for family, comps in families.items():
+            comparator, agents = state[family]
+            if comparator.is_finished:
+                level[family] = float(comparator.level_spent)
+                continue
+            values = {
+                a: by_policy[a][: (k + 1) * n]
+                if a in open_rows
+                else by_policy[a][: min(len(by_policy[a]), (k + 1) * n)]
+                for a in agents
+            }
+            with contextlib.redirect_stdout(io.StringIO()):  # adastop prints "Step k"
+                comparator.partial_compare(values, verbose=False)
+            for c, pair in zip(comps, comparator.comparisons, strict=True):
+                word = comparator.decisions[str(pair)]
+                if word != "continue" and decisions[c.name] == "continue":
+                    decided_at[c.name] = k + 1
+                decisions[c.name] = word
+            level[family] = float(comparator.level_spent)
+        seeds_now = {r: min(len(by_policy[r]), (k + 1) * n) for r in policies}
+        looks.append(
+            Look(
+                k + 1,
+                seeds_now,
+                _look_rows(seq, by_policy, seeds_now, decisions, decided_at),
+                level,
+            )
+        )
+    open_rows = tuple(
+        r
+        for r in policies
+        if any(decisions[c.name] == "continue" and r in (c.a, c.b) for c in seq.comparisons)
+    )
+    finished = not open_rows
+    return Replay(
+        tuple(looks),
+        dict(decisions),
+        finished,
+        open_rows,
+        None if finished else len(looks) + 1,
+    )
+
+
+def _look_rows(
+    seq: Any,
+    by_policy: dict[str, np.ndarray],
+    seeds_now: dict[str, int],
+    decisions: dict[str, str],
+    decided_at: dict[str, int],
+) -> tuple[ComparisonLook, ...]:
+    out = []
+    for c in seq.comparisons:
+        a, b = by_policy[c.a][: seeds_now[c.a]], by_policy[c.b][: seeds_now[c.b]]
+        lo, hi = inference.welch_interval(a, b)
+        m = sum(x.family == c.family for x in seq.comparisons)
+        out.append(
+            ComparisonLook(
+                c.name,
+                c.family,
+                c.a,
+                c.b,
+                a.size,
+                b.size,
+                float(a.mean() - b.mean()),
+                lo,
+                hi,
+                inference.upper_bound(a, b, seq.alpha / m),
+                decisions[c.name],
+                decided_at.get(c.name),
+            )
+        )
+    return tuple(out)
+
+
+def next_cells(exp: Any, result: Replay) -> list[tuple[str, int]]:
+    """(policy, seed) cells the next look needs that are not complete yet, in seed order."""
+    if result.next_look is None:
+        return []
+    seq = exp.sequential
+    upto = result.next_look * seq.seeds_per_look
+    done = {(p, s) for p, s in collect_scores(exp)[["policy", "seed"]].itertuples(index=False)}
+    return [
+        (row, seed) for seed in range(upto) for row in result.open_rows if (row, seed) not in done
+    ]
+
+
+def verdict(exp: Any, result: Replay, comparison: Any) -> str:
+    """The pre-registered verdict word of one comparison (headline.toml, "verdicts")."""
+    decision = result.decisions[comparison.name]
+    look = result.looks[-1] if result.looks else None
+    n = (
+        0
+        if look is None
+        else min(look.seeds_per_row[comparison.a], look.seeds_per_row[comparison.b])
+    )
+    paper = comparison.paper_difference
+    if decision == "larger":
+        return "reproduced" if paper is not None else "a better"
+    if decision == "smaller":
+        return "contradicted" if paper is not None else "a worse"
+    if decision == "continue":
+        return f"open: look {result.next_look} pending"
+    # "equal": not decided by the last look taken.
+    if paper is not None and look is not None:
+        row = next(x for x in look.comparisons if x.name == comparison.name)
+        if row.hi_family < paper - inference.TIE_TOLERANCE:
+            return "paper's effect ruled out"
+        return f"inconclusive at {n} seeds"
+    return f"no difference found at {n} seeds" if paper is None else f"inconclusive at {n} seeds"
+
+
+# --------------------------------------------------------------------------- the report
+
+
+def looks_frame(result: Replay) -> pd.DataFrame:
+    """One row per (look, comparison): ``tables/looks.csv``."""
+    rows = [
+        {"look": look.k, **dataclasses.asdict(c), "level_spent": look.level_spent[c.family]}
+        for look in result.looks
+        for c in look.comparisons
+    ]
+    columns = ["look", *[f.name for f in dataclasses.fields(ComparisonLook)], "level_spent"]
+    return pd.DataFrame(rows, columns=columns).astype({"decided_at": "Int64"})
+
+
+def figure(exp: Any, scores: pd.DataFrame) -> Any:
+    """Per-seed endpoint of every row (dots: filled = this experiment's cells, open = the
+    prior grid's), the row mean (bar) with its 95 % t interval, and where Pr-IQN* would
+    sit if the paper's difference to each baseline held (diamonds on the compared row)."""
+    from scipy import stats
+
+    from priqn.analysis.figures import plt
+
+    seq = exp.sequential
+    policies = [p.name for p in exp.policies]
+    fig, ax = plt.subplots(figsize=(7.5, 0.55 * len(policies) + 1.6))
+    means = {}
+    for i, policy in enumerate(policies):
+        mine = scores[scores["policy"] == policy]
+        x = mine["score"].to_numpy(float)
+        prior = mine["seed"].isin(seq.prior_seeds).to_numpy()
+        ax.plot(x[~prior], np.full((~prior).sum(), i), "o", color="tab:blue", ms=5, alpha=0.8)
+        ax.plot(x[prior], np.full(prior.sum(), i), "o", mfc="none", mec="tab:blue", ms=5)
+        if len(x):
+            means[policy] = float(x.mean())
+            ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
+        if len(x) >= 2:
+            half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
+            ax.plot([x.mean() - half, x.mean() + half], [i + 0.32] * 2, color="black", lw=0.9)
+    for c in seq.comparisons:
+        if c.paper_difference is not None and c.b in means:
+            ax.plot(
+                means[c.b] + c.paper_difference,
+                policies.index(c.a) - 0.38,
+                "D",
+                mfc="none",
+                mec="tab:red",
+                ms=6,
+            )
+            ax.annotate(
+                f"paper vs {c.b}",
+                (means[c.b] + c.paper_difference, policies.index(c.a) - 0.38),
+                xytext=(4, -2),
+                textcoords="offset points",
+                fontsize=6,
+                color="tab:red",
+            )
+    counts = scores.groupby("policy")["seed"].nunique()
+    ax.set_yticks(
+        range(len(policies)), [f"{p} ({int(counts.get(p, 0))} seeds)" for p in policies], fontsize=8
+    )
+    ax.set_ylim(len(policies) - 0.5, -0.7)
+    ax.set_xlim(0, 1)
+    ax.grid(axis="x", color="0.9")
+    ax.set_xlabel("hold-out success rate, mean over densities (one dot per training seed)")
+    handles = [
+        plt.Line2D([], [], ls="", marker="o", color="tab:blue", label="seed (this experiment)"),
+        plt.Line2D(
+            [], [], ls="", marker="o", mfc="none", mec="tab:blue", label="seed (prior grid)"
+        ),
+        plt.Line2D([], [], color="black", lw=1.8, label="mean; thin: 95 % t interval"),
+        plt.Line2D(
+            [], [], ls="", marker="D", mfc="none", mec="tab:red", label="paper's difference"
+        ),
+    ]
+    ax.legend(
+        handles=handles,
+        fontsize=7,
+        loc="lower center",
+        ncol=2,
+        bbox_to_anchor=(0.5, 1.0),
+        title=f"{exp.experiment.name}: per-seed success of each row",
+        title_fontsize="medium",
+        frameon=False,
+    )
+    return fig
+
+
+def _pts(x: float) -> str:
+    return f"{100 * x:+.1f}"
+
+
+def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str) -> str:
+    """``report.md`` of a sequential experiment."""
+    seq, e = exp.sequential, exp.experiment
+    policies = [p.name for p in exp.policies]
+    counts = scores.groupby("policy")["seed"].nunique()
+    last = result.looks[-1] if result.looks else None
+    lines = [
+        f"# {e.name}: pre-registered sequential experiment",
+        "",
+        f"Made by `{command}` from the cells' run folders and the design in `{exp.path.name}` "
+        "(committed before any of its own cells trained).",
+        "",
+        f"- **Question**: {e.description}",
+        f"- **Endpoint**: per training seed, hold-out success rate averaged over the densities "
+        f"{exp.evaluate.get('densities')}.",
+        f"- **Method**: {seq.method}, looks at {list(seq.interims)} seeds per row (n = "
+        f"{seq.seeds_per_look} new seeds a look), α = {seq.alpha:g} per family (spent "
+        f"linearly over the looks), β = {seq.beta:g}, {seq.permutations} permutations, seed "
+        f"{seq.seed}.",
+        f"- **Seeds**: {list(seq.prior_seeds)} from `{seq.prior_runs}`, the rest from "
+        f"`{_relative(exp.runs_dir)}`; code commits allowed: "
+        f"{', '.join(c[:12] for c in seq.code_commits) or 'any'}.",
+        f"- **Budget**: {e.steps} decisions per cell ({e.preset} preset); every verdict holds "
+        "at this budget only.",
+        "",
+        "## Verdicts so far",
+        "",
+        "| comparison | family | paper | estimate [95% CI], points | seeds | AdaStop | verdict |",
+        "|:--|:--|--:|:--|:--|:--|:--|",
+    ]
+    for c in seq.comparisons:
+        row = None if last is None else next(x for x in last.comparisons if x.name == c.name)
+        paper = "–" if c.paper_difference is None else _pts(c.paper_difference)
+        if row is None:
+            est, seeds = "no look yet", f"{int(counts.get(c.a, 0))} vs {int(counts.get(c.b, 0))}"
+        else:
+            est = f"{_pts(row.diff)} [{_pts(row.lo)}, {_pts(row.hi)}]"
+            seeds = f"{row.n_a} vs {row.n_b}"
+        decided = result.decisions[c.name]
+        if row is not None and row.decided_at:
+            decided += f" (look {row.decided_at})"
+        lines.append(
+            f"| {c.name} | {c.family} | {paper} | {est} | {seeds} | {decided} | "
+            f"**{verdict(exp, result, c)}** |"
+        )
+    lines += [
+        "",
+        "Intervals are Welch t 95 % over training seeds, descriptive (not adjusted for the "
+        "looks); the decisions are AdaStop's, which control each family's error over all "
+        "looks. *paper's effect ruled out* needs a comparison left undecided at the last look "
+        "and a one-sided Welch bound at α / m below the paper's difference.",
+        "",
+        "![per-seed success](figures/headline.png) ([pdf](figures/headline.pdf))",
+        "",
+        "## Looks",
+        "",
+    ]
+    if not result.looks:
+        lines += [
+            f"No look yet: the first needs {seq.interims[0]} seeds of every row "
+            f"({', '.join(f'{p}: {int(counts.get(p, 0))}' for p in policies)}).",
+            "",
+        ]
+    for look in result.looks:
+        spent = ", ".join(f"{f} {v:.4f}" for f, v in look.level_spent.items())
+        lines += [
+            f"**Look {look.k}** — seeds per row: "
+            + ", ".join(f"{p} {n}" for p, n in look.seeds_per_row.items())
+            + f"; α spent: {spent}.",
+            "",
+            "| comparison | estimate [95% CI], points | decision |",
+            "|:--|:--|:--|",
+            *[
+                f"| {c.name} | {_pts(c.diff)} [{_pts(c.lo)}, {_pts(c.hi)}] | {c.decision} |"
+                for c in look.comparisons
+            ],
+            "",
+        ]
+    nxt = next_cells(exp, result)
+    lines += [
+        "## Next",
+        "",
+        "The design is finished: every comparison is decided or the last look is taken."
+        if result.finished
+        else f"Look {result.next_look} needs {len(nxt)} more cell(s): "
+        + ", ".join(f"{p}__seed{s}" for p, s in nxt)
+        + f" (`priqn sweep {e.name} --code <frozen worktree>`).",
+        "",
+        "## Cells",
+        "",
+        "| row | seed | success (endpoint) | episodes | commit | run folder |",
+        "|:--|--:|--:|--:|:--|:--|",
+        *[
+            f"| {r.policy} | {r.seed} | {r.score:.3f} | {r.episodes} | `{r.git_sha[:12]}` | "
+            f"`{r.run_dir}` |"
+            for r in scores.sort_values(["policy", "seed"], kind="mergesort").itertuples()
+        ],
+        "",
+        "Files: `tables/scores.csv`, `tables/looks.csv`, `figures/headline.{png,pdf}`, "
+        "`meta.json`.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> Path:
+    """Write the sequential experiment's report into ``out_dir``; returns ``report.md``.
+
+    Deterministic: the same committed cells give byte-identical files."""
+    from priqn.analysis.figures import save_figure
+    from priqn.io import atomic_write_json, atomic_write_text
+
+    out = Path(out_dir)
+    scores = collect_scores(exp)
+    result = replay(exp, scores)
+    command = command or f"priqn report {_relative(exp.runs_dir)} --out {_relative(out)}"
+    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+    atomic_write_text(out / "tables" / "scores.csv", scores.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "looks.csv", looks_frame(result).to_csv(**csv_kw))
+    save_figure(figure(exp, scores), out / "figures", "headline")
+    report = out / "report.md"
+    atomic_write_text(report, report_markdown(exp, scores, result, command))
+    atomic_write_json(
+        out / "meta.json",
+        {
+            "command": command,
+            "experiment": exp.path.name,
+            "looks": len(result.looks),
+            "decisions": result.decisions,
+            "verdicts": {c.name: verdict(exp, result, c) for c in exp.sequential.comparisons},
+            "finished": result.finished,
+            "cells": len(scores),
+        },
+    )
+    return report

@@ -1,0 +1,239 @@
+"""A pre-registered sequential experiment (priqn/analysis/sequential.py, priqn sweep on a
+[sequential] design): AdaStop replayed from run folders, only the cells a look needs."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from priqn.analysis import sequential
+from priqn.errors import PriqnError
+from priqn.sweep import load_experiment
+
+# Fake cells: one evaluation episode table per cell whose success rate is set by the row
+# and seed, so the endpoint of every cell is known by hand.
+FAKE = """
+import os
+
+import pandas as pd
+
+from priqn.io import atomic_write_json, atomic_write_text
+
+RATES = {
+    "good": lambda s: 0.9,
+    "bad": lambda s: 0.1,
+    "same": lambda s: (0.8, 1.0, 0.9, 0.7, 1.0, 0.8, 0.9, 1.0)[s],
+}
+
+
+def cell(c):
+    calls = c.run_dir.parent / "calls"
+    calls.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(calls / f"{c.policy}__seed{c.seed}", str(os.getpid()))
+    rate = RATES[c.policy](c.seed)
+    rows = [
+        {"density": d, "success": e < round(10 * rate), "collision": e >= round(10 * rate),
+         "off_road": False, "timeout": False}
+        for d in (0.5, 1.0) for e in range(10)
+    ]
+    c.run_dir.joinpath("eval").mkdir(parents=True, exist_ok=True)
+    atomic_write_text(c.run_dir / "eval" / "episodes.csv", pd.DataFrame(rows).to_csv(index=False))
+    atomic_write_json(c.run_dir / "eval" / "meta.json", {"status": "complete"})
+    atomic_write_json(
+        c.run_dir / "meta.json",
+        {"status": "complete", "seed": c.seed, "git_sha": os.environ.get("FAKE_SHA", "abc")},
+    )
+"""
+
+
+def design(tmp_path: Path, commits: str = "[]") -> Path:
+    """Rows good / bad / same; looks at 4 and 8 seeds; good vs bad, good vs same."""
+    body = f"""
+[experiment]
+name = "seq"
+seeds = [0, 1, 2, 3, 4, 5, 6, 7]
+runs_dir = "{(tmp_path / "runs").as_posix()}"
+[resources]
+cpus_per_cell = 1
+[[policy]]
+name = "good"
+agent = "iqn"
+[[policy]]
+name = "bad"
+agent = "iqn"
+[[policy]]
+name = "same"
+agent = "iqn"
+[sequential]
+interims = [4, 8]
+alpha = 0.05
+permutations = 2000
+seed = 1
+code_commits = {commits}
+[[sequential.comparison]]
+name = "good > bad"
+family = "primary"
+a = "good"
+b = "bad"
+paper_difference = 0.5
+[[sequential.comparison]]
+name = "good vs same"
+family = "primary"
+a = "good"
+b = "same"
+"""
+    path = tmp_path / "seq.toml"
+    path.write_text(body)
+    return path
+
+
+@pytest.fixture()
+def fake_cell(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "fakeseq.py").write_text(FAKE)
+    monkeypatch.setenv(
+        "PYTHONPATH", os.pathsep.join(p for p in (str(mods), os.environ.get("PYTHONPATH")) if p)
+    )
+    return "fakeseq:cell"
+
+
+def scores_frame(rates: dict[str, list[float]]) -> pd.DataFrame:
+    rows = [
+        {"policy": p, "seed": s, "score": x, "episodes": 20, "git_sha": "abc", "run_dir": ""}
+        for p, xs in rates.items()
+        for s, x in enumerate(xs)
+    ]
+    return pd.DataFrame(rows, columns=["policy", "seed", "score", "episodes", "git_sha", "run_dir"])
+
+
+SAME = [0.8, 1.0, 0.9, 0.7, 1.0, 0.8, 0.9, 1.0]
+
+
+def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) -> None:
+    exp = load_experiment(design(tmp_path))
+    # Before any look: every row needs seeds 0-3.
+    empty = sequential.replay(exp, scores_frame({}))
+    assert (empty.looks, empty.next_look) == ((), 1)
+    # After look 1: good beats bad in all 4 seeds: of the 70 splits only the observed one
+    # is as extreme (1/70 <= α/K = 0.025): decided. good vs same is not (seeds overlap).
+    four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
+    r = sequential.replay(exp, four)
+    assert [look.k for look in r.looks] == [1]
+    assert r.decisions == {"good > bad": "larger", "good vs same": "continue"}
+    assert r.open_rows == ("good", "same") and r.next_look == 2
+    look = r.looks[0].comparisons[0]
+    assert (look.diff, look.n_a, look.n_b, look.decided_at) == (pytest.approx(0.8), 4, 4, 1)
+    assert sequential.verdict(exp, r, exp.sequential.comparisons[0]) == "reproduced"
+    # Look 2 needs seeds 4-7 of the open rows only.
+    eight = scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME})
+    r2 = sequential.replay(exp, eight)
+    assert r2.finished and r2.decisions["good vs same"] == "equal"
+    assert r2.looks[1].seeds_per_row == {"good": 8, "bad": 4, "same": 8}
+    assert sequential.verdict(exp, r2, exp.sequential.comparisons[1]) == (
+        "no difference found at 8 seeds"
+    )
+    # The replay is a pure function of the scores: the same frame, the same decisions.
+    assert sequential.replay(exp, eight) == r2
+
+
+def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
+    tmp_path: Path,
+) -> None:
+    exp = load_experiment(design(tmp_path))
+    claim = exp.sequential.comparisons[0]  # good > bad, paper +50 points
+    # Precise and far below the paper's +50: ruled out at the last look.
+    close = scores_frame(
+        {"good": [0.5, 0.52, 0.48, 0.5, 0.51, 0.49, 0.5, 0.5], "bad": [0.5] * 8, "same": SAME}
+    )
+    r = sequential.replay(exp, close)
+    assert r.decisions[claim.name] == "equal"
+    assert sequential.verdict(exp, r, claim) == "paper's effect ruled out"
+    # Wide: inconclusive.
+    wide = scores_frame({"good": [0, 1, 1, 1, 0, 1, 1, 0], "bad": [0.4, 0.6] * 4, "same": SAME})
+    r = sequential.replay(exp, wide)
+    assert sequential.verdict(exp, r, claim) == "inconclusive at 8 seeds"
+
+
+def test_sweep_trains_only_what_each_look_needs_then_reports(
+    tmp_path: Path, fake_cell: str
+) -> None:
+    path = design(tmp_path)
+    out = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "sweep", str(path), "--cell-fn", fake_cell],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    trained = sorted(p.name for p in (tmp_path / "runs" / "seq" / "calls").iterdir())
+    # Look 1: all three rows, seeds 0-3; look 2: good and same only, seeds 4-7.
+    expected = [f"{p}__seed{s}" for p in ("good", "same") for s in range(8)]
+    expected += [f"bad__seed{s}" for s in range(4)]
+    assert trained == sorted(expected)
+    assert "sequential design finished after 2 look(s)" in out.stdout
+    report = (tmp_path / "reports" / "seq" / "report.md").read_text()
+    assert "| good > bad | primary | +50.0 |" in report and "**a better**" not in report
+    assert "**reproduced**" in report and "**no difference found at 8 seeds**" in report
+    # The report regenerates byte for byte from the same cells.
+    first = {p.name: p.read_bytes() for p in (tmp_path / "reports" / "seq").rglob("*.*")}
+    again = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "priqn.cli",
+            "report",
+            "runs/seq",
+            "--out",
+            "reports/seq",
+            "--experiment",
+            str(path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert again.returncode == 0, again.stderr[-2000:]
+    second = {p.name: p.read_bytes() for p in (tmp_path / "reports" / "seq").rglob("*.*")}
+    assert set(first) == set(second) and all(
+        first[k] == second[k] for k in first if k != "meta.json"
+    )
+    looks = pd.read_csv(tmp_path / "reports" / "seq" / "tables" / "looks.csv")
+    assert list(looks["look"]) == [1, 1, 2, 2]
+    meta = json.loads((tmp_path / "reports" / "seq" / "meta.json").read_text())
+    assert meta["finished"] and meta["cells"] == 20
+
+
+def test_cells_at_an_unlisted_commit_are_refused(tmp_path: Path, fake_cell: str) -> None:
+    exp = load_experiment(design(tmp_path, commits='["0123456789abcdef"]'))
+    run = tmp_path / "runs" / "seq" / "good__seed0"
+    (run / "eval").mkdir(parents=True)
+    (run / "meta.json").write_text(json.dumps({"status": "complete", "git_sha": "fedcba9876"}))
+    (run / "eval" / "meta.json").write_text(json.dumps({"status": "complete"}))
+    pd.DataFrame(
+        {
+            "density": [0.5],
+            "success": [True],
+            "collision": [False],
+            "off_road": [False],
+            "timeout": [False],
+        }
+    ).to_csv(run / "eval" / "episodes.csv", index=False)
+    with pytest.raises(PriqnError, match="trained at commit fedcba9876, which .* does not list"):
+        sequential.collect_scores(exp)
+
+
+def test_scores_use_contiguous_seeds_only() -> None:
+    frame = scores_frame({"good": [0.9, 0.8, 0.7]}).drop(index=1)  # seed 1 missing
+    got = sequential.scores_by_policy(frame, ["good", "bad"])
+    np.testing.assert_array_equal(got["good"], [0.9])
+    assert got["bad"].size == 0
