@@ -14,37 +14,38 @@ A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds
     nets.json              your own nets (env.nets) with their SHA-256, when the run used them
 
 Every command reads and writes these through :class:`RunFolder`, so no other module
-spells a file name. A run folder has one writer: ``meta.json`` records the trainer's
-pid and host while it runs (:meth:`RunFolder.live_trainer`), and a ``running`` run whose
-trainer is gone reads as ``interrupted`` (:meth:`RunFolder.status`).
+spells a file name; the torch files are in :mod:`priqn.checkpoint`'s format. The run
+folder only knows files: what meta.json records about the run's origin (nets, SUMO, git)
+is gathered by :mod:`priqn.provenance` and handed in as a :class:`Provenance`.
+
+A run folder has one writer: ``meta.json`` records the trainer's pid and host while it
+runs (:meth:`RunFolder.live_trainer`), and a ``running`` run whose trainer is gone reads
+as ``interrupted`` (:meth:`RunFolder.status`).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import os
-import platform
 import shutil
 import socket
-import subprocess
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from priqn import checkpoint
+from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.config import config_differences, dumps_toml, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import (
     atomic_open,
-    atomic_torch_save,
     atomic_write_json,
     atomic_write_text,
     read_json,
     remove_stale_temp_files,
-    torch_load,
 )
 from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
 
@@ -70,6 +71,25 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "command",
 )
 """Columns of ``metrics.csv``: one row per training (kind=train) or evaluation episode."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Provenance:
+    """Where a training session comes from, as meta.json (and nets.json) record it.
+
+    Gathered by the training side (:func:`priqn.provenance.gather`) and handed to
+    :meth:`RunFolder.prepare`: the run folder writes it and compares it on a resume, but
+    never reads a net or asks SUMO itself.
+    """
+
+    git_sha: str
+    """priqn's git commit (``-dirty`` when changed), or why there is none."""
+    versions: dict[str, str]
+    """priqn, Python, torch, numpy, gymnasium and SUMO versions."""
+    manifest_hashes: dict[str, str]
+    """Manifest hash of every scenario family the run reads; ``"own"``: that of env.nets."""
+    own_nets: dict[str, Any] | None = None
+    """nets.json: the manifest of the run's own nets (``env.nets``); None without them."""
 
 
 class RunFolder:
@@ -240,79 +260,44 @@ class RunFolder:
         return read_json(self.eval_meta_path)
 
     # ---------------------------------------------------------------- starting a session
-    def prepare(self, cfg: Any, resume: bool, force: bool) -> dict[str, Any]:
-        """Check / create the folder for a training session; write config.toml and meta.json
-        (status running, this process as the trainer). Returns the meta."""
-        # Everything that can refuse the run comes before the folder is touched.
-        from priqn.train_config import (
-            derive_seeds,
-            policy_labels,
-            pool_families,
-        )
+    def prepare(
+        self,
+        cfg: Any,
+        resume: bool,
+        force: bool,
+        provenance: Provenance,
+        labels: Mapping[str, Any],
+    ) -> dict[str, Any]:
+        """Check / create the folder for a training session; write config.toml, nets.json
+        (own nets) and meta.json (``provenance``, ``labels``, status running, this process
+        as the trainer). Returns the meta.
 
-        pool = set() if cfg.env.nets else set(pool_families(cfg.env.family))
-        hashes = manifest_hashes(sorted(pool | {cfg.evaluation.family}), cfg.env.nets_dir)
-        own_nets = own_nets_manifest(cfg.env.nets, cfg.env.junction) if cfg.env.nets else None
-        if own_nets is not None:
-            from priqn.sim.scenario import hash_of_manifest
-
-            hashes["own"] = hash_of_manifest(own_nets)
-        labels = policy_labels(cfg)
+        Everything that can refuse the run comes before the folder is touched (what
+        gathering ``provenance`` refuses comes before this call).
+        """
         owner = self.live_trainer()
         if owner is not None and (resume or force):
             raise PriqnError(
                 f"{self.path}: still being trained by {owner} (meta.json status running); "
                 "stop that process first (a run folder has one writer)"
             )
-        if resume:
-            if not self.latest_checkpoint.is_file():
-                raise PriqnError(
-                    f"{self.path}: nothing to resume (no {self.rel(self.latest_checkpoint)})"
-                )
-            diff = config_differences(
-                to_dict(self.config()), to_dict(cfg), ignore=("total_steps", "device")
-            )
-            if diff:
-                k, old, new = diff[0]
-                raise PriqnError(
-                    f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
-                )
-            meta = self.meta()
-            if own_nets is not None and meta.get("manifest_hashes", {}).get("own") != hashes["own"]:
-                raise PriqnError(
-                    f"{self.path}: --resume: a net of env.nets changed since the run started "
-                    f"(see {self.NETS_MANIFEST}); restore it or start a new run"
-                )
-            remove_stale_temp_files(self.path)  # left by a killed write of the last session
-        else:
-            if self.path.exists() and any(self.path.iterdir()):
-                if not force:
-                    raise PriqnError(
-                        f"{self.path}: run folder already exists; use --resume to continue it or --force to overwrite"
-                    )
-                self.remove()
-            meta = {
-                "created": datetime.now(UTC).isoformat(timespec="seconds"),
-                "seed": cfg.seed,
-                "seeds": derive_seeds(cfg.seed),
-                "sessions": [],
-            }
+        meta = self._resumed_meta(cfg, provenance) if resume else self._new_meta(cfg, force)
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise PriqnError(f"{self.path}: cannot create the run folder ({exc.strerror})") from exc
         atomic_write_text(self.config_path, dumps_toml(to_dict(cfg)))
-        if own_nets is not None:
-            atomic_write_json(self.nets_manifest_path, own_nets)
+        if provenance.own_nets is not None:
+            atomic_write_json(self.nets_manifest_path, provenance.own_nets)
         meta.update(
             {
                 "run": self.path.name,
                 "status": "running",
                 "error": None,
-                "git_sha": git_sha(),
-                "versions": versions(),
-                "manifest_hashes": hashes,
-                "labels": labels,
+                "git_sha": provenance.git_sha,
+                "versions": dict(provenance.versions),
+                "manifest_hashes": dict(provenance.manifest_hashes),
+                "labels": dict(labels),
                 "total_steps": cfg.total_steps,
                 "host": socket.gethostname(),
                 "pid": os.getpid(),
@@ -328,6 +313,49 @@ class RunFolder:
         )
         self.write_meta(meta)
         return meta
+
+    def _resumed_meta(self, cfg: Any, provenance: Provenance) -> dict[str, Any]:
+        """meta.json of the run to resume; refused unless it has a checkpoint, the same
+        config (bar total_steps and device) and unchanged own nets."""
+        if not self.latest_checkpoint.is_file():
+            raise PriqnError(
+                f"{self.path}: nothing to resume (no {self.rel(self.latest_checkpoint)})"
+            )
+        diff = config_differences(
+            to_dict(self.config()), to_dict(cfg), ignore=("total_steps", "device")
+        )
+        if diff:
+            k, old, new = diff[0]
+            raise PriqnError(
+                f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
+            )
+        meta = self.meta()
+        own_hash = provenance.manifest_hashes.get("own")
+        if own_hash is not None and meta.get("manifest_hashes", {}).get("own") != own_hash:
+            raise PriqnError(
+                f"{self.path}: --resume: a net of env.nets changed since the run started "
+                f"(see {self.NETS_MANIFEST}); restore it or start a new run"
+            )
+        remove_stale_temp_files(self.path)  # left by a killed write of the last session
+        return meta
+
+    def _new_meta(self, cfg: Any, force: bool) -> dict[str, Any]:
+        """The first meta.json of a new run; an existing folder is refused, or removed with
+        ``force``."""
+        from priqn.train_config import derive_seeds
+
+        if self.path.exists() and any(self.path.iterdir()):
+            if not force:
+                raise PriqnError(
+                    f"{self.path}: run folder already exists; use --resume to continue it or --force to overwrite"
+                )
+            self.remove()
+        return {
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+            "seed": cfg.seed,
+            "seeds": derive_seeds(cfg.seed),
+            "sessions": [],
+        }
 
     # ---------------------------------------------------------------- metrics
     def write_metrics(self, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -349,42 +377,37 @@ class RunFolder:
         return [r for r in rows if int(float(r["step"])) <= max_step]
 
     # ---------------------------------------------------------------- checkpoints and policy
-    def save_checkpoint(self, state: dict[str, Any], replay: Any, save_replay: bool) -> None:
+    def save_checkpoint(self, state: Checkpoint, replay: Any, save_replay: bool) -> None:
         """Replay file first, then latest.pt naming it, then old replay files removed.
 
         Each file is atomic; latest.pt is the commit point, so a kill at any moment leaves
-        a consistent (latest.pt, replay file) pair.
+        a consistent (latest.pt, replay file) pair. The format is :mod:`priqn.checkpoint`'s.
         """
-        import torch
-
         replay_name = None
         if save_replay:
-            replay_name = f"replay-{state['step']:012d}.npz"
+            replay_name = f"replay-{state.step:012d}.npz"
             with atomic_open(self.checkpoint_dir / replay_name, "wb") as fh:
                 replay.save_to(fh)
-        state = dict(state, replay_file=replay_name, torch_version=torch.__version__)
-        atomic_torch_save(state, self.latest_checkpoint)
+        checkpoint.save(dataclasses.replace(state, replay_file=replay_name), self.latest_checkpoint)
         for old in self.checkpoint_dir.glob("replay-*.npz"):
             if old.name != replay_name:
                 old.unlink(missing_ok=True)
 
-    def load_checkpoint(self, device: Any) -> dict[str, Any]:
+    def load_checkpoint(self, device: Any) -> Checkpoint:
         """The latest checkpoint (a damaged file is a one-line error saying what to do)."""
-        return torch_load(
+        return checkpoint.load(
             self.latest_checkpoint,
-            "checkpoint",
-            f"delete the run folder's {self.CHECKPOINTS}/ and train again with --force",
             device,
+            f"delete the run folder's {self.CHECKPOINTS}/ and train again with --force",
         )
 
-    def replay_file(self, state: Mapping[str, Any]) -> Path | None:
+    def replay_file(self, state: Checkpoint) -> Path | None:
         """The replay buffer file a checkpoint names (None if it saved none)."""
-        name = state.get("replay_file")
-        return self.checkpoint_dir / name if name else None
+        return self.checkpoint_dir / state.replay_file if state.replay_file else None
 
-    def save_policy(self, state: Mapping[str, Any]) -> None:
+    def save_policy(self, state: PolicyState) -> None:
         """policy.pt: the final online weights and the agent's learned state (a few MB)."""
-        atomic_torch_save(dict(state), self.policy_path)
+        checkpoint.save(state, self.policy_path)
 
     def load_policy(self, device: str = "cpu") -> Any:
         """Greedy :class:`priqn.agents.policy.Policy` of this run.
@@ -408,25 +431,18 @@ class RunFolder:
                 f"{self.path}: no {self.rel(latest)} or {self.rel(final)} to load a policy from"
             )
         dev = select_device(device)
-        # The latest checkpoint when present (a run in progress, or resumable); else the
-        # final policy file, which is all a committed result folder keeps.
-        source = latest if latest.is_file() else final
-        state = torch_load(
-            source,
-            "checkpoint" if source == latest else "policy file",
-            "restore it from git or re-train the run (priqn train --force)",
-            dev,
-        )
-        learned = state["learner"] if "learner" in state else state
-        shapes = state["obs_shapes"]
+        remedy = "restore it from git or re-train the run (priqn train --force)"
+        if latest.is_file():
+            state = checkpoint.load(latest, dev, remedy).policy_state()
+        else:
+            state = checkpoint.load_policy_state(final, dev, remedy)
         agent = make_agent(cfg.agent.name, cfg.agent_config)
-        space = observation_space(shapes)
-        num_actions = int(state["num_actions"])
-        network = build_network(cfg, space, num_actions, seed=0)
-        network.load_state_dict(learned["online"])
+        space = observation_space(state.obs_shapes)
+        network = build_network(cfg, space, int(state.num_actions), seed=0, agent=agent)
+        network.load_state_dict(state.online)
         network.eval()
-        agent.load_state_dict(learned.get("agent", {}))  # the running scale, if any
-        labels = policy_labels(cfg)
+        agent.load_state_dict(state.agent)  # the running scale, if any
+        labels = policy_labels(cfg, agent)
         return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
 
     def remove_stale_temp_files(self) -> int:
@@ -463,88 +479,6 @@ def live_trainer(run_dir: str | os.PathLike) -> str | None:
 def run_status(run_dir: str | os.PathLike) -> str:
     """:meth:`RunFolder.status` of ``run_dir``."""
     return RunFolder(run_dir).status()
-
-
-# ------------------------------------------------------------------------ provenance
-
-
-def git_sha() -> str:
-    """priqn's git commit (``-dirty`` if changed) in a checkout; "not a checkout" if installed."""
-    from priqn.paths import PACKAGE_DIR
-
-    root = PACKAGE_DIR.parent
-    if not (root / ".git").exists():
-        return "not a checkout"
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return (sha or "unknown") + ("-dirty" if dirty else "")
-
-
-def versions() -> dict[str, str]:
-    import gymnasium
-    import torch
-
-    import priqn
-
-    out = {
-        "priqn": priqn.__version__,
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "gymnasium": gymnasium.__version__,
-    }
-    try:
-        from priqn.sim.sumo import sumo_version
-
-        out["sumo"] = sumo_version()
-    except Exception as exc:  # noqa: BLE001 - recorded, never fatal
-        out["sumo"] = f"unknown ({type(exc).__name__})"
-    return out
-
-
-def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
-    """A manifest of ``env.nets`` as the generated families have one: id, path, SHA-256,
-    and the junction each net is driven through (``junction`` or its default resolved).
-
-    Every net is read (:meth:`RoadMap.load`), so one that cannot be used stops the run
-    before it starts, in one line naming the file."""
-    import hashlib
-
-    from priqn.env.scenes import own_net_files
-    from priqn.sim.roadmap import RoadMap
-
-    return {
-        "family": "own",
-        "junction": junction,
-        "nets": [
-            {
-                "id": ref,
-                "path": str(path.resolve()),
-                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
-                "junction": RoadMap.load(path, junction=junction).junction_id,
-            }
-            for ref, path in own_net_files(nets).items()
-        ],
-    }
-
-
-def manifest_hashes(families: Sequence[str], nets_dir: str) -> dict[str, str]:
-    """Manifest hash per family; a family without generated nets is a one-line error."""
-    from priqn.sim.scenario import manifest_hash
-
-    root = Path(nets_dir) if nets_dir else None
-    return {fam: manifest_hash(fam, root) for fam in families}
 
 
 def _status_in(meta_path: Path) -> str | None:

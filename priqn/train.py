@@ -1,16 +1,20 @@
 """``priqn train``: train one agent of Table II into a self-describing run folder.
 
 Read :func:`_train_loop` top to bottom, CleanRL style: act (ε-greedy over the agent's
-acting rule) → issue the env step → learn while the env workers simulate → collect
-the step → store it → log; then evaluate on the hold-out nets and checkpoint on their
-intervals. The config is :mod:`priqn.train_config`; every file of the run folder goes
-through :class:`priqn.runs.RunFolder`; tqdm, TensorBoard and metrics.csv sit behind
-one :class:`TrainLogger`.
+acting rule) → step the env workers → learn while they simulate → collect the step and
+store it → log → evaluate on the hold-out nets → checkpoint, each a named call of
+:class:`Trainer`. Before the loop, :class:`Trainer` builds the network, learner, policy
+and replay buffer, :func:`_resume` restores a checkpoint and :class:`HoldoutEvaluation`
+starts its env worker. The config is :mod:`priqn.train_config`; every file of the run
+folder goes through :class:`priqn.runs.RunFolder`, in :mod:`priqn.checkpoint`'s format
+for the torch files; :mod:`priqn.provenance` gathers what meta.json records about the
+run's origin; tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import os
@@ -25,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.config import describe, flatten, to_dict
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
@@ -39,6 +44,7 @@ from priqn.train_config import (
     build_network,
     default_run_name,
     obs_spec,
+    policy_labels,
     resolve_config,
     select_device,
 )
@@ -145,6 +151,12 @@ class TrainLogger:
         self.bar.close()
         self.writer.close()
 
+    def __enter__(self) -> TrainLogger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
 
 def _postfix(episodes: int, recent: Sequence[Mapping[str, Any]], eps: float, ups: float) -> str:
     if not recent:
@@ -165,14 +177,20 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     Returns the run folder. meta.json says ``running`` while training, ``complete``
     when the budget is spent, ``failed`` (with the error) otherwise.
     """
+    from priqn import provenance
+    from priqn.agents.registry import make_agent
+
     run = RunFolder(run_dir)
     was_complete = resume and run.recorded_status() == "complete"
-    run.prepare(cfg, resume, force)
+    # Everything that can refuse the run comes before its folder is touched.
+    origin = provenance.gather(cfg)
+    agent = make_agent(cfg.agent.name, cfg.agent_config)  # the session's one agent
+    run.prepare(cfg, resume, force, origin, policy_labels(cfg, agent))
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
     failed_status = "complete" if was_complete else "failed"
     try:
-        _train_loop(cfg, run, resume)
+        _train_loop(cfg, run, agent, resume)
     except KeyboardInterrupt:
         run.update_meta(status=failed_status, error="interrupted (continue with --resume)")
         raise
@@ -185,238 +203,280 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     return run.path
 
 
-def _train_loop(cfg: TrainConfig, run: RunFolder, resume: bool) -> None:  # noqa: C901 - one loop
-    import torch
-
-    from priqn.agents.learner import Learner
-    from priqn.agents.policy import Policy, SubsetSizeMeans
-    from priqn.agents.registry import make_agent
-    from priqn.agents.replay import ReplayBuffer
+def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> None:
+    """One training session of ``run`` with ``agent``, from its checkpoint if ``resume``."""
     from priqn.env.vector import make_vector_env
 
     meta = run.meta()
     seeds: dict[str, int] = meta["seeds"]
     session = len(meta["sessions"]) - 1
-    if cfg.torch_threads > 0:
-        torch.set_num_threads(cfg.torch_threads)
-    device = select_device(cfg.device)
-    E = cfg.num_envs
-    weights = cfg.reward_weights
-
-    # --- env, agent, learner, replay -------------------------------------------------
-    envs = make_vector_env(cfg.env, E, seed=seeds["env"])
-    eval_envs = None
-    logger = None
-    try:
-        obs_space = envs.single_observation_space
-        num_actions = int(envs.single_action_space.n)
-        obs_shapes = {
-            k: (list(obs_space[k].shape), str(obs_space[k].dtype), float(np.max(obs_space[k].high)))
-            for k in obs_spec(obs_space)
-        }
-        agent = make_agent(cfg.agent.name, cfg.agent_config)
-        network = build_network(cfg, obs_space, num_actions, seeds["torch_init"])
-        learner = Learner(network, agent, cfg.learner, device, tau_seed=seeds["tau"])
-        policy = Policy(learner.online, agent, cfg.learner.num_quantiles, device)
-        replay = ReplayBuffer(
-            obs_spec(obs_space), E, cfg.replay.capacity, cfg.learner.n_step, cfg.learner.gamma
-        )
-        rng_replay = np.random.default_rng(seeds["replay"])
-        rng_act = np.random.default_rng(seeds["explore"])
-        step, episodes, wall_before = 0, 0, 0.0
-        run.update_meta(
-            replay_bytes_per_transition=replay.bytes_per_row(),
-            replay_bytes_total=replay.nbytes(),
-            device=str(device),
-            num_params=sum(p.numel() for p in learner.online.parameters()),
-            reward_weights=list(cfg.reward_weights),
-            crash_margin=round(cfg.crash_margin, 4),
-        )
-
-        resume_obs = None
-        if resume:
-            state = run.load_checkpoint(device)
-            learner.load_state_dict(state["learner"])
-            rng_replay.bit_generator.state = state["rng_replay"]
-            rng_act.bit_generator.state = state["rng_act"]
-            step, episodes, wall_before = state["step"], state["episodes"], state["wall_s"]
-            replay_file = run.replay_file(state)
-            if replay_file is not None:
-                try:
-                    replay.load_state_file(replay_file)
-                except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-                    raise PriqnError(
-                        f"{replay_file}: damaged or unreadable replay buffer "
-                        f"({type(exc).__name__}); the run cannot resume exactly: "
-                        "train it again with --force"
-                    ) from None
-                resume_obs = state["obs"]
-
+    device = _torch_device(cfg)
+    with contextlib.ExitStack() as stack:  # closes the logger and the env workers once
+        envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"])
+        stack.callback(envs.close)
+        t = Trainer(cfg, agent, envs, seeds, device)
+        run.update_meta(**t.facts())
+        resume_obs = _resume(run, t, device) if resume else None
         # Session 0: per-worker seeds derived from seeds["env"] by make_vector_env; a resume
         # reseeds from (seeds["env"], session) so it does not replay the first scenes.
         obs, _ = envs.reset(seed=_env_reset_seed(seeds["env"], session))
         if resume_obs is not None:
             # Episodes in flight at the checkpoint end there (truncated, bootstrapped).
-            replay.truncate_open_episodes(resume_obs)
-        logger = TrainLogger(cfg, run, step, resume)
+            t.replay.truncate_open_episodes(resume_obs)
+        evaluation = None
+        if cfg.evaluation.interval_steps > 0:
+            evaluation = stack.enter_context(HoldoutEvaluation(cfg, seeds["eval_env"]))
+        logger = stack.enter_context(TrainLogger(cfg, run, t.step, resume))
 
-        # --- the loop ------------------------------------------------------------------
-        last_loss = math.nan
-        last_stats: dict[str, float] = {}
-        subset_sizes = SubsetSizeMeans(E, policy.subset_size_names)
-        clock = SectionClock()  # where the wall time goes (meta.json time_s)
+        t.start()
+        while t.step < cfg.total_steps:
+            actions = t.act(obs)  # 1. act: the agent's acting rule, ε-greedy on top
+            t.issue(envs, actions)  # 2. step: the env workers simulate it meanwhile
+            landed = None if cfg.overlap_updates else t.collect(envs, obs, actions)
+            t.learn()  # 3. learn, while they simulate (serial: once the step has landed)
+            obs, ended, infos = landed or t.collect(envs, obs, actions)  # 4. collect, store
+            t.step += cfg.num_envs
+            t.log(logger, ended, infos)  # 5. log
+            if evaluation is not None and t.step >= t.next_eval:
+                t.evaluate(evaluation, logger)  # 6. evaluate greedily on the hold-out nets
+            if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
+                t.checkpoint(run, logger, obs)  # 7. checkpoint
+    _finish(run, t)
 
-        def learn(decisions: int) -> dict[str, float]:
-            """The updates due after ``decisions``; the last one's stats ({} if none)."""
-            stats: dict[str, float] = {}
-            if decisions < cfg.replay.learning_starts or len(replay) < cfg.learner.batch_size:
-                return stats
-            due = (decisions - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
-            while learner.updates < due:
-                with clock("replay_sample"):
-                    batch = replay.sample(cfg.learner.batch_size, rng_replay)
-                with clock("update"):
-                    stats = learner.update(batch)
-            return stats
 
-        t0 = time.perf_counter()
-        t_rate, upd_rate_at, upd_per_s = t0, learner.updates, 0.0
-        next_log = step + cfg.log_interval_steps
-        next_eval = _next_multiple(step, cfg.evaluation.interval_steps)
-        next_ckpt = _next_multiple(step, cfg.checkpoint.interval_steps)
-        while step < cfg.total_steps:
-            # 1. act: agent's acting rule, ε-greedy on top
-            with clock("act"):
-                epsilon = linear_epsilon(cfg.exploration, step, cfg.total_steps)
-                actions = policy.act(obs, rng_act)
-                subset_sizes.add(policy.last_subset_sizes)
-                explore = rng_act.random(E) < epsilon
-                actions = np.where(explore, rng_act.integers(num_actions, size=E), actions)
+class Trainer:
+    """The learning side of one training session, and the steps of its loop.
 
-            # 2. issue the env step: the workers simulate while this process learns
-            with clock("env_issue"):
-                envs.step_async(actions)
+    Built before the loop: the network, learner, greedy policy and replay buffer, then
+    the replay and exploration generators. :func:`_train_loop` calls :meth:`act`,
+    :meth:`issue`, :meth:`collect`, :meth:`learn`, :meth:`log`, :meth:`evaluate` and :meth:`checkpoint`
+    for every env step; ``step`` counts env decisions (all workers together).
+    """
 
-            # 3. learn: one update per decisions_per_update decisions after learning_starts,
-            # counted with this step's decisions. The batch comes from the transitions
-            # stored so far (not the E in flight); a resume without a saved replay buffer
-            # refills a batch's worth first.
-            if cfg.overlap_updates:
-                last_stats = learn(step + E) or last_stats
+    def __init__(
+        self, cfg: TrainConfig, agent: Any, envs: Any, seeds: Mapping[str, int], device: Any
+    ) -> None:
+        from priqn.agents.learner import Learner
+        from priqn.agents.policy import Policy, SubsetSizeMeans
+        from priqn.agents.replay import ReplayBuffer
 
-            # 4. collect the step (SAME_STEP autoreset: the true last obs is in final_obs)
-            # and store it
-            with clock("env_wait"):
-                next_obs, rewards, terminated, truncated, infos = envs.step_wait()
-            with clock("replay_add"):
-                ended = np.logical_or(terminated, truncated)
-                final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(E)]
-                replay.add(obs, actions, rewards, terminated, truncated, final_obs)
-            obs = next_obs
-            step += E
-            if not cfg.overlap_updates:
-                last_stats = learn(step) or last_stats
-            last_loss = last_stats.get("loss", math.nan)
-
-            # 5. log: finished episodes, progress, periodic scalars and metrics.csv
-            log_t0 = time.perf_counter()
-            wall = wall_before + log_t0 - t0
-            for e in np.flatnonzero(ended):
-                episodes += 1
-                info = final_info(infos, int(e))
-                row = metrics_row("train", episode_values(info), str(info["net"]), weights)
-                row.update(subset_sizes.pop(int(e)))
-                row.update(
-                    step=step,
-                    episode=episodes,
-                    wall_s=round(wall, 2),
-                    epsilon=round(epsilon, 4),
-                    updates=learner.updates,
-                    loss=round(last_loss, 5) if not math.isnan(last_loss) else "",
-                )
-                logger.episode(row, step)
-            if log_t0 - t_rate >= 5.0:
-                upd_per_s = (learner.updates - upd_rate_at) / (log_t0 - t_rate)
-                t_rate, upd_rate_at = log_t0, learner.updates
-            line = None
-            if ended.any() or step >= next_log:
-                line = _postfix(episodes, logger.recent, epsilon, upd_per_s)
-            logger.progress(E, line)
-            if line is not None and step >= next_log:
-                next_log = step + cfg.log_interval_steps
-                scalars = {"epsilon": epsilon, "updates_per_s": upd_per_s, **last_stats}
-                logger.interval(step, line, scalars)
-            clock.add("logging", time.perf_counter() - log_t0)
-
-            # 6. evaluate greedily on the hold-out nets
-            if cfg.evaluation.interval_steps > 0 and step >= next_eval:
-                with clock("evaluate"):
-                    next_eval = _next_multiple(step, cfg.evaluation.interval_steps)
-                    if eval_envs is None:
-                        eval_cfg = dataclasses.replace(
-                            cfg.env, family=cfg.evaluation.family, nets=()
-                        )
-                        eval_envs = make_vector_env(eval_cfg, 1, seed=seeds["eval_env"])
-                        eval_nets = family_net_refs(
-                            cfg.evaluation.family,
-                            Path(cfg.env.nets_dir) if cfg.env.nets_dir else None,
-                        )
-                    rows = _evaluate(
-                        eval_envs, policy, cfg, step, seeds["eval_env"], weights, eval_nets
-                    )
-                    for r in rows:
-                        r.update(step=step, wall_s=round(wall, 2), updates=learner.updates)
-                    logger.evaluation(rows, step)
-
-            # 7. checkpoint
-            if step >= next_ckpt or step >= cfg.total_steps:
-                with clock("checkpoint"):
-                    next_ckpt = _next_multiple(step, cfg.checkpoint.interval_steps)
-                    wall = wall_before + time.perf_counter() - t0
-                    state = {
-                        "step": step,
-                        "episodes": episodes,
-                        "wall_s": wall,
-                        "learner": learner.state_dict(),
-                        "rng_replay": rng_replay.bit_generator.state,
-                        "rng_act": rng_act.bit_generator.state,
-                        "obs": {k: np.array(v) for k, v in obs.items()},
-                        "obs_shapes": obs_shapes,
-                        "num_actions": num_actions,
-                        "config": to_dict(cfg),
-                    }
-                    run.save_checkpoint(state, replay, cfg.checkpoint.save_replay)
-                    logger.checkpoint()
-                    run.update_meta(steps_done=step, episodes_done=episodes, wall_s=round(wall, 1))
-        logger.close()
-        # The final policy alone (online weights + the agent's learned state, a few MB):
-        # what a committed result folder keeps instead of checkpoints and replay.
-        run.save_policy(
-            {
-                "online": learner.online.state_dict(),
-                "agent": learner.agent.state_dict(),
-                "obs_shapes": obs_shapes,
-                "num_actions": num_actions,
-                "step": step,
-            }
+        self.cfg, self.num_envs, self.weights = cfg, cfg.num_envs, cfg.reward_weights
+        obs_space = envs.single_observation_space
+        self.num_actions = int(envs.single_action_space.n)
+        self.obs_shapes = {
+            k: (list(obs_space[k].shape), str(obs_space[k].dtype), float(np.max(obs_space[k].high)))
+            for k in obs_spec(obs_space)
+        }
+        network = build_network(cfg, obs_space, self.num_actions, seeds["torch_init"], agent)
+        self.learner = Learner(network, agent, cfg.learner, device, tau_seed=seeds["tau"])
+        self.policy = Policy(self.learner.online, agent, cfg.learner.num_quantiles, device)
+        self.replay = ReplayBuffer(
+            obs_spec(obs_space),
+            self.num_envs,
+            cfg.replay.capacity,
+            cfg.learner.n_step,
+            cfg.learner.gamma,
         )
-        time_s = clock.totals()
-        if agent.subsets is not None:  # inside "act" and "update"
-            time_s["algorithm1"] = round(agent.subsets.seconds, 4)
-        run.update_meta(
-            time_s=time_s,
-            status="complete",
-            steps_done=step,
-            episodes_done=episodes,
-            updates_done=learner.updates,
-            finished=datetime.now(UTC).isoformat(timespec="seconds"),
+        self.rng_replay = np.random.default_rng(seeds["replay"])
+        self.rng_act = np.random.default_rng(seeds["explore"])
+        self.subset_sizes = SubsetSizeMeans(self.num_envs, self.policy.subset_size_names)
+        self.clock = SectionClock()  # where the wall time goes (meta.json time_s)
+        self.step, self.episodes, self.wall_before = 0, 0, 0.0
+        self.epsilon, self.wall = cfg.exploration.eps_start, 0.0
+        self.last_stats: dict[str, float] = {}
+
+    def facts(self) -> dict[str, Any]:
+        """What meta.json records about this session's learner and replay buffer."""
+        return {
+            "replay_bytes_per_transition": self.replay.bytes_per_row(),
+            "replay_bytes_total": self.replay.nbytes(),
+            "device": str(self.learner.device),
+            "num_params": sum(p.numel() for p in self.learner.online.parameters()),
+            "reward_weights": list(self.weights),
+            "crash_margin": round(self.cfg.crash_margin, 4),
+        }
+
+    def start(self) -> None:
+        """Start the wall clock and the log / evaluation / checkpoint schedules at ``step``."""
+        cfg = self.cfg
+        self.t0 = time.perf_counter()
+        self.t_rate, self.updates_at_rate, self.updates_per_s = self.t0, self.learner.updates, 0.0
+        self.next_log = self.step + cfg.log_interval_steps
+        self.next_eval = _next_multiple(self.step, cfg.evaluation.interval_steps)
+        self.next_ckpt = _next_multiple(self.step, cfg.checkpoint.interval_steps)
+
+    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Actions ``[E]``: the agent's acting rule, replaced by a uniform one with
+        probability ε (:func:`linear_epsilon` at ``step``)."""
+        E = self.num_envs
+        with self.clock("act"):
+            self.epsilon = linear_epsilon(self.cfg.exploration, self.step, self.cfg.total_steps)
+            actions = self.policy.act(obs, self.rng_act)
+            self.subset_sizes.add(self.policy.last_subset_sizes)
+            explore = self.rng_act.random(E) < self.epsilon
+            return np.where(explore, self.rng_act.integers(self.num_actions, size=E), actions)
+
+    def issue(self, envs: Any, actions: np.ndarray) -> None:
+        """Send ``actions`` to the env workers, which simulate the step in the background."""
+        with self.clock("env_issue"):
+            envs.step_async(actions)
+
+    def collect(
+        self, envs: Any, obs: Mapping[str, np.ndarray], actions: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+        """Wait for the step issued with ``actions`` and store its transitions; returns
+        (next observations, ended ``[E]`` bool, infos). SAME_STEP autoreset: an ended
+        episode's true last observation is in ``final_obs``."""
+        with self.clock("env_wait"):
+            next_obs, rewards, terminated, truncated, infos = envs.step_wait()
+        with self.clock("replay_add"):
+            ended = np.logical_or(terminated, truncated)
+            final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(len(ended))]
+            self.replay.add(obs, actions, rewards, terminated, truncated, final_obs)
+        return next_obs, ended, infos
+
+    def learn(self) -> None:
+        """The updates due once this step's decisions count: one per decisions_per_update
+        decisions after learning_starts. The batch comes from the transitions stored so
+        far (not the E in flight); a resume without a saved replay buffer refills a
+        batch's worth first. ``last_stats``: the last update's statistics."""
+        cfg = self.cfg
+        decisions = self.step + self.num_envs
+        if decisions < cfg.replay.learning_starts or len(self.replay) < cfg.learner.batch_size:
+            return
+        due = (decisions - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
+        stats: dict[str, float] = {}
+        while self.learner.updates < due:
+            with self.clock("replay_sample"):
+                batch = self.replay.sample(cfg.learner.batch_size, self.rng_replay)
+            with self.clock("update"):
+                stats = self.learner.update(batch)
+        self.last_stats = stats or self.last_stats
+
+    def log(self, logger: TrainLogger, ended: np.ndarray, infos: Mapping[str, Any]) -> None:
+        """The ended episodes (metrics.csv, TensorBoard), the progress bar and, every
+        log_interval_steps, the training scalars."""
+        log_t0 = time.perf_counter()
+        self.wall = self.wall_before + log_t0 - self.t0
+        last_loss = self.last_stats.get("loss", math.nan)
+        for e in np.flatnonzero(ended):
+            self.episodes += 1
+            info = final_info(infos, int(e))
+            row = metrics_row("train", episode_values(info), str(info["net"]), self.weights)
+            row.update(self.subset_sizes.pop(int(e)))
+            row.update(
+                step=self.step,
+                episode=self.episodes,
+                wall_s=round(self.wall, 2),
+                epsilon=round(self.epsilon, 4),
+                updates=self.learner.updates,
+                loss=round(last_loss, 5) if not math.isnan(last_loss) else "",
+            )
+            logger.episode(row, self.step)
+        if log_t0 - self.t_rate >= 5.0:
+            self.updates_per_s = (self.learner.updates - self.updates_at_rate) / (
+                log_t0 - self.t_rate
+            )
+            self.t_rate, self.updates_at_rate = log_t0, self.learner.updates
+        line = None
+        if ended.any() or self.step >= self.next_log:
+            line = _postfix(self.episodes, logger.recent, self.epsilon, self.updates_per_s)
+        logger.progress(self.num_envs, line)
+        if line is not None and self.step >= self.next_log:
+            self.next_log = self.step + self.cfg.log_interval_steps
+            scalars = {"epsilon": self.epsilon, "updates_per_s": self.updates_per_s}
+            logger.interval(self.step, line, {**scalars, **self.last_stats})
+        self.clock.add("logging", time.perf_counter() - log_t0)
+
+    def evaluate(self, evaluation: HoldoutEvaluation, logger: TrainLogger) -> None:
+        """Greedy episodes on the hold-out nets, logged as ``eval`` rows."""
+        with self.clock("evaluate"):
+            self.next_eval = _next_multiple(self.step, self.cfg.evaluation.interval_steps)
+            rows = evaluation.run(self.policy, self.step, self.weights)
+            for r in rows:
+                r.update(step=self.step, wall_s=round(self.wall, 2), updates=self.learner.updates)
+            logger.evaluation(rows, self.step)
+
+    def checkpoint(self, run: RunFolder, logger: TrainLogger, obs: Mapping[str, Any]) -> None:
+        """checkpoints/latest.pt (+ the replay buffer), metrics and meta.json's progress."""
+        with self.clock("checkpoint"):
+            self.next_ckpt = _next_multiple(self.step, self.cfg.checkpoint.interval_steps)
+            wall = self.wall_before + time.perf_counter() - self.t0
+            state = Checkpoint(
+                step=self.step,
+                episodes=self.episodes,
+                wall_s=wall,
+                learner=self.learner.state_dict(),
+                rng_replay=self.rng_replay.bit_generator.state,
+                rng_act=self.rng_act.bit_generator.state,
+                obs={k: np.array(v) for k, v in obs.items()},
+                obs_shapes=self.obs_shapes,
+                num_actions=self.num_actions,
+                config=to_dict(self.cfg),
+            )
+            run.save_checkpoint(state, self.replay, self.cfg.checkpoint.save_replay)
+            logger.checkpoint()
+            run.update_meta(
+                steps_done=self.step, episodes_done=self.episodes, wall_s=round(wall, 1)
+            )
+
+
+def _torch_device(cfg: TrainConfig) -> Any:
+    """The torch device of ``cfg`` (and torch's CPU threads set to cfg.torch_threads)."""
+    import torch
+
+    if cfg.torch_threads > 0:
+        torch.set_num_threads(cfg.torch_threads)
+    return select_device(cfg.device)
+
+
+def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | None:
+    """Restore the latest checkpoint into ``t``: the learner, both generators, the counters
+    and the replay buffer when it was saved. Returns the observations at the checkpoint
+    when the buffer was restored (its open episodes end there), else None."""
+    state = run.load_checkpoint(device)
+    t.learner.load_state_dict(state.learner)
+    t.rng_replay.bit_generator.state = state.rng_replay
+    t.rng_act.bit_generator.state = state.rng_act
+    t.step, t.episodes, t.wall_before = state.step, state.episodes, state.wall_s
+    replay_file = run.replay_file(state)
+    if replay_file is None:
+        return None
+    try:
+        t.replay.load_state_file(replay_file)
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise PriqnError(
+            f"{replay_file}: damaged or unreadable replay buffer "
+            f"({type(exc).__name__}); the run cannot resume exactly: "
+            "train it again with --force"
+        ) from None
+    return state.obs
+
+
+def _finish(run: RunFolder, t: Trainer) -> None:
+    """policy.pt and meta.json's final record (status complete) of a finished session."""
+    # The final policy alone (online weights + the agent's learned state, a few MB):
+    # what a committed result folder keeps instead of checkpoints and replay.
+    run.save_policy(
+        PolicyState(
+            online=t.learner.online.state_dict(),
+            agent=t.learner.agent.state_dict(),
+            obs_shapes=t.obs_shapes,
+            num_actions=t.num_actions,
+            step=t.step,
         )
-    finally:
-        if logger is not None:
-            logger.close()
-        envs.close()
-        if eval_envs is not None:
-            eval_envs.close()
+    )
+    time_s = t.clock.totals()
+    if t.learner.agent.subsets is not None:  # inside "act" and "update"
+        time_s["algorithm1"] = round(t.learner.agent.subsets.seconds, 4)
+    run.update_meta(
+        time_s=time_s,
+        status="complete",
+        steps_done=t.step,
+        episodes_done=t.episodes,
+        updates_done=t.learner.updates,
+        finished=datetime.now(UTC).isoformat(timespec="seconds"),
+    )
 
 
 def _next_multiple(step: int, interval: int) -> int:
@@ -425,42 +485,57 @@ def _next_multiple(step: int, interval: int) -> int:
     return (step // interval + 1) * interval
 
 
-def _evaluate(
-    envs: Any,
-    policy: Any,
-    cfg: TrainConfig,
-    step: int,
-    eval_seed: int,
-    weights: Sequence[float],
-    nets: Sequence[str],
-) -> list[dict[str, Any]]:
-    """Greedy episodes on the hold-out ``nets``, played by the evaluation's own rollout
-    (:func:`priqn.evaluate.run_scenes`); the scenes depend only on ``eval_seed`` and ``step``."""
-    from priqn.evaluate import Scene, run_scenes
+class HoldoutEvaluation:
+    """Greedy episodes on the hold-out nets during training, on one env worker of its own
+    (started before the loop, reused by every evaluation; a context manager that closes it).
 
-    rng = np.random.default_rng([eval_seed, step])
-    scenes = [
-        Scene(
-            eval_run=0,
-            net=str(nets[int(rng.integers(len(nets)))]),
-            density=float(cfg.env.densities[int(rng.integers(len(cfg.env.densities)))]),
-            episode=i,
-            reset_seed=int(rng.integers(2**31)),
-            act_seed=int(rng.integers(2**31)),
-            command=None,
-        )
-        for i in range(cfg.evaluation.episodes)
-    ]
-    rows: list[dict[str, Any]] = []
+    The scenes of an evaluation depend only on the eval seed and the step, and are
+    played by the evaluation's own rollout (:func:`priqn.evaluate.run_scenes`).
+    """
 
-    def on_episode(scene: Any, values: dict[str, Any]) -> None:
-        row = metrics_row("eval", values, scene.net, weights)
-        row.update({k: values[k] for k in SUBSET_COLUMNS if k in values})  # preorder agents
-        row.update(episode=scene.episode + 1, epsilon=0.0, loss="")
-        rows.append(row)
+    def __init__(self, cfg: TrainConfig, seed: int) -> None:
+        from priqn.env.vector import make_vector_env
 
-    run_scenes(policy, envs, scenes, on_episode)
-    return sorted(rows, key=lambda r: r["episode"])
+        self.cfg, self.seed = cfg, seed
+        root = Path(cfg.env.nets_dir) if cfg.env.nets_dir else None
+        self.nets = family_net_refs(cfg.evaluation.family, root)
+        env_cfg = dataclasses.replace(cfg.env, family=cfg.evaluation.family, nets=())
+        self.envs = make_vector_env(env_cfg, 1, seed=seed)
+
+    def __enter__(self) -> HoldoutEvaluation:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.envs.close()
+
+    def run(self, policy: Any, step: int, weights: Sequence[float]) -> list[dict[str, Any]]:
+        """metrics.csv rows (kind eval, in episode order) of evaluation.episodes episodes."""
+        from priqn.evaluate import Scene, run_scenes
+
+        cfg = self.cfg
+        rng = np.random.default_rng([self.seed, step])
+        scenes = [
+            Scene(
+                eval_run=0,
+                net=str(self.nets[int(rng.integers(len(self.nets)))]),
+                density=float(cfg.env.densities[int(rng.integers(len(cfg.env.densities)))]),
+                episode=i,
+                reset_seed=int(rng.integers(2**31)),
+                act_seed=int(rng.integers(2**31)),
+                command=None,
+            )
+            for i in range(cfg.evaluation.episodes)
+        ]
+        rows: list[dict[str, Any]] = []
+
+        def on_episode(scene: Any, values: dict[str, Any]) -> None:
+            row = metrics_row("eval", values, scene.net, weights)
+            row.update({k: values[k] for k in SUBSET_COLUMNS if k in values})  # preorder agents
+            row.update(episode=scene.episode + 1, epsilon=0.0, loss="")
+            rows.append(row)
+
+        run_scenes(policy, self.envs, scenes, on_episode)
+        return sorted(rows, key=lambda r: r["episode"])
 
 
 # ============================================================================ CLI

@@ -243,10 +243,11 @@ def resolve_config(
 
 
 def _validate_names(cfg: TrainConfig) -> None:
-    """Unknown agent / comparator / preorder → one line before anything starts."""
-    from priqn.agents.registry import make_agent
+    """Unknown agent / comparator / preorder → one line before anything starts (checked
+    without building the agent: :func:`priqn.train.train` builds it once)."""
+    from priqn.agents.registry import check_agent
 
-    make_agent(cfg.agent.name, cfg.agent_config)
+    check_agent(cfg.agent.name, cfg.agent_config)
 
 
 def derive_seeds(seed: int) -> dict[str, int]:
@@ -259,11 +260,15 @@ def derive_seeds(seed: int) -> dict[str, int]:
     }
 
 
-def policy_labels(cfg: TrainConfig) -> dict[str, Any]:
-    """Table II labels of a run (:class:`priqn.labels.PolicyLabel` row) plus ``train_seed``."""
+def policy_labels(cfg: TrainConfig, agent: Any = None) -> dict[str, Any]:
+    """Table II labels of a run (:class:`priqn.labels.PolicyLabel` row) plus ``train_seed``.
+
+    ``agent``: the run's agent when already built (else it is built here)."""
     from priqn.agents.registry import make_agent
 
-    labels = make_agent(cfg.agent.name, cfg.agent_config).labels
+    if agent is None:
+        agent = make_agent(cfg.agent.name, cfg.agent_config)
+    labels = agent.labels
     labels["train_seed"] = cfg.seed
     return labels
 
@@ -318,14 +323,19 @@ def obs_scales(space: Any) -> dict[str, float]:
     return {k: 1.0 / max(1.0, float(np.max(space[k].high))) for k in ("bev", "lidar")}
 
 
-def build_network(cfg: TrainConfig, obs_space: Any, num_actions: int, seed: int) -> Any:
-    """The run's QuantileNetwork, initialised from ``seed`` (global torch RNG untouched)."""
+def build_network(
+    cfg: TrainConfig, obs_space: Any, num_actions: int, seed: int, agent: Any = None
+) -> Any:
+    """The run's QuantileNetwork, initialised from ``seed`` (global torch RNG untouched);
+    ``agent``: the run's agent when already built (it gives the number of heads)."""
     import torch
 
     from priqn.agents.network import QuantileNetwork
     from priqn.agents.registry import make_agent
 
-    heads = make_agent(cfg.agent.name, cfg.agent_config).num_heads
+    if agent is None:
+        agent = make_agent(cfg.agent.name, cfg.agent_config)
+    heads = agent.num_heads
     spec = obs_spec(obs_space)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

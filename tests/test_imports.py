@@ -132,3 +132,14 @@ def test_sweep_package_imports_run_one_way() -> None:
         assert not later, f"{mod} imports {later} (order: {' -> '.join(SWEEP_LAYERS)})"
     child = graph["priqn.sweep.child"]
     assert not child & {"priqn.sweep", "priqn.sweep.scheduler", "priqn.sweep.cli"}, child
+
+
+def test_the_run_folder_knows_only_files() -> None:
+    """runs.py is handed provenance (priqn.provenance) and never reads a net or asks SUMO;
+    the checkpoint format stays torch-free at import (analysis reads run folders)."""
+    graph = import_graph()
+    below = sorted(d for d in graph["priqn.runs"] if d.startswith(("priqn.sim", "priqn.env")))
+    assert not below, f"priqn.runs imports {below}"
+    assert "priqn.checkpoint" in graph["priqn.runs"] and "priqn.checkpoint" in graph["priqn.train"]
+    text = _modules()["priqn.checkpoint"].read_text(encoding="utf-8")
+    assert "\nimport torch" not in text, "priqn.checkpoint imports torch at module level"

@@ -141,14 +141,18 @@ def test_env_drives_an_own_net(own: Path) -> None:
 def test_train_net_file_records_the_nets_with_their_hashes(own: Path, tmp_path: Path) -> None:
     import hashlib
 
-    from priqn.runs import RunFolder, own_nets_manifest
-    from priqn.train_config import default_run_name, resolve_config
+    from priqn.provenance import gather, own_nets_manifest
+    from priqn.runs import RunFolder
+    from priqn.train_config import default_run_name, policy_labels, resolve_config
+
+    def prepare(run: RunFolder, cfg, resume: bool) -> dict:
+        return run.prepare(cfg, resume, False, gather(cfg), policy_labels(cfg))
 
     cfg = resolve_config(net=str(own / "grid.net.xml"), overrides=["env.junction=B"])
     assert cfg.env.nets == (str((own / "grid.net.xml").resolve()),)
     assert default_run_name(cfg).startswith("grid_pr-iqn_")
     run = RunFolder(tmp_path / "run")
-    meta = run.prepare(cfg, resume=False, force=False)
+    meta = prepare(run, cfg, resume=False)
     manifest = json.loads(run.nets_manifest_path.read_text())
     sha = hashlib.sha256((own / "grid.net.xml").read_bytes()).hexdigest()
     assert manifest["junction"] == "B"
@@ -166,9 +170,7 @@ def test_train_net_file_records_the_nets_with_their_hashes(own: Path, tmp_path: 
     assert own_nets_manifest(default.env.nets, "")["nets"][0]["junction"] == "A"
     # A net that cannot be used stops the run before its folder is made.
     with pytest.raises(PriqnError, match=r"road\.net\.xml: no intersection"):
-        RunFolder(tmp_path / "bad").prepare(
-            resolve_config(net=str(own / "road.net.xml")), resume=False, force=False
-        )
+        prepare(RunFolder(tmp_path / "bad"), resolve_config(net=str(own / "road.net.xml")), False)
     assert not (tmp_path / "bad").exists()
     # A resume after a net file changed is refused in one line.
     run.latest_checkpoint.parent.mkdir(parents=True, exist_ok=True)
@@ -177,7 +179,7 @@ def test_train_net_file_records_the_nets_with_their_hashes(own: Path, tmp_path: 
     (own / "grid.net.xml").write_bytes(original + b"\n")
     try:
         with pytest.raises(PriqnError, match="a net of env.nets changed since the run started"):
-            run.prepare(cfg, resume=True, force=False)
+            prepare(run, cfg, resume=True)
     finally:
         (own / "grid.net.xml").write_bytes(original)
     with pytest.raises(PriqnError, match="--net: .*nope.net.xml: no such file or folder"):

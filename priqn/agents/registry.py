@@ -142,18 +142,33 @@ class Agent:
         return None if self.subsets is None else not self.subsets.preorder.is_chain()
 
 
-def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> Agent:
-    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``).
-
-    Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.
-    """
+def _resolve(
+    name: str, cfg: AgentConfig | None, overrides: dict[str, Any]
+) -> tuple[AgentConfig, AgentSpec, Any]:
+    """The agent's config, spec and preorder (None without one), checked: unknown names,
+    comparators and preorders raise a one-line :class:`PriqnError`."""
     cfg = dataclasses.replace(cfg or AgentConfig(), name=name, **overrides)
     spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg)
-    subsets = None
+    preorder = None
     if spec.uses_preorder:
         if cfg.comparator not in COMPARATORS:  # checked here: a one-line error before training
             raise PriqnError(
                 f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATORS)})"
             )
-        subsets = PreorderSubsets(load_preorder(cfg.preorder), cfg)
+        preorder = load_preorder(cfg.preorder)
+    return cfg, spec, preorder
+
+
+def check_agent(name: str, cfg: AgentConfig | None = None) -> None:
+    """Raise the one-line :class:`PriqnError` :func:`make_agent` would, without building it."""
+    _resolve(name, cfg, {})
+
+
+def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> Agent:
+    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``).
+
+    Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.
+    """
+    cfg, spec, preorder = _resolve(name, cfg, overrides)
+    subsets = None if preorder is None else PreorderSubsets(preorder, cfg)
     return Agent(name, cfg, spec, subsets)

@@ -1,0 +1,119 @@
+"""Where a training session comes from: what its run folder records about its origin.
+
+:func:`gather` asks the layers that own each fact — the scenario manifests
+(:mod:`priqn.sim.scenario`), your own nets (:mod:`priqn.env.scenes`,
+:mod:`priqn.sim.roadmap`), SUMO (:mod:`priqn.sim.sumo`), git and the installed packages —
+and returns a :class:`priqn.runs.Provenance`, which :func:`priqn.train.train` hands to
+:meth:`priqn.runs.RunFolder.prepare`; the run folder only writes it. Everything here
+that can refuse a run (a family without generated nets, a net that cannot be used) runs
+before the run folder is touched.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+import subprocess
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.runs import Provenance
+
+
+def gather(cfg: Any) -> Provenance:
+    """The provenance of a session training ``cfg`` (a :class:`~priqn.train_config.TrainConfig`):
+    git commit, versions, the manifest hash of every family it reads and, with ``env.nets``,
+    the manifest of those nets (its hash under ``"own"``)."""
+    from priqn.sim.scenario import hash_of_manifest
+    from priqn.train_config import pool_families
+
+    pool = set() if cfg.env.nets else set(pool_families(cfg.env.family))
+    hashes = manifest_hashes(sorted(pool | {cfg.evaluation.family}), cfg.env.nets_dir)
+    own_nets = own_nets_manifest(cfg.env.nets, cfg.env.junction) if cfg.env.nets else None
+    if own_nets is not None:
+        hashes["own"] = hash_of_manifest(own_nets)
+    return Provenance(
+        git_sha=git_sha(), versions=versions(), manifest_hashes=hashes, own_nets=own_nets
+    )
+
+
+def git_sha(root: Path | None = None) -> str:
+    """The git commit (``-dirty`` if changed) of the checkout at ``root`` (default: this
+    priqn's); "not a checkout" if installed."""
+    from priqn.paths import PACKAGE_DIR
+
+    root = Path(root) if root is not None else PACKAGE_DIR.parent
+    if not (root / ".git").exists():
+        return "not a checkout"
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha or "unknown") + ("-dirty" if dirty else "")
+
+
+def versions() -> dict[str, str]:
+    """Versions of priqn, Python, torch, numpy, gymnasium and SUMO (SUMO's never fatal)."""
+    import gymnasium
+    import torch
+
+    import priqn
+
+    out = {
+        "priqn": priqn.__version__,
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "gymnasium": gymnasium.__version__,
+    }
+    try:
+        from priqn.sim.sumo import sumo_version
+
+        out["sumo"] = sumo_version()
+    except Exception as exc:  # noqa: BLE001 - recorded, never fatal
+        out["sumo"] = f"unknown ({type(exc).__name__})"
+    return out
+
+
+def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
+    """A manifest of ``env.nets`` as the generated families have one: id, path, SHA-256,
+    and the junction each net is driven through (``junction`` or its default resolved).
+
+    Every net is read (:meth:`RoadMap.load`), so one that cannot be used stops the run
+    before it starts, in one line naming the file."""
+    from priqn.env.scenes import own_net_files
+    from priqn.sim.roadmap import RoadMap
+
+    return {
+        "family": "own",
+        "junction": junction,
+        "nets": [
+            {
+                "id": ref,
+                "path": str(path.resolve()),
+                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+                "junction": RoadMap.load(path, junction=junction).junction_id,
+            }
+            for ref, path in own_net_files(nets).items()
+        ],
+    }
+
+
+def manifest_hashes(families: Sequence[str], nets_dir: str) -> dict[str, str]:
+    """Manifest hash per family; a family without generated nets is a one-line error."""
+    from priqn.sim.scenario import manifest_hash
+
+    root = Path(nets_dir) if nets_dir else None
+    return {fam: manifest_hash(fam, root) for fam in families}
