@@ -18,6 +18,15 @@ OUTCOME_PRECEDENCE: tuple[str, ...] = ("collision", "off_road", "timeout", "succ
 road (the same decision) counts as a collision only, so the outcome rates sum to 1."""
 
 
+def one_outcome(flags: Mapping[str, bool]) -> dict[str, bool]:
+    """The episode's flags with only the first set one (:data:`OUTCOME_PRECEDENCE`) kept."""
+    out, earlier = {}, False
+    for flag in OUTCOME_PRECEDENCE:
+        out[flag] = bool(flags[flag]) and not earlier
+        earlier |= out[flag]
+    return out
+
+
 def resolve_outcomes(episodes: Any) -> Any:
     """A copy of an episode table (pandas) whose flags obey :data:`OUTCOME_PRECEDENCE`.
 
@@ -52,7 +61,11 @@ def final_info(infos: Mapping[str, Any], i: int) -> dict[str, Any]:
 
 def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
     """An ended episode's outcome from its final info: flags, progress, realised density,
-    length (``steps``), ``return_<objective>`` and the route command (if given)."""
+    length (``steps``), ``return_<objective>`` and the route command (if given).
+
+    Exactly one of the outcome flags is set (:func:`one_outcome`): the env may report a
+    collision and leaving the road in the same decision; the episode counts as a collision.
+    """
     missing = [
         k
         for k in ("success", "collision", "off_road", "timeout", "route_progress", "returns")
@@ -65,11 +78,9 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
         raise RuntimeError(
             f"info['returns'] has shape {returns.shape}, expected ({len(OBJECTIVES)},)"
         )
+    flags = one_outcome({k: bool(info[k]) for k in OUTCOME_PRECEDENCE})
     values = {
-        "success": bool(info["success"]),
-        "collision": bool(info["collision"]),
-        "off_road": bool(info["off_road"]),
-        "timeout": bool(info["timeout"]),
+        **{k: flags[k] for k in ("success", "collision", "off_road", "timeout")},
         "route_progress": float(info["route_progress"]),
         "density_realised": float(info.get("density_realised", np.nan)),
         "steps": int(info.get("episode_steps", -1)),

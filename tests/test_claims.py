@@ -467,3 +467,28 @@ def test_welch_p_and_the_default_test_by_hand() -> None:
     p, p_perm, p_welch = inference.seed_test(a, b)
     # The permutation test: 0.5 lies below all three, p = 2/20; the larger p counts.
     assert (p_perm, p) == (Fraction(1, 10), Fraction(p_welch))
+
+
+def test_one_outcome_per_episode() -> None:
+    """Collision > off-road > timeout > success, live and for committed tables."""
+    from priqn.episodes import OUTCOME_PRECEDENCE, one_outcome, resolve_outcomes
+
+    both = {"success": False, "collision": True, "off_road": True, "timeout": False}
+    assert one_outcome(both) == {
+        "collision": True,
+        "off_road": False,
+        "timeout": False,
+        "success": False,
+    }
+    table = pd.DataFrame(
+        [
+            {"success": False, "collision": True, "off_road": True, "timeout": False},
+            {"success": False, "collision": False, "off_road": True, "timeout": False},
+            {"success": False, "collision": False, "off_road": False, "timeout": True},
+            {"success": True, "collision": False, "off_road": False, "timeout": False},
+        ]
+    )
+    fixed = resolve_outcomes(table)
+    assert (fixed[list(OUTCOME_PRECEDENCE)].sum(axis=1) == 1).all()
+    assert list(fixed["off_road"]) == [False, True, False, False]
+    assert table.loc[0, "off_road"]  # the input is not changed
