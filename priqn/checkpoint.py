@@ -26,6 +26,7 @@ import numpy as np
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_torch_save, torch_load
+from priqn.objectives import OBJECTIVES
 
 REMEDY = "delete the run folder's checkpoints/ and train again with --force"
 """What to do about a damaged checkpoint (the end of its one-line error)."""
@@ -45,8 +46,13 @@ class PolicyState:
     """Size of the discrete action space."""
     step: int
     """Env decisions trained."""
+    objectives: list[str] = dataclasses.field(default_factory=lambda: list(OBJECTIVES))
+    """The objective names the heads were trained for (``env.objectives`` resolved)."""
 
-    OPTIONAL: ClassVar[dict[str, Callable[[], Any]]] = {"agent": dict}
+    OPTIONAL: ClassVar[dict[str, Callable[[], Any]]] = {
+        "agent": dict,
+        "objectives": lambda: list(OBJECTIVES),
+    }
     """Keys an older file may lack, with the factory of their default."""
 
 
@@ -79,10 +85,13 @@ class Checkpoint:
     """Name of the replay buffer file saved with it, in the same folder (None: none)."""
     torch_version: str = ""
     """torch that wrote the file (filled by :func:`save`)."""
+    objectives: list[str] = dataclasses.field(default_factory=lambda: list(OBJECTIVES))
+    """The run's objective names (reward-vector and per-objective head order)."""
 
     OPTIONAL: ClassVar[dict[str, Callable[[], Any]]] = {
         "replay_file": lambda: None,
         "torch_version": str,
+        "objectives": lambda: list(OBJECTIVES),
     }
     """Keys an older file may lack, with the factory of their default."""
 
@@ -94,6 +103,7 @@ class Checkpoint:
             obs_shapes=self.obs_shapes,
             num_actions=self.num_actions,
             step=self.step,
+            objectives=list(self.objectives),
         )
 
 

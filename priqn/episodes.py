@@ -74,9 +74,11 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
     if missing:
         raise RuntimeError(f"environment info lacks {missing} (see docs/ARCHITECTURE.md, info)")
     returns = np.asarray(info["returns"], dtype=np.float64).reshape(-1)
-    if returns.shape != (len(OBJECTIVES),):
+    names = tuple(info.get("reward_names", OBJECTIVES))  # the env's declared objectives
+    if returns.shape != (len(names),):
         raise RuntimeError(
-            f"info['returns'] has shape {returns.shape}, expected ({len(OBJECTIVES)},)"
+            f"info['returns'] has shape {returns.shape}, expected ({len(names)},) "
+            f"for objectives {', '.join(names)}"
         )
     flags = one_outcome({k: bool(info[k]) for k in OUTCOME_PRECEDENCE})
     values = {
@@ -85,7 +87,7 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
         "density_realised": float(info.get("density_realised", np.nan)),
         "steps": int(info.get("episode_steps", -1)),
     }
-    values.update({f"return_{name}": float(v) for name, v in zip(OBJECTIVES, returns, strict=True)})
+    values.update({f"return_{name}": float(v) for name, v in zip(names, returns, strict=True)})
     if "command" in info and info["command"] is not None:
         values["command"] = str(info["command"])
     return values

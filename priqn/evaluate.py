@@ -21,6 +21,12 @@ evaluation refuses to mix (``--force`` starts over).
 
 ``--acting near-greedy`` evaluates the greedy baselines once more, acting at random
 among their near-best actions (the acting-randomness control), into ``eval-near-greedy/``.
+
+``--nets PATH ...`` plays the same protocol on your own ``.net.xml`` files (checked before
+any episode) into ``eval-nets-<hash>/`` beside ``eval/`` (the generalisation table of
+``priqn report``). ``--reference sumo|random --out DIR`` evaluates a reference driver
+(SUMO's own driver models, or uniform random actions) on the same scenes into ``DIR/eval/``
+(``priqn report --reference DIR``).
 """
 
 from __future__ import annotations
@@ -41,43 +47,43 @@ from priqn.config import apply_overrides, config_differences, from_dict, load_to
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text, read_json
-from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
-from priqn.runs import RunFolder
+from priqn.labels import CONFIG_COLUMNS
+from priqn.objectives import OBJECTIVES, names_in_columns, return_columns, subset_columns
+from priqn.runs import RunFolder, Status
 
-LABEL_KEYS: tuple[str, ...] = (
-    "agent",
-    "comparator",
-    "train_preorder",
-    "eps",
-    "partial_order",
-    "train_seed",
-    "label",
-)
+LABEL_KEYS: tuple[str, ...] = (*CONFIG_COLUMNS, "train_seed", "label")
 """Keys of ``Policy.labels`` copied into every episode row."""
 
-EPISODE_COLUMNS: tuple[str, ...] = (
-    "run",
-    "label",
-    *(key for key in LABEL_KEYS if key != "label"),
-    "eval_run",
-    "net",
-    "density",
-    "density_realised",
-    "success",
-    "collision",
-    "off_road",
-    "timeout",
-    "route_progress",
-    "steps",
-    *(f"return_{name}" for name in OBJECTIVES),
-    *SUBSET_COLUMNS,
-    "holdout_hash",
-    # Beyond the contract's list: the scene's identity, so "same scenes" can be checked.
-    "episode",
-    "command",
-    "reset_seed",
-)
-"""Columns of ``eval/episodes.csv``, in order (one row per episode)."""
+
+def episode_columns(objectives: Sequence[str] = OBJECTIVES) -> tuple[str, ...]:
+    """Columns of ``eval/episodes.csv`` for a policy with these objective names, in order
+    (``return_<name>`` / ``subset_<name>`` follow the run's ``env.objectives``)."""
+    return (
+        "run",
+        "label",
+        *(key for key in LABEL_KEYS if key != "label"),
+        "eval_run",
+        "net",
+        "density",
+        "density_realised",
+        "success",
+        "collision",
+        "off_road",
+        "timeout",
+        "route_progress",
+        "steps",
+        *return_columns(objectives),
+        *subset_columns(objectives),
+        "holdout_hash",
+        # Beyond the contract's list: the scene's identity, so "same scenes" can be checked.
+        "episode",
+        "command",
+        "reset_seed",
+    )
+
+
+EPISODE_COLUMNS: tuple[str, ...] = episode_columns(OBJECTIVES)
+"""Columns of ``eval/episodes.csv`` with the default objectives (one row per episode)."""
 
 
 ACTINGS: tuple[str, ...] = ("own", "near-greedy")
@@ -117,8 +123,20 @@ class EvalConfig:
     acting_eps: float = 0.2
     """Tolerance ε of near-greedy acting, in per-state standard deviations of the scalar
     value's quantiles (the z-score of Pr-IQN's comparators; 0.2 is Pr-IQN*'s ε)."""
+    nets: tuple[str, ...] = ()
+    """Plain ``.net.xml`` files and/or folders of them to evaluate on instead of ``family``
+    (no manifest; docs/your-own-net.md). Written to ``eval-nets-<hash>/`` beside ``eval/``
+    (:func:`evaluation_name`), never into ``eval/``; one path or a list."""
+    junction: str = ""
+    """With ``nets``: the id of the junction to drive through ('' = each net's junction with
+    the most approaches)."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.nets, str):  # one path (--set nets=my_nets/)
+            object.__setattr__(self, "nets", (self.nets,) if self.nets else ())
+        if not all(isinstance(n, str) and n for n in self.nets):
+            raise ValueError(f"nets: expected .net.xml files or folders, got {list(self.nets)}")
+        object.__setattr__(self, "nets", tuple(self.nets))
         if self.acting not in ACTINGS:
             raise ValueError(f"acting: {self.acting!r} is not one of {', '.join(ACTINGS)}")
         if not self.acting_eps >= 0:
@@ -176,7 +194,9 @@ def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
     """All evaluation episodes in canonical order (eval run, net, density, episode).
 
     ``net_ids`` are the hold-out nets' ids (without family); they are sorted, so the
-    scenes depend only on the set of nets, ``cfg.seed`` and the cell's indices.
+    scenes depend only on the set of nets, ``cfg.seed`` and the cell's indices. With
+    ``cfg.nets`` they are the nets' full names (``"<folder>/<stem>"``, :func:`evaluation_nets`)
+    and the same rule applies.
     """
     scenes = []
     for r in range(cfg.eval_runs):
@@ -189,7 +209,7 @@ def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
                     scenes.append(
                         Scene(
                             r,
-                            f"{cfg.family}/{net_id}",
+                            net_id if cfg.nets else f"{cfg.family}/{net_id}",
                             float(density),
                             e,
                             reset_seed,
@@ -200,8 +220,15 @@ def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
     return scenes
 
 
-RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers"})
-"""EvalConfig fields that do not change any episode (may differ on resume)."""
+RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers", "nets", "junction"})
+"""EvalConfig fields that do not change any episode (may differ on resume). ``nets`` and
+``junction`` say where the files lie and what was asked; what is evaluated on (each net's
+name, SHA-256 and junction) is the evaluation's nets hash, checked on its own."""
+
+NETS_PREFIX = "nets-"
+"""Evaluations on your own nets are ``eval-nets-<hash>[-<control>]/`` (:func:`evaluation_name`)."""
+NETS_HASH_CHARS = 8
+"""Hex digits of the nets hash in an evaluation folder's name."""
 
 
 def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
@@ -222,14 +249,31 @@ def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
     return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
 
 
-def evaluation_name(cfg: EvalConfig) -> str:
+def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
     """Name of the evaluation ``cfg`` makes: "" (the run's own, ``eval/``), ``near-greedy``
-    (a control at the default ε, ``eval-near-greedy/``) or ``near-greedy-eps<ε>``."""
-    if cfg.acting == "own":
-        return ""
-    if cfg.acting_eps == EvalConfig.acting_eps:
-        return cfg.acting
-    return f"{cfg.acting}-eps{cfg.acting_eps:g}"
+    (a control at the default ε, ``eval-near-greedy/``) or ``near-greedy-eps<ε>``.
+
+    With ``cfg.nets``: ``nets-<first 8 hex digits of nets_hash>`` (:func:`nets_hash`), then
+    the control's name if any (``nets-1a2b3c4d-near-greedy``): an evaluation on other nets
+    never shares a folder with the hold-out one.
+    """
+    if cfg.nets and not nets_hash:
+        raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
+    control = ""
+    if cfg.acting != "own":
+        control = (
+            cfg.acting
+            if cfg.acting_eps == EvalConfig.acting_eps
+            else f"{cfg.acting}-eps{cfg.acting_eps:g}"
+        )
+    if not cfg.nets:
+        return control
+    return "-".join(p for p in (f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}", control) if p)
+
+
+def is_nets_evaluation(name: str) -> bool:
+    """Whether ``eval-<name>/`` is an evaluation on other nets (not part of Table II)."""
+    return name.startswith(NETS_PREFIX)
 
 
 def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
@@ -251,9 +295,64 @@ def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
         raise PriqnError(f"control {name!r}: {exc}") from None
 
 
-def eval_dir_of(run: RunFolder, cfg: EvalConfig) -> Path:
+def eval_dir_of(run: RunFolder, cfg: EvalConfig, nets_hash: str = "") -> Path:
     """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/`` (:func:`evaluation_name`)."""
-    return run.evaluation_dir(evaluation_name(cfg))
+    return run.evaluation_dir(evaluation_name(cfg, nets_hash))
+
+
+def evaluation_nets(cfg: EvalConfig, commands: Sequence[str]) -> dict[str, Any]:
+    """The manifest of ``cfg.nets``, every net checked now, before any episode.
+
+    ``{"junction", "nets": [{"id", "path", "files": {name: sha256}, "junction"}, ...]}``,
+    sorted by id, in the format of a run's ``nets.json``: ``id`` is the net's name
+    (``"<folder>/<stem>"`` of its resolved path, the name the env and the episode table
+    use), ``path`` its absolute path, ``junction`` the junction driven through. A path that
+    is no ``.net.xml`` (or folder of them), a net SUMO cannot load, one without a usable
+    intersection or without a route for the evaluated ``commands`` (``cfg.commands``, else
+    at least one of the run's ``commands``) is a one-line :class:`PriqnError` naming it.
+    """
+    import hashlib
+
+    from priqn.env.scenes import own_net_files
+    from priqn.sim.roadmap import RoadMap
+    from priqn.sim.session import check_net
+
+    files = own_net_files([str(Path(n).resolve()) for n in cfg.nets], where="--nets")
+    entries = []
+    for ref, path in sorted(files.items()):
+        check_net(path)  # SUMO can load it (libsumo would crash a worker on a broken net)
+        roadmap = RoadMap.load(path, junction=cfg.junction or None)
+        offered = roadmap.commands()
+        wanted = cfg.commands or tuple(commands)
+        missing = [c for c in cfg.commands if c not in offered]
+        if missing or not any(c in offered for c in wanted):
+            raise PriqnError(
+                f"{path}: junction {roadmap.junction_id} has no {(missing or wanted)[0]!r} route "
+                f"(it offers: {', '.join(offered)}); evaluate other commands or pick another "
+                "junction with --junction"
+            )
+        entries.append(
+            {
+                "id": ref,
+                "path": str(path),
+                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+                "junction": roadmap.junction_id,
+            }
+        )
+    return {"junction": cfg.junction, "nets": entries}
+
+
+def nets_hash(manifest: dict[str, Any]) -> str:
+    """SHA-256 identifying what an evaluation on your own nets drives on: one line
+    ``<id>/<file> <sha256> junction <id>`` per net, sorted (moving the files keeps it)."""
+    import hashlib
+
+    lines = sorted(
+        f"{net['id']}/{name} {sha} junction {net['junction']}"
+        for net in manifest["nets"]
+        for name, sha in net["files"].items()
+    )
+    return hashlib.sha256("\n".join(lines).encode()).hexdigest()
 
 
 def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:
@@ -362,7 +461,8 @@ def _copy(obs: Any) -> Any:
 def _write_cell(path: Path, rows: list[dict[str, Any]]) -> None:
     import pandas as pd
 
-    frame = pd.DataFrame(rows, columns=list(EPISODE_COLUMNS)).sort_values("episode")
+    names = names_in_columns(list(rows[0])) if rows else OBJECTIVES  # the policy's objectives
+    frame = pd.DataFrame(rows, columns=list(episode_columns(names))).sort_values("episode")
     atomic_write_text(path, frame.to_csv(index=False, lineterminator="\n"))
 
 
@@ -375,7 +475,8 @@ def _cell_complete(path: Path, expected_rows: int) -> bool:
         frame = pd.read_csv(path)
     except (OSError, ValueError):
         return False
-    return len(frame) == expected_rows and list(frame.columns) == list(EPISODE_COLUMNS)
+    names = names_in_columns(list(frame.columns))
+    return len(frame) == expected_rows and list(frame.columns) == list(episode_columns(names))
 
 
 def evaluate_policy(
@@ -400,8 +501,8 @@ def evaluate_policy(
     eval_dir = Path(eval_dir)
     meta_path = eval_dir / RunFolder.META
     meta = {
-        "status": "running",
-        "holdout_family": cfg.family,
+        "status": Status.RUNNING,
+        "holdout_family": None if cfg.nets else cfg.family,
         "holdout_hash": holdout_hash,
         "holdout_nets": sorted(net_ids),
         "eval_config": to_dict(cfg),
@@ -479,8 +580,36 @@ def evaluate_policy(
     episodes = pd.concat(frames, ignore_index=True)
     out = eval_dir / RunFolder.EVAL_EPISODES
     atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
-    write_meta(status="complete", episodes=len(episodes))
+    write_meta(status=Status.COMPLETE, episodes=len(episodes))
     return out
+
+
+def _evaluation_target(
+    cfg: EvalConfig, commands: Sequence[str]
+) -> tuple[list[str], str, dict[str, Any] | None]:
+    """``(net ids, hash, nets manifest)`` of what ``cfg`` evaluates on: the hold-out family
+    (its manifest hash; no nets manifest) or ``cfg.nets`` (checked now, :func:`evaluation_nets`;
+    their :func:`nets_hash`). ``commands``: the env's, for the check of ``cfg.nets``."""
+    if cfg.nets:
+        nets = evaluation_nets(cfg, commands)
+        return [n["id"] for n in nets["nets"]], nets_hash(nets), nets
+    from priqn.sim.scenario import load_manifest, manifest_hash
+
+    return _net_ids(load_manifest(cfg.family)), manifest_hash(cfg.family), None
+
+
+def _evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None) -> Any:
+    """``env_config`` (a run's EnvConfig) set to play ``cfg``'s scenes: on the checked files
+    of ``nets`` by their absolute paths, else on the hold-out family (also for a run trained
+    on its own nets or junction); ``cfg.max_episode_steps`` if set."""
+    if nets is not None:
+        files = tuple(n["path"] for n in nets["nets"])
+        env_cfg = dataclasses.replace(env_config, nets=files, junction=cfg.junction)
+    else:
+        env_cfg = dataclasses.replace(env_config, family=cfg.family, nets=(), junction="")
+    if cfg.max_episode_steps:
+        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
+    return env_cfg
 
 
 def _net_ids(manifest: Any) -> list[str]:
@@ -496,6 +625,9 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     The run must be complete (``meta.json`` status). A finished evaluation with the
     same hold-out hash and EvalConfig is returned as is; a half-finished one goes on.
+    With ``cfg.nets`` the run is evaluated on those nets instead, into
+    ``eval-nets-<hash>/`` (:func:`evaluation_name`); every net is checked first
+    (:func:`evaluation_nets`), so a net that cannot be used stops before any episode.
     """
     run = RunFolder(run_dir)
     if not run.path.is_dir():
@@ -503,22 +635,19 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     if not run.meta_path.is_file():
         raise PriqnError(f"{run.meta_path}: missing; is {run.path} a run made by 'priqn train'?")
     status = run.meta().get("status")
-    if status != "complete":
+    if status != Status.COMPLETE:
         raise PriqnError(
             f"{run.meta_path}: status is {status!r}; evaluate only complete runs "
             f"(finish it with 'priqn train --resume')"
         )
 
-    from priqn.sim.scenario import load_manifest, manifest_hash
-
-    net_ids = _net_ids(load_manifest(cfg.family))
-    holdout_hash = manifest_hash(cfg.family)
-    eval_dir = eval_dir_of(run, cfg)
+    net_ids, holdout_hash, nets = _evaluation_target(cfg, run.config().env.commands)
+    eval_dir = eval_dir_of(run, cfg, holdout_hash if nets else "")
     meta_path, episodes_path = eval_dir / RunFolder.META, eval_dir / RunFolder.EVAL_EPISODES
     if not force and meta_path.is_file():
         old = read_json(meta_path)
         if (
-            old.get("status") == "complete"
+            old.get("status") == Status.COMPLETE
             and old.get("holdout_hash") == holdout_hash
             and not eval_config_changes(old.get("eval_config") or {}, to_dict(cfg))
             and episodes_path.is_file()
@@ -530,10 +659,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     policy = run.load_policy(device=cfg.device)
     if cfg.acting == "near-greedy":
         policy = policy.near_greedy(cfg.acting_eps)
-    # The hold-out family, also for a run trained on its own nets (env.nets).
-    env_cfg = dataclasses.replace(policy.env_config, family=cfg.family, nets=())
-    if cfg.max_episode_steps:
-        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
+    env_cfg = _evaluation_env(policy.env_config, cfg, nets)
 
     def make_env(num_envs: int) -> Any:
         # The vector env's own seed only seeds autoresets, whose scenes are discarded.
@@ -545,6 +671,9 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     # workers (and anything else running) for the cores, 10-60x slower on 2 busy cores.
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    extra_meta: dict[str, Any] = {"env_config": to_dict(env_cfg)}
+    if nets is not None:
+        extra_meta.update(nets=nets["nets"], nets_hash=holdout_hash)
     try:
         return evaluate_policy(
             policy,
@@ -554,7 +683,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
             holdout_hash,
             run.name,
             make_env,
-            extra_meta={"env_config": to_dict(env_cfg)},
+            extra_meta=extra_meta,
             force=force,
         )
     finally:
@@ -594,7 +723,7 @@ def evaluate(paths: Iterable[str | Path], cfg: EvalConfig, force: bool = False) 
 
 
 def _has_scalar_value(run: Path) -> bool:
-    from priqn.agents.config import has_scalar_value
+    from priqn.agent_config import has_scalar_value
 
     name = RunFolder(run).config().agent.name
     if has_scalar_value(name):
@@ -606,11 +735,149 @@ def _has_scalar_value(run: Path) -> bool:
     return False
 
 
+# ----------------------------------------------------------------------------- reference drivers
+
+
+REFERENCES: dict[str, str] = {"sumo": "SUMO driver", "random": "Random actions"}
+"""Reference drivers (``priqn evaluate --reference NAME``) and their row names."""
+REFERENCE_WORD = "(reference)"
+"""Ends every reference row's label, e.g. ``SUMO driver (reference)``."""
+DEFAULT_REFERENCE_DIR = "reference"
+"""A reference evaluation goes to ``reference/<name>/`` unless ``--out`` says otherwise."""
+OBSERVATION_FIELDS: frozenset[str] = frozenset(
+    {"obs_size_px", "render_size_px", "bev_range_m", "bev_behind_m", "bev_channels"}
+)
+"""EnvConfig fields that change what a policy sees but no scene, move or measure."""
+SCENE_NEUTRAL_FIELDS: frozenset[str] = OBSERVATION_FIELDS | {
+    "family",
+    "nets",
+    "nets_dir",
+    "junction",
+}
+"""EnvConfig fields a reference evaluation may take from any of its runs (the nets are the
+evaluation's own)."""
+
+
+def reference_label(name: str) -> str:
+    """The label of reference driver ``name``'s rows: ``SUMO driver (reference)``."""
+    return f"{REFERENCES[name]} {REFERENCE_WORD}"
+
+
+class ReferenceDriver:
+    """A reference "policy": ``sumo`` (SUMO drives the ego, ``EnvConfig.ego_driver``; the
+    action is ignored) or ``random`` (uniform over the action grid, from the scene's acting
+    generator, so it is reproducible like a policy's own randomness)."""
+
+    def __init__(self, name: str, num_actions: int) -> None:
+        """``name``: a key of :data:`REFERENCES`; ``num_actions``: the env's action count."""
+        if name not in REFERENCES:
+            raise PriqnError(f"--reference {name}: expected one of {', '.join(REFERENCES)}")
+        self.name = name
+        """Driver name (a key of :data:`REFERENCES`)."""
+        self.num_actions = int(num_actions)
+        """Size of the env's action grid."""
+        self.labels: dict[str, Any] = {key: "" for key in LABEL_KEYS}
+        """Episode-row identity: ``agent`` = the driver's name, training seed 0 (none)."""
+        self.labels.update(agent=name, train_seed=0, label=reference_label(name))
+
+    def act(self, obs: Any, rng: np.random.Generator) -> np.ndarray:
+        """One action: uniform at random (``random``); 0, ignored by the env (``sumo``)."""
+        if self.name == "random":
+            return np.array([int(rng.integers(self.num_actions))], np.int64)
+        return np.zeros(1, np.int64)
+
+
+def reference_env_config(paths: Iterable[str | Path]) -> tuple[Any, list[str]]:
+    """The EnvConfig a reference evaluation plays with, and the runs it comes from.
+
+    From the runs under ``paths`` (their scenes, episode length, action grid and rewards):
+    they must agree on every field but what only a policy sees and the nets
+    (:data:`SCENE_NEUTRAL_FIELDS`). No paths: ``priqn train``'s default env.
+    """
+    from priqn.train_config import TrainConfig
+
+    runs = find_runs(paths) if paths else []
+    if not runs:
+        return TrainConfig().env, []
+    configs = [(run, RunFolder(run).config().env) for run in runs]
+    first, env = configs[0]
+    for run, other in configs[1:]:
+        diff = config_differences(to_dict(env), to_dict(other), ignore=SCENE_NEUTRAL_FIELDS)
+        if diff:
+            key, a, b = diff[0]
+            raise PriqnError(
+                f"{run}: its env differs from {first}'s ({key} {a!r} vs {b!r}); a reference "
+                "plays one env: evaluate it against runs that share it (or one run)"
+            )
+    return env, [RunFolder(run).name for run in runs]
+
+
+def evaluate_reference(
+    name: str,
+    out_dir: str | Path,
+    cfg: EvalConfig,
+    env_config: Any,
+    env_of: Sequence[str] = (),
+    force: bool = False,
+) -> Path:
+    """Evaluate reference driver ``name`` with ``cfg``'s protocol; returns its episode table.
+
+    Same scenes as every policy evaluated with ``cfg`` (the scene rule never reads a run):
+    the hold-out family into ``out_dir/eval/``, or ``cfg.nets`` into
+    ``out_dir/eval-nets-<hash>/``; resumable like a run's evaluation. ``env_config``: the
+    env the driver plays (:func:`reference_env_config`; ``env_of`` names its runs). The
+    rows are labelled :func:`reference_label`; ``priqn report --reference out_dir`` shows them.
+    """
+    if cfg.acting != "own":
+        raise PriqnError(f"--reference {name}: --acting applies to trained policies only")
+    from priqn.env.vector import make_vector_env
+
+    driver = ReferenceDriver(name, env_config.n_speeds * env_config.n_offsets)
+    net_ids, holdout_hash, nets = _evaluation_target(cfg, env_config.commands)
+    folder = RunFolder(out_dir)
+    eval_dir = folder.evaluation_dir(evaluation_name(cfg, holdout_hash if nets else ""))
+    env_cfg = _evaluation_env(env_config, cfg, nets)
+    env_cfg = dataclasses.replace(env_cfg, ego_driver="sumo" if name == "sumo" else "planner")
+    meta_path = eval_dir / RunFolder.META
+    if not force and meta_path.is_file() and read_json(meta_path).get("reference") != name:
+        raise PriqnError(
+            f"{meta_path}: holds no {name!r} reference evaluation; pick another --out "
+            "(or --force to start over)"
+        )
+
+    def make_env(num_envs: int) -> Any:
+        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
+
+    extra_meta: dict[str, Any] = {
+        "reference": name,
+        "env_of": list(env_of),
+        "env_config": to_dict(env_cfg),
+    }
+    if nets is not None:
+        extra_meta.update(nets=nets["nets"], nets_hash=holdout_hash)
+    return evaluate_policy(
+        driver,
+        eval_dir,
+        cfg,
+        net_ids,
+        holdout_hash,
+        f"{DEFAULT_REFERENCE_DIR}/{name}",
+        make_env,
+        extra_meta=extra_meta,
+        force=force,
+    )
+
+
 # ----------------------------------------------------------------------------- CLI
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("runs", nargs="+", help="run folders, or folders of runs")
+    parser.add_argument(
+        "runs",
+        nargs="*",
+        help="run folders, or folders of runs (with --reference: the runs whose env the "
+        "reference plays; none = priqn train's default env)",
+    )
     parser.add_argument("--config", help="TOML file with EvalConfig fields")
     parser.add_argument("--episodes", type=int, help="episodes per (eval run, net, density) cell")
     parser.add_argument("--eval-runs", type=int, help="evaluation runs (default 3)")
@@ -627,9 +894,34 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--acting-eps", type=float, help="near-greedy tolerance ε [per-state std] (default 0.2)"
     )
     parser.add_argument(
+        "--family", help="scenario family of the hold-out nets (default holdout; into eval/)"
+    )
+    parser.add_argument(
+        "--nets",
+        nargs="+",
+        metavar="PATH",
+        help="evaluate on these .net.xml files / folders of them instead (no manifest needed), "
+        "into eval-nets-<hash>/ beside eval/ (docs/your-own-net.md)",
+    )
+    parser.add_argument(
+        "--junction", help="with --nets: the junction id to drive through (default: the busiest)"
+    )
+    parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
     )
     parser.add_argument("--force", action="store_true", help="discard earlier evaluations")
+    parser.add_argument(
+        "--reference",
+        choices=tuple(REFERENCES),
+        help="evaluate a reference driver instead of runs: sumo (SUMO's own driver models "
+        "drive the ego) or random (uniform random actions); same scenes (docs/evaluation.md)",
+    )
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        help=f"with --reference: its folder (default {DEFAULT_REFERENCE_DIR}/<name>/; "
+        "the evaluation goes to DIR/eval/ or DIR/eval-nets-<hash>/)",
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
@@ -650,6 +942,8 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         sets.append(f"num_workers={args.workers}")
     if args.acting is not None:
         sets.append(f"acting={args.acting!r}")
+    if args.family is not None:
+        sets.append(f"family={args.family!r}")
     if args.acting_eps is not None:
         if not args.acting_eps >= 0:
             raise PriqnError(
@@ -668,11 +962,31 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
                 "(active actors / maximum actors), e.g. 0.5,0.75,1.0"
             )
         sets.append(f"densities=[{', '.join(repr(v) for v in values)}]")
-    return apply_overrides(cfg, sets) if sets else cfg
+    cfg = apply_overrides(cfg, sets) if sets else cfg
+    if args.nets and args.family:
+        raise PriqnError("--family and --nets: pick one (--nets evaluates on those nets only)")
+    if args.nets:  # paths as given (no TOML quoting on the way)
+        cfg = dataclasses.replace(cfg, nets=tuple(args.nets))
+    if args.junction is not None:
+        if not cfg.nets:
+            raise PriqnError(
+                f"--junction {args.junction}: only with --nets (a hold-out net has one junction)"
+            )
+        cfg = dataclasses.replace(cfg, junction=args.junction)
+    return cfg
 
 
 def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
+    if args.reference:
+        out = args.out or str(Path(DEFAULT_REFERENCE_DIR) / args.reference)
+        env, env_of = reference_env_config(args.runs)
+        print(evaluate_reference(args.reference, out, cfg, env, env_of, force=args.force))
+        return 0
+    if args.out:
+        raise PriqnError("--out: only with --reference (a run's evaluations live in its folder)")
+    if not args.runs:
+        raise PriqnError("no runs given: name run folders or folders of runs (e.g. runs/)")
     for path in evaluate(args.runs, cfg, force=args.force):
         print(path)
     return 0

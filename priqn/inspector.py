@@ -37,7 +37,6 @@ import numpy as np
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
-from priqn.objectives import OBJECTIVES
 from priqn.runs import RunFolder
 
 KEPT = ""
@@ -140,7 +139,7 @@ def rollout(policy: Any, env: Any, scenes: list[Any]) -> list[Decision]:
     for episode, scene in enumerate(tqdm(scenes, desc="inspect", unit="episode", disable=None)):
         rng = np.random.default_rng(scene.act_seed)
         obs, _ = env.reset(seed=scene.reset_seed, options=scene.reset_options())
-        returns = np.zeros(len(OBJECTIVES))
+        returns = np.zeros(len(policy.agent.objectives))
         done, step = False, 0
         while not done:
             batch = {k: np.asarray(v)[None] for k, v in obs.items()}
@@ -180,7 +179,7 @@ def rollout(policy: Any, env: Any, scenes: list[Any]) -> list[Decision]:
 def head_names(agent: Any) -> list[str]:
     """What each head of ``agent`` estimates."""
     if agent.spec.reward_rule == "per-objective":
-        return list(OBJECTIVES)
+        return list(agent.objectives)
     if agent.num_heads == 1:
         return ["weighted sum"]
     return [f"head {h} (weighted sum)" for h in range(agent.num_heads)]
@@ -215,9 +214,9 @@ def decision_rows(decisions: list[Decision], agent: Any, table: np.ndarray) -> l
             "v_f_mps": round(float(table[d.action, 0]), 4),
             "d_f_m": round(float(table[d.action, 1]), 4),
         }
-        for i, o in enumerate(OBJECTIVES):
+        for i, o in enumerate(agent.objectives):
             row[f"reward_{o}"] = round(float(d.reward_5[i]), 6)
-        for i, o in enumerate(OBJECTIVES):
+        for i, o in enumerate(agent.objectives):
             row[f"return_{o}"] = round(float(d.returns_5[i]), 6)
         if preorder is not None:
             for n, o in enumerate(preorder.objectives):
@@ -269,7 +268,8 @@ def frame_figure(
     ax = fig.add_subplot(grid[0, cols // 2 + 1 :])
     ax.set_axis_off()
     lines = [f"{'':<13}{'reward':>9}{'return':>9}"] + [
-        f"{o:<13}{d.reward_5[i]:>9.3f}{d.returns_5[i]:>9.2f}" for i, o in enumerate(OBJECTIVES)
+        f"{o:<13}{d.reward_5[i]:>9.3f}{d.returns_5[i]:>9.2f}"
+        for i, o in enumerate(agent.objectives)
     ]
     ax.text(0, 0.95, "\n".join(lines), family="monospace", fontsize=8, va="top")
     for c, (title, values_A) in enumerate(panels):
@@ -448,7 +448,7 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     policy = run.load_policy(device="cpu")
     if cfg.near_greedy_eps is not None:
         policy = policy.near_greedy(cfg.near_greedy_eps)
-    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=())
+    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=(), junction="")
     if eval_cfg.max_episode_steps:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
     # Frames for people at 128 px or more, whatever the observation size.

@@ -4,7 +4,7 @@ One :class:`PolicyLabel` per trained configuration. It is built from a run's con
 (:meth:`PolicyLabel.of_config`), written into ``meta.json`` and every evaluation episode
 row (:meth:`to_row`), read back by the analysis (:meth:`from_row`) and rendered the
 same way everywhere (:meth:`render`, :meth:`cells`). Torch-free; the agent facts
-(display names, which agents use a preorder) come from :mod:`priqn.agents.config`.
+(display names, which agents use a preorder) come from :mod:`priqn.agent_config`.
 """
 
 from __future__ import annotations
@@ -14,10 +14,11 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from priqn.agents.config import COMPARATORS, AgentConfig, agent_spec
+from priqn.agent_config import COMPARATOR_NAMES, AgentConfig, agent_spec
 
-FIELDS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
-"""The paper's configuration columns, in Table II order (also the row keys)."""
+CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
+"""The paper's configuration columns, in Table II order: the keys of :meth:`PolicyLabel.to_row`,
+of every evaluation episode row and of the analysis' configuration key (one row of Table II)."""
 DASH = "–"
 CHECK, CROSS = "✓", "✗"
 
@@ -73,9 +74,8 @@ class PolicyLabel:
         """The five Table II configuration cells (dashes where an option does not apply)."""
         if not self.uses_preorder:
             return [self.display_name, DASH, DASH, DASH, DASH]
-        comp = (
-            DASH if self.comparator is None else COMPARATORS.get(self.comparator, self.comparator)
-        )
+        comp = self.comparator
+        comp = DASH if comp is None else COMPARATOR_NAMES.get(comp, comp)
         return [
             self.display_name,
             comp,
@@ -87,7 +87,7 @@ class PolicyLabel:
     def to_row(self) -> dict[str, Any]:
         """``{agent, comparator, train_preorder, eps, partial_order, label}`` ('' = not applicable)."""
         row: dict[str, Any] = {
-            k: ("" if getattr(self, k) is None else getattr(self, k)) for k in FIELDS
+            k: ("" if getattr(self, k) is None else getattr(self, k)) for k in CONFIG_COLUMNS
         }
         row["label"] = self.render()
         return row

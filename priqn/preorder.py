@@ -29,8 +29,7 @@ from typing import Any
 
 import torch
 
-from priqn.agents.config import COMPARATORS as COMPARATOR_NAMES
-from priqn.agents.config import PREORDER_PRESETS as PRESETS
+from priqn.agent_config import COMPARATOR_NAMES, PREORDER_PRESETS
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
 
@@ -163,9 +162,11 @@ class Preorder:
 
     @classmethod
     def preset(cls, name: str) -> Preorder:
-        """One of the shipped presets: ``total`` (the chain) or ``partial``."""
-        if name not in PRESETS:
-            raise PriqnError(f"unknown preorder preset {name!r} (valid: {', '.join(PRESETS)})")
+        """One of the shipped presets: ``total`` (the chain), ``partial`` or ``right-of-way``."""
+        if name not in PREORDER_PRESETS:
+            raise PriqnError(
+                f"unknown preorder preset {name!r} (valid: {', '.join(PREORDER_PRESETS)})"
+            )
         with resources.as_file(resources.files("priqn") / "presets" / f"{name}.toml") as path:
             po = cls.from_toml(path)
         po.source = f"preset {name!r}"
@@ -179,11 +180,16 @@ class Preorder:
 
         With ``objectives`` (e.g. :data:`priqn.objectives.OBJECTIVES`), the preorder
         must name exactly those objectives and is returned in that order, so its N axis
-        matches the reward vector and the network heads.
+        matches the reward vector and the network heads. ``"total"`` with objectives other
+        than the default five is the chain of ``objectives`` in their order.
         """
+        from priqn.objectives import OBJECTIVES
+
+        if spec == "total" and objectives is not None and tuple(objectives) != OBJECTIVES:
+            return cls.chain(objectives, source="preset 'total' (chain of env.objectives)")
         if isinstance(spec, Preorder):
             po = spec
-        elif isinstance(spec, str) and spec in PRESETS:
+        elif isinstance(spec, str) and spec in PREORDER_PRESETS:
             po = cls.preset(spec)
         elif isinstance(spec, (str, Path)) and Path(spec).is_file():
             po = cls.from_toml(spec)
@@ -202,7 +208,7 @@ class Preorder:
             extra = [n for n in self._objectives if n not in want]
             raise PriqnError(
                 f"{self.source}: preorder objectives ({', '.join(self._objectives)}) do not "
-                f"match the expected ones ({', '.join(want)}); missing: "
+                f"match the run's objectives (env.objectives: {', '.join(want)}); missing: "
                 f"{', '.join(missing) or '-'}; extra: {', '.join(extra) or '-'}"
             )
         return Preorder(want, self._edges, source=self.source, description=self.description)
@@ -427,7 +433,7 @@ def _score_mean(
     return c_BNAK.mean(dim=-1) / s_BN1
 
 
-COMPARATORS: dict[str, ComparatorFn] = {
+COMPARATOR_FUNCTIONS: dict[str, ComparatorFn] = {
     "qd": _score_qd,
     "mv": _score_mv,
     "cvar": _score_cvar,
@@ -440,9 +446,10 @@ comparators relate a and b by ``score(a) − score(b) > ε``; the comparators in
 :data:`PAIRWISE` relate them by their own rule instead (their score is only shown).
 """
 
-if tuple(COMPARATORS) != tuple(COMPARATOR_NAMES):  # one function per name, same order
+if tuple(COMPARATOR_FUNCTIONS) != tuple(COMPARATOR_NAMES):  # one function per name, same order
     raise ImportError(
-        f"priqn.preorder.COMPARATORS {tuple(COMPARATORS)} != {tuple(COMPARATOR_NAMES)}"
+        f"priqn.preorder.COMPARATOR_FUNCTIONS {tuple(COMPARATOR_FUNCTIONS)} "
+        f"!= priqn.agent_config.COMPARATOR_NAMES {tuple(COMPARATOR_NAMES)}"
     )
 
 PAIRWISE: frozenset[str] = frozenset({"fsd"})
@@ -451,9 +458,11 @@ PAIRWISE: frozenset[str] = frozenset({"fsd"})
 
 def _comparator(name: str) -> ComparatorFn:
     try:
-        return COMPARATORS[name]
+        return COMPARATOR_FUNCTIONS[name]
     except (KeyError, TypeError):
-        raise PriqnError(f"unknown comparator {name!r} (valid: {', '.join(COMPARATORS)})") from None
+        raise PriqnError(
+            f"unknown comparator {name!r} (valid: {', '.join(COMPARATOR_FUNCTIONS)})"
+        ) from None
 
 
 def _spread_floor_N1(

@@ -33,6 +33,7 @@ import shutil
 import socket
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -47,30 +48,31 @@ from priqn.io import (
     read_json,
     remove_stale_temp_files,
 )
-from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
+from priqn.metrics import METRIC_COLUMNS
 
-METRIC_COLUMNS: tuple[str, ...] = (
-    "kind",
-    "step",
-    "episode",
-    "wall_s",
-    "epsilon",
-    "updates",
-    "loss",
-    *(f"return_{o}" for o in OBJECTIVES),
-    "return_weighted",
-    "length",
-    "success",
-    "collision",
-    "off_road",
-    "timeout",
-    "route_progress",
-    "density_realised",
-    *SUBSET_COLUMNS,
-    "net",
-    "command",
-)
-"""Columns of ``metrics.csv``: one row per training (kind=train) or evaluation episode."""
+
+class Status(StrEnum):
+    """The state of a run, an evaluation or a sweep cell: the one spelling of each word.
+
+    ``meta.json`` (training) records ``running``, ``complete`` or ``failed``, an
+    evaluation's ``eval*/meta.json`` ``running`` or ``complete``; :meth:`RunFolder.status`
+    reads a ``running`` run whose trainer died as ``interrupted``, and a sweep cell
+    (:func:`priqn.sweep.cells.cell_state`) is also ``trained`` (an evaluation missing) or
+    ``new``. Members are ``str``: JSON writes the bare word, and they compare equal to it.
+    """
+
+    NEW = "new"
+    """Nothing recorded yet (a cell without a readable meta.json)."""
+    RUNNING = "running"
+    """Being trained or evaluated (or its process was killed; see ``interrupted``)."""
+    INTERRUPTED = "interrupted"
+    """``running`` on disk, but its trainer on this host is gone: resumable."""
+    FAILED = "failed"
+    """Training stopped with an error (meta.json ``error`` says which)."""
+    TRAINED = "trained"
+    """A cell whose training is complete and an evaluation is not."""
+    COMPLETE = "complete"
+    """Done: training finished (meta.json) or every evaluation cell written (eval/meta.json)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,8 +234,8 @@ class RunFolder:
         """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
         meta = self.meta()
         status = str(meta.get("status"))
-        if status == "running" and meta.get("pid") is not None and self.live_trainer() is None:
-            return "interrupted"
+        if status == Status.RUNNING and meta.get("pid") is not None and self.live_trainer() is None:
+            return Status.INTERRUPTED
         return status
 
     def live_trainer(self) -> str | None:
@@ -246,7 +248,7 @@ class RunFolder:
         if not self.meta_path.is_file():
             return None
         meta = self.meta()
-        if meta.get("status") != "running" or meta.get("pid") is None:
+        if meta.get("status") != Status.RUNNING or meta.get("pid") is None:
             return None
         pid, host = int(meta["pid"]), str(meta.get("host"))
         if pid == os.getpid() and host == socket.gethostname():
@@ -292,7 +294,7 @@ class RunFolder:
         meta.update(
             {
                 "run": self.path.name,
-                "status": "running",
+                "status": Status.RUNNING,
                 "error": None,
                 "git_sha": provenance.git_sha,
                 "versions": dict(provenance.versions),
@@ -330,6 +332,13 @@ class RunFolder:
                 f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
             )
         meta = self.meta()
+        recorded = meta.get("objectives")  # absent before objectives were declared: the five
+        if recorded is not None and tuple(recorded) != tuple(cfg.objective_names):
+            raise PriqnError(
+                f"{self.path}: --resume: the run was trained for objectives "
+                f"({', '.join(recorded)}) but {self.CONFIG} lists "
+                f"({', '.join(cfg.objective_names)}); restore it or start a new run"
+            )
         own_hash = provenance.manifest_hashes.get("own")
         if own_hash is not None and meta.get("manifest_hashes", {}).get("own") != own_hash:
             raise PriqnError(
@@ -358,10 +367,13 @@ class RunFolder:
         }
 
     # ---------------------------------------------------------------- metrics
-    def write_metrics(self, rows: Sequence[Mapping[str, Any]]) -> None:
-        """metrics.csv with :data:`METRIC_COLUMNS` (atomically)."""
+    def write_metrics(
+        self, rows: Sequence[Mapping[str, Any]], columns: Sequence[str] = METRIC_COLUMNS
+    ) -> None:
+        """metrics.csv with ``columns`` (atomically): :func:`priqn.metrics.metric_columns`
+        of the run's objectives, :data:`priqn.metrics.METRIC_COLUMNS` by default."""
         buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+        writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
         atomic_write_text(self.metrics_path, buf.getvalue())
@@ -436,7 +448,14 @@ class RunFolder:
             state = checkpoint.load(latest, dev, remedy).policy_state()
         else:
             state = checkpoint.load_policy_state(final, dev, remedy)
-        agent = make_agent(cfg.agent.name, cfg.agent_config)
+        names = cfg.objective_names
+        if tuple(state.objectives) != names:
+            raise PriqnError(
+                f"{self.path}: the policy was trained for objectives "
+                f"({', '.join(state.objectives)}) but {self.CONFIG} lists ({', '.join(names)}); "
+                "restore the run's config.toml or train again"
+            )
+        agent = make_agent(cfg.agent.name, cfg.agent_config, names)
         space = observation_space(state.obs_shapes)
         network = build_network(cfg, space, int(state.num_actions), seed=0, agent=agent)
         network.load_state_dict(state.online)

@@ -33,8 +33,9 @@ from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.config import describe, flatten, to_dict
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
-from priqn.objectives import OBJECTIVES, SUBSET_COLUMNS
-from priqn.runs import RunFolder
+from priqn.metrics import metric_columns, metrics_row
+from priqn.objectives import subset_columns
+from priqn.runs import RunFolder, Status
 from priqn.sim.scenario import family_net_refs
 from priqn.timing import SectionClock
 from priqn.train_config import (
@@ -64,26 +65,6 @@ def _env_reset_seed(env_seed: int, session: int) -> int | None:
     return int(np.random.SeedSequence(env_seed, spawn_key=(session,)).generate_state(1)[0])
 
 
-def metrics_row(
-    kind: str, values: Mapping[str, Any], net: str, weights: Sequence[float]
-) -> dict[str, Any]:
-    """One metrics.csv row of an ended episode (``kind`` train or eval) from its
-    :func:`priqn.episodes.episode_values` and its net."""
-    returns = np.array([values[f"return_{o}"] for o in OBJECTIVES])
-    row: dict[str, Any] = {"kind": kind}
-    row.update(
-        {f"return_{o}": round(float(r), 5) for o, r in zip(OBJECTIVES, returns, strict=True)}
-    )
-    row["return_weighted"] = round(float(returns @ np.asarray(weights)), 5)
-    row["length"] = values["steps"]
-    row.update({k: int(values[k]) for k in ("success", "collision", "off_road", "timeout")})
-    row["route_progress"] = round(values["route_progress"], 4)
-    row["density_realised"] = round(values["density_realised"], 4)
-    row["net"] = net
-    row["command"] = str(values.get("command", ""))
-    return row
-
-
 # ============================================================================ logging
 
 
@@ -102,6 +83,10 @@ class TrainLogger:
         self.cfg, self.run = cfg, run
         self.rows: list[dict[str, Any]] = run.read_metrics(step) if resume else []
         self.recent: deque[dict[str, Any]] = deque(maxlen=100)
+        self.objectives = cfg.objective_names
+        self.subset_columns = subset_columns(self.objectives)
+        self.columns = metric_columns(self.objectives)
+        """metrics.csv's columns for this run's objectives."""
         self.writer = SummaryWriter(str(run.tensorboard_dir), purge_step=step if resume else None)
         self.bar = tqdm(
             total=cfg.total_steps,
@@ -117,8 +102,8 @@ class TrainLogger:
         self.rows.append(row)
         self.recent.append(row)
         scalars = {k: row[k] for k in ("return_weighted", "success", "collision")}
-        scalars.update({f"return_{o}": row[f"return_{o}"] for o in OBJECTIVES})
-        scalars.update({k: row[k] for k in SUBSET_COLUMNS if k in row})  # acting |S_r|
+        scalars.update({f"return_{o}": row[f"return_{o}"] for o in self.objectives})
+        scalars.update({k: row[k] for k in self.subset_columns if k in row})  # acting |S_r|
         for key, value in scalars.items():
             self.writer.add_scalar(f"episode/{key}", value, step)
 
@@ -132,18 +117,18 @@ class TrainLogger:
             print(f"{self.run.name} step {step}/{self.cfg.total_steps} {line}", flush=True)
         for key, value in scalars.items():  # epsilon, updates/s, loss, target |S_r|
             self.writer.add_scalar(f"train/{key}", value, step)
-        self.run.write_metrics(self.rows)
+        self.run.write_metrics(self.rows, self.columns)
 
     def evaluation(self, rows: list[dict[str, Any]], step: int) -> None:
         self.rows.extend(rows)
         for key in ("success", "return_weighted"):
             self.writer.add_scalar(f"eval/{key}", float(np.mean([r[key] for r in rows])), step)
-        self.run.write_metrics(self.rows)
+        self.run.write_metrics(self.rows, self.columns)
 
     def checkpoint(self) -> None:
         from priqn.analysis.figures import write_training_curve
 
-        self.run.write_metrics(self.rows)
+        self.run.write_metrics(self.rows, self.columns)
         self.writer.flush()
         write_training_curve(self.rows, self.run.learning_curve_path, self.run.name)
 
@@ -158,12 +143,18 @@ class TrainLogger:
         self.close()
 
 
-def _postfix(episodes: int, recent: Sequence[Mapping[str, Any]], eps: float, ups: float) -> str:
+def _postfix(
+    episodes: int,
+    recent: Sequence[Mapping[str, Any]],
+    eps: float,
+    ups: float,
+    objectives: Sequence[str],
+) -> str:
     if not recent:
         return f"ep 0 ε {eps:.2f} upd/s {ups:.0f}"
     sr = np.mean([r["success"] for r in recent])
     rets = " ".join(
-        f"{o[:4]} {np.mean([r[f'return_{o}'] for r in recent]):+.2f}" for o in OBJECTIVES
+        f"{o[:4]} {np.mean([r[f'return_{o}'] for r in recent]):+.2f}" for o in objectives
     )
     return f"ep {episodes} SR {sr:.2f} R[{rets}] ε {eps:.2f} upd/s {ups:.0f}"
 
@@ -181,14 +172,15 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     from priqn.agents.registry import make_agent
 
     run = RunFolder(run_dir)
-    was_complete = resume and run.recorded_status() == "complete"
+    was_complete = resume and run.recorded_status() == Status.COMPLETE
     # Everything that can refuse the run comes before its folder is touched.
     origin = provenance.gather(cfg)
-    agent = make_agent(cfg.agent.name, cfg.agent_config)  # the session's one agent
+    # The session's one agent, for the run's objectives.
+    agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
     run.prepare(cfg, resume, force, origin, policy_labels(cfg, agent))
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
-    failed_status = "complete" if was_complete else "failed"
+    failed_status = Status.COMPLETE if was_complete else Status.FAILED
     try:
         _train_loop(cfg, run, agent, resume)
     except KeyboardInterrupt:
@@ -261,6 +253,8 @@ class Trainer:
         from priqn.agents.replay import ReplayBuffer
 
         self.cfg, self.num_envs, self.weights = cfg, cfg.num_envs, cfg.reward_weights
+        self.objectives = cfg.objective_names
+        """The run's objective names (reward vector, heads, columns)."""
         obs_space = envs.single_observation_space
         self.num_actions = int(envs.single_action_space.n)
         self.obs_shapes = {
@@ -276,6 +270,7 @@ class Trainer:
             cfg.replay.capacity,
             cfg.learner.n_step,
             cfg.learner.gamma,
+            num_objectives=len(self.objectives),
         )
         self.rng_replay = np.random.default_rng(seeds["replay"])
         self.rng_act = np.random.default_rng(seeds["explore"])
@@ -294,6 +289,8 @@ class Trainer:
             "num_params": sum(p.numel() for p in self.learner.online.parameters()),
             "reward_weights": list(self.weights),
             "crash_margin": round(self.cfg.crash_margin, 4),
+            "objectives": list(self.objectives),
+            "objective_declarations": _declarations(self.cfg),
         }
 
     def start(self) -> None:
@@ -362,7 +359,9 @@ class Trainer:
         for e in np.flatnonzero(ended):
             self.episodes += 1
             info = final_info(infos, int(e))
-            row = metrics_row("train", episode_values(info), str(info["net"]), self.weights)
+            row = metrics_row(
+                "train", episode_values(info), str(info["net"]), self.weights, self.objectives
+            )
             row.update(self.subset_sizes.pop(int(e)))
             row.update(
                 step=self.step,
@@ -380,7 +379,9 @@ class Trainer:
             self.t_rate, self.updates_at_rate = log_t0, self.learner.updates
         line = None
         if ended.any() or self.step >= self.next_log:
-            line = _postfix(self.episodes, logger.recent, self.epsilon, self.updates_per_s)
+            line = _postfix(
+                self.episodes, logger.recent, self.epsilon, self.updates_per_s, logger.objectives
+            )
         logger.progress(self.num_envs, line)
         if line is not None and self.step >= self.next_log:
             self.next_log = self.step + self.cfg.log_interval_steps
@@ -413,12 +414,20 @@ class Trainer:
                 obs_shapes=self.obs_shapes,
                 num_actions=self.num_actions,
                 config=to_dict(self.cfg),
+                objectives=list(self.objectives),
             )
             run.save_checkpoint(state, self.replay, self.cfg.checkpoint.save_replay)
             logger.checkpoint()
             run.update_meta(
                 steps_done=self.step, episodes_done=self.episodes, wall_s=round(wall, 1)
             )
+
+
+def _declarations(cfg: TrainConfig) -> list[dict[str, Any]]:
+    """meta.json's record of the run's objective declarations (functions by dotted path)."""
+    from priqn.objectives import resolve_objectives
+
+    return [o.record() for o in resolve_objectives(cfg.env.objectives)]
 
 
 def _torch_device(cfg: TrainConfig) -> Any:
@@ -435,6 +444,12 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | 
     and the replay buffer when it was saved. Returns the observations at the checkpoint
     when the buffer was restored (its open episodes end there), else None."""
     state = run.load_checkpoint(device)
+    if tuple(state.objectives) != tuple(t.objectives):
+        raise PriqnError(
+            f"{run.path}: --resume: the checkpoint was trained for objectives "
+            f"({', '.join(state.objectives)}) but {run.CONFIG} lists ({', '.join(t.objectives)}); "
+            "restore the run's config.toml or start a new run"
+        )
     t.learner.load_state_dict(state.learner)
     t.rng_replay.bit_generator.state = state.rng_replay
     t.rng_act.bit_generator.state = state.rng_act
@@ -464,6 +479,7 @@ def _finish(run: RunFolder, t: Trainer) -> None:
             obs_shapes=t.obs_shapes,
             num_actions=t.num_actions,
             step=t.step,
+            objectives=list(t.objectives),
         )
     )
     time_s = t.clock.totals()
@@ -471,7 +487,7 @@ def _finish(run: RunFolder, t: Trainer) -> None:
         time_s["algorithm1"] = round(t.learner.agent.subsets.seconds, 4)
     run.update_meta(
         time_s=time_s,
-        status="complete",
+        status=Status.COMPLETE,
         steps_done=t.step,
         episodes_done=t.episodes,
         updates_done=t.learner.updates,
@@ -499,7 +515,7 @@ class HoldoutEvaluation:
         self.cfg, self.seed = cfg, seed
         root = Path(cfg.env.nets_dir) if cfg.env.nets_dir else None
         self.nets = family_net_refs(cfg.evaluation.family, root)
-        env_cfg = dataclasses.replace(cfg.env, family=cfg.evaluation.family, nets=())
+        env_cfg = dataclasses.replace(cfg.env, family=cfg.evaluation.family, nets=(), junction="")
         self.envs = make_vector_env(env_cfg, 1, seed=seed)
 
     def __enter__(self) -> HoldoutEvaluation:
@@ -527,10 +543,12 @@ class HoldoutEvaluation:
             for i in range(cfg.evaluation.episodes)
         ]
         rows: list[dict[str, Any]] = []
+        names = cfg.objective_names
+        subsets = subset_columns(names)
 
         def on_episode(scene: Any, values: dict[str, Any]) -> None:
-            row = metrics_row("eval", values, scene.net, weights)
-            row.update({k: values[k] for k in SUBSET_COLUMNS if k in values})  # preorder agents
+            row = metrics_row("eval", values, scene.net, weights, names)
+            row.update({k: values[k] for k in subsets if k in values})  # preorder agents
             row.update(episode=scene.episode + 1, epsilon=0.0, loss="")
             rows.append(row)
 

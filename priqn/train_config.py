@@ -16,14 +16,22 @@ from typing import Any
 
 import numpy as np
 
-from priqn.agents.config import AGENT_SPECS, AgentConfig, LearnerConfig, NetworkConfig, agent_spec
+from priqn.agent_config import (
+    AGENT_SPECS,
+    PREORDER_PRESETS,
+    AgentConfig,
+    LearnerConfig,
+    NetworkConfig,
+    agent_spec,
+)
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
+from priqn.objectives import objective_names
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
-PRESETS: tuple[str, ...] = ("default", "paper")
+PRESETS: tuple[str, ...] = ("default", "paper", "right-of-way")
 """Training presets: ``priqn/presets/train_<name>.toml``."""
 NETS: tuple[str, ...] = ("tjunction", "fourway", "all")
 """Training pools ``--net`` accepts (EnvConfig.family)."""
@@ -133,13 +141,27 @@ class TrainConfig:
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
+        n = len(self.env.objectives)
+        self.agent.check_lengths(tuple(self.env.objectives))
+        self.learner.gammas(n)  # one γ or one per objective
         spec = AGENT_SPECS.get(self.agent.name)  # unknown names: one line in _validate_names
-        scalar_heads = spec is not None and spec(self.agent).reward_rule == "weighted-sum"
-        if scalar_heads and len(set(self.learner.gamma_5)) > 1:
+        scalar_heads = spec is not None and spec(self.agent, n).reward_rule == "weighted-sum"
+        if scalar_heads and len(set(self.gammas)) > 1:
             raise ValueError(
                 f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
                 "so it needs one discount (per-objective values are for ma-iqn and pr-iqn)"
             )
+
+    @property
+    def objective_names(self) -> tuple[str, ...]:
+        """The run's objective names (``env.objectives`` resolved; reward-vector, head and
+        ``return_<name>`` column order)."""
+        return objective_names(self.env.objectives)
+
+    @property
+    def gammas(self) -> tuple[float, ...]:
+        """γ per objective of the run (``env.objectives`` order)."""
+        return self.learner.gammas(len(self.env.objectives))
 
     @property
     def safety_penalty(self) -> float:
@@ -156,7 +178,8 @@ class TrainConfig:
             self.agent.reward_scheme,
             self.safety_penalty,
             self.env.max_episode_steps,
-            max(self.learner.gamma_5),  # the longest horizon: the margin holds for all
+            max(self.gammas),  # the longest horizon: the margin holds for all
+            self.env.objectives,
         )
 
     @property
@@ -171,7 +194,8 @@ class TrainConfig:
             self.reward_weights,
             self.safety_penalty,
             self.env.max_episode_steps,
-            self.learner.gamma_5,
+            self.gammas,
+            self.env.objectives,
         )
 
 
@@ -235,7 +259,7 @@ def resolve_config(
         nets = tuple(str(Path(n).resolve()) for n in cfg.env.nets)
         cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, nets=nets))
     preorder = Path(cfg.agent.preorder)
-    if cfg.agent.preorder not in ("total", "partial") and preorder.is_file():
+    if cfg.agent.preorder not in PREORDER_PRESETS and preorder.is_file():
         # a preorder TOML is recorded by absolute path, so load_policy works from any cwd
         agent = dataclasses.replace(cfg.agent, preorder=str(preorder.resolve()))
         cfg = dataclasses.replace(cfg, agent=agent)
@@ -247,7 +271,7 @@ def _validate_names(cfg: TrainConfig) -> None:
     without building the agent: :func:`priqn.train.train` builds it once)."""
     from priqn.agents.registry import check_agent
 
-    check_agent(cfg.agent.name, cfg.agent_config)
+    check_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
 
 
 def derive_seeds(seed: int) -> dict[str, int]:
@@ -267,7 +291,7 @@ def policy_labels(cfg: TrainConfig, agent: Any = None) -> dict[str, Any]:
     from priqn.agents.registry import make_agent
 
     if agent is None:
-        agent = make_agent(cfg.agent.name, cfg.agent_config)
+        agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
     labels = agent.labels
     labels["train_seed"] = cfg.seed
     return labels
@@ -334,7 +358,7 @@ def build_network(
     from priqn.agents.registry import make_agent
 
     if agent is None:
-        agent = make_agent(cfg.agent.name, cfg.agent_config)
+        agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
     heads = agent.num_heads
     spec = obs_spec(obs_space)
     with torch.random.fork_rng(devices=[]):

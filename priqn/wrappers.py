@@ -5,13 +5,13 @@
 >>> env = ScalarizeReward(gymnasium.make("priqn/Intersection-v0", obs_size_px=64))  # hln-2
 >>> env = ScalarizeReward(env, weights=(1, 0.1, 0.05, 0.02, 0.01))  # your own weights
 
-The reward becomes ``Σ_i w_i r_i`` (OBJECTIVES order: safety, risk, lane keeping,
-progress, comfort) and the vector stays available as ``info["reward_vector"]``.
+The reward becomes ``Σ_i w_i r_i`` (the env's ``config.objectives`` order; by default
+safety, risk, lane keeping, progress, comfort) and the vector stays available as ``info["reward_vector"]``.
 ``weights`` is a scheme name of :mod:`priqn.agents.scalarise` (default ``"hln-2-task"``, the
-agents' default, whose crash margin keeps crashing from ever paying; docs/implementation-details.md) or five
-numbers. :class:`ScalarizeVectorReward` does the same for a vector env
+agents' default, whose crash margin keeps crashing from ever paying; docs/implementation-details.md) or one
+number per objective. :class:`ScalarizeVectorReward` does the same for a vector env
 (``gymnasium.make_vec``), returning ``float32 [num_envs]`` rewards.
-MO-Gymnasium users need no wrapper: the env has ``reward_space`` (Box, 5).
+MO-Gymnasium users need no wrapper: the env has ``reward_space`` (Box, N objectives).
 """
 
 from __future__ import annotations
@@ -22,26 +22,36 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from priqn.agents.config import AgentConfig
+from priqn.agent_config import AgentConfig
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
-from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+from priqn.objectives import OBJECTIVES, objective_names
 
 DEFAULT_SCHEME: str = AgentConfig.reward_scheme
 """The agents' default weighted-sum scheme, also the wrappers' default."""
 
 
-def resolve_weights(weights: str | Sequence[float]) -> np.ndarray:
-    """A scheme name or five numbers → ``float64 [5]`` (one-line errors)."""
+def resolve_weights(
+    weights: str | Sequence[float], objectives: Sequence[str] = OBJECTIVES
+) -> np.ndarray:
+    """A scheme name or one number per objective → ``float64 [N]`` (one-line errors);
+    ``objectives``: the env's ``config.objectives``."""
     if isinstance(weights, str):
-        return np.asarray(scheme_weights(weights), dtype=np.float64)
+        return np.asarray(scheme_weights(weights, objectives=objectives), dtype=np.float64)
+    n = len(objectives)
     w = np.asarray(weights, dtype=np.float64).reshape(-1)
-    if w.shape != (NUM_OBJECTIVES,) or not np.isfinite(w).all():
+    if w.shape != (n,) or not np.isfinite(w).all():
         raise PriqnError(
-            f"weights: expected a scheme name or {NUM_OBJECTIVES} finite numbers "
-            f"({', '.join(OBJECTIVES)}), got {weights!r}"
+            f"weights: expected a scheme name or {n} finite numbers "
+            f"({', '.join(objective_names(objectives))}), got {weights!r}"
         )
     return w
+
+
+def _env_objectives(env: Any) -> tuple[str, ...]:
+    """The ``config.objectives`` of a priqn env (the default list for other envs)."""
+    cfg = getattr(getattr(env, "unwrapped", env), "config", None)
+    return tuple(getattr(cfg, "objectives", OBJECTIVES))
 
 
 class ScalarizeReward(gymnasium.Wrapper):
@@ -49,7 +59,7 @@ class ScalarizeReward(gymnasium.Wrapper):
 
     def __init__(self, env: gymnasium.Env, weights: str | Sequence[float] = DEFAULT_SCHEME) -> None:
         super().__init__(env)
-        self.weights_5 = resolve_weights(weights)
+        self.weights_5 = resolve_weights(weights, _env_objectives(env))
         low, high = _bounds(env, self.weights_5)
         self.reward_range = (low, high)
 
@@ -67,7 +77,8 @@ class ScalarizeVectorReward(gymnasium.vector.VectorWrapper):
         self, env: gymnasium.vector.VectorEnv, weights: str | Sequence[float] = DEFAULT_SCHEME
     ) -> None:
         super().__init__(env)
-        self.weights_5 = resolve_weights(weights)
+        objectives = tuple(getattr(env.unwrapped, "objectives", OBJECTIVES))  # priqn's make_vec
+        self.weights_5 = resolve_weights(weights, objectives)
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, Any, Any, dict[str, Any]]:
         obs, rewards_E5, terminated, truncated, infos = self.env.step(actions)

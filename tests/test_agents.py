@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from priqn.agent_config import AgentConfig, LearnerConfig, NetworkConfig
 from priqn.agents import rules
-from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
 from priqn.agents.learner import Learner
 from priqn.agents.network import QuantileNetwork, tau_grid
 from priqn.agents.policy import Policy

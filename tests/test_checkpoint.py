@@ -13,14 +13,16 @@ from priqn import checkpoint
 from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.errors import PriqnError
 from priqn.io import CHECKSUM_SUFFIX, atomic_torch_save
+from priqn.objectives import OBJECTIVES
 from priqn.runs import RunFolder
 
 CHECKPOINT_KEYS = [
     "step", "episodes", "wall_s", "learner", "rng_replay", "rng_act", "obs", "obs_shapes",
-    "num_actions", "config", "replay_file", "torch_version",
+    "num_actions", "config", "replay_file", "torch_version", "objectives",
 ]  # fmt: skip
-"""The keys of checkpoints/latest.pt since the first release (old files must keep loading)."""
-POLICY_KEYS = ["online", "agent", "obs_shapes", "num_actions", "step"]
+"""The keys of checkpoints/latest.pt since the first release (old files must keep loading),
+then the optional ``objectives`` (declared objectives; absent = the default five)."""
+POLICY_KEYS = ["online", "agent", "obs_shapes", "num_actions", "step", "objectives"]
 
 
 def make_checkpoint(step: int = 40) -> Checkpoint:
@@ -86,7 +88,7 @@ def test_checkpoint_round_trip_keeps_every_field_and_the_keys_on_disk(tmp_path: 
 def test_a_checkpoint_written_by_the_old_code_still_loads(tmp_path: Path) -> None:
     """The dict train.py and RunFolder.save_checkpoint wrote before this module existed."""
     state = make_checkpoint()
-    old = {k: getattr(state, k) for k in CHECKPOINT_KEYS[:-2]}
+    old = {k: getattr(state, k) for k in CHECKPOINT_KEYS[:-3]}
     path = tmp_path / "latest.pt"
     atomic_torch_save(dict(old, replay_file="replay-000000000040.npz", torch_version="2.0"), path)
     back = checkpoint.load(path)
@@ -96,6 +98,7 @@ def test_a_checkpoint_written_by_the_old_code_still_loads(tmp_path: Path) -> Non
     torch.save(old, path)
     Path(str(path) + CHECKSUM_SUFFIX).unlink()
     assert checkpoint.load(path).replay_file is None
+    assert tuple(checkpoint.load(path).objectives) == OBJECTIVES  # before declared objectives
 
 
 def test_policy_state_round_trip_and_from_a_checkpoint(tmp_path: Path) -> None:

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 from priqn.preorder import (
-    COMPARATORS,
+    COMPARATOR_FUNCTIONS,
     Preorder,
     RunningScale,
     _optimal_subsets,
@@ -132,7 +132,7 @@ def test_from_toml_round_trip_and_errors(tmp_path):
     with pytest.raises(PriqnError, match=r"unknown preorder 'nope'"):
         Preorder.resolve("nope")
     with pytest.raises(
-        PriqnError, match=r"unknown preorder preset 'nope' \(valid: total, partial\)"
+        PriqnError, match=r"unknown preorder preset 'nope' \(valid: total, partial, right-of-way\)"
     ):
         Preorder.preset("nope")
 
@@ -154,7 +154,7 @@ def test_quantile_grid():
     assert quantile_grid(4).tolist() == [0.125, 0.375, 0.625, 0.875]
 
 
-@pytest.mark.parametrize("comparator", sorted(COMPARATORS))
+@pytest.mark.parametrize("comparator", sorted(COMPARATOR_FUNCTIONS))
 def test_scores_match_literal_definitions(comparator):
     gen = torch.Generator().manual_seed(3)
     q = torch.randn(6, 3, 8, 5, generator=gen, dtype=torch.float64) * 4 + 10
@@ -452,7 +452,7 @@ def test_scale_aware_normalisation_lets_tiny_safety_noise_pass():
     assert members(literal.subset("safety")) == {0, 1}  # the per-state z-score blows 1e-4 up
     assert members(literal.leaf) == {0, 1}  # the action better by 5 on progress is gone
     floor = torch.tensor([2.0, 1.0])  # typical spreads of the two objectives
-    for comparator in COMPARATORS:
+    for comparator in COMPARATOR_FUNCTIONS:
         scaled = optimal_subsets(q, po, comparator, 0.2, spread_floor=floor)
         assert scaled.subset("safety").all(), comparator  # 1e-4 / 2 is inside eps
         assert members(scaled.leaf) == {a - 1}, comparator

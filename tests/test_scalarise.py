@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from priqn.agents.config import AgentConfig, LearnerConfig
+from priqn.agent_config import AgentConfig, LearnerConfig
 from priqn.agents.scalarise import SCHEMES, crash_margin, horizon, scheme_weights
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError

@@ -237,3 +237,46 @@ def test_scores_use_contiguous_seeds_only() -> None:
     got = sequential.scores_by_policy(frame, ["good", "bad"])
     np.testing.assert_array_equal(got["good"], [0.9])
     assert got["bad"].size == 0
+
+
+RECORD = """
+import os
+
+from priqn.io import atomic_write_json
+
+
+def cell(c):
+    atomic_write_json(c.run_dir / "env.json", {"PYTHONPATH": os.environ.get("PYTHONPATH", "")})
+    atomic_write_json(c.run_dir / "meta.json", {"status": "complete"})
+    atomic_write_json(c.run_dir / "eval" / "meta.json", {"status": "complete"})
+"""
+
+
+def test_code_dir_goes_first_on_the_cells_path(tmp_path: Path, monkeypatch) -> None:
+    """`priqn sweep --code DIR`: each cell's child runs the priqn at DIR."""
+    from priqn.sweep import run_sweep
+    from priqn.sweep.cli import _code_dir
+
+    mods = tmp_path / "mods"
+    mods.mkdir()
+    (mods / "recordcell.py").write_text(RECORD)
+    monkeypatch.setenv("PYTHONPATH", str(mods))
+    exp_path = tmp_path / "x.toml"
+    exp_path.write_text(
+        f'[experiment]\nname = "x"\nseeds = [0]\nruns_dir = "{(tmp_path / "runs").as_posix()}"\n'
+        '[[policy]]\nname = "a"\nagent = "iqn"\n'
+    )
+    repo = Path(__file__).resolve().parent.parent
+    result = run_sweep(
+        load_experiment(exp_path),
+        cell_fn="recordcell:cell",
+        report=False,
+        progress=False,
+        log=lambda m: None,
+        code_dir=repo,
+    )
+    assert result.completed == ["x/a__seed0"]
+    env = json.loads((tmp_path / "runs" / "x" / "a__seed0" / "env.json").read_text())
+    assert env["PYTHONPATH"].split(os.pathsep) == [str(repo), str(mods)]
+    with pytest.raises(PriqnError, match="--code nowhere: no priqn package there"):
+        _code_dir("nowhere")

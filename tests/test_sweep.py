@@ -24,7 +24,6 @@ from priqn.io import atomic_write_json
 from priqn.paths import experiments_dir
 from priqn.sweep import (
     Cell,
-    _sweep_lock,
     cell_state,
     default_jobs,
     describe_failure,
@@ -33,6 +32,7 @@ from priqn.sweep import (
     load_experiment,
     run_sweep,
 )
+from priqn.sweep.scheduler import SweepFolder
 
 FAKE_CELLS = '''
 """Fast cell bodies for tests; behaviour picked by the policy name."""
@@ -585,7 +585,8 @@ def test_a_cells_leftover_processes_are_killed(tmp_path: Path, fake_cells: str) 
 
 def test_one_sweep_per_experiment_folder(tmp_path: Path, fake_cells: str) -> None:
     exp = load_experiment(write_experiment(tmp_path, ["ok"], [0]))
-    with _sweep_lock(exp.runs_dir), pytest.raises(PriqnError, match="another 'priqn sweep'"):
+    lock = SweepFolder(exp.runs_dir).lock()
+    with lock, pytest.raises(PriqnError, match="another 'priqn sweep'"):
         run_sweep(exp, cell_fn=fake_cells, report=False, progress=False)
 
 
@@ -690,10 +691,14 @@ def test_ray_local_cluster_gives_the_same_cells_as_the_local_pool(
 
 
 def test_option_names_match_the_preorder_module() -> None:
-    from priqn import preorder, sweep
+    """The names experiment files accept (priqn.agent_config) are the ones the preorder
+    module implements: one comparator function per name, one shipped file per preset."""
+    from priqn import preorder
+    from priqn.agent_config import COMPARATOR_NAMES, PREORDER_PRESETS
 
-    assert set(sweep.COMPARATORS) == set(preorder.COMPARATORS)
-    assert set(sweep.PREORDERS) == set(preorder.PRESETS)
+    assert tuple(preorder.COMPARATOR_FUNCTIONS) == tuple(COMPARATOR_NAMES)
+    for name in PREORDER_PRESETS:
+        assert preorder.Preorder.preset(name).objectives
 
 
 # --------------------------------------------------------------------------- the real path (slow)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from priqn.errors import PriqnError
-from priqn.runs import METRIC_COLUMNS, load_policy
+from priqn.metrics import METRIC_COLUMNS
+from priqn.runs import load_policy
 from priqn.train import linear_epsilon, train
 from priqn.train_config import (
     ExplorationConfig,
@@ -96,7 +97,7 @@ def test_config_errors_are_one_line(tmp_path):
     with pytest.raises(PriqnError, match=r"unknown key 'learner.lrr'"):
         resolve_config(overrides=["learner.lrr=1e-3"])
     with pytest.raises(
-        PriqnError, match=r"--preset: unknown preset 'huge' \(valid: default, paper\)"
+        PriqnError, match=r"--preset: unknown preset 'huge' \(valid: default, paper, right-of-way\)"
     ):
         resolve_config(preset="huge")
     bad = tmp_path / "bad.toml"

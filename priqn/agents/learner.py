@@ -13,15 +13,10 @@ from typing import Any
 
 import torch
 
-from priqn.agents.config import LearnerConfig
+from priqn.agent_config import LearnerConfig
 from priqn.agents.loss import quantile_huber_loss
-from priqn.agents.network import QuantileNetwork, tau_grid
+from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
-
-
-def to_tensors(obs: Mapping[str, Any], device: torch.device) -> dict[str, torch.Tensor]:
-    """Numpy observation batch → tensors on ``device`` (uint8 grids stay uint8)."""
-    return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in obs.items()}
 
 
 def make_adam(params: Any, lr: float, eps: float, device: torch.device) -> torch.optim.Adam:

@@ -15,15 +15,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Any
 
 import torch
 from torch import nn
 
-from priqn.agents.config import NetworkConfig
+from priqn.agent_config import NetworkConfig
 from priqn.preorder import quantile_grid
 
 OBS_KEYS: tuple[str, ...] = ("bev", "lidar", "command", "kinematics")
 """Observation keys the encoder reads (the env's Dict space, ARCHITECTURE.md)."""
+
+
+def to_tensors(obs: Mapping[str, Any], device: torch.device) -> dict[str, torch.Tensor]:
+    """Numpy observation batch → the network's input tensors on ``device`` (uint8 grids stay
+    uint8); what acting (:mod:`priqn.agents.policy`) and learning both feed the network."""
+    return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in obs.items()}
 
 
 def _grid_cnn(in_channels: int, channels: tuple[int, ...], size_px: int) -> tuple[nn.Module, int]:

@@ -9,8 +9,7 @@ import numpy as np
 import torch
 
 from priqn.agents import rules
-from priqn.agents.learner import to_tensors
-from priqn.agents.network import QuantileNetwork, tau_grid
+from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
 from priqn.errors import PriqnError
 from priqn.labels import PolicyLabel, near_greedy

@@ -16,19 +16,20 @@ from typing import Any
 
 import torch
 
+from priqn.agent_config import AGENT_SPECS, COMPARATOR_NAMES, AgentConfig, AgentSpec
 from priqn.agents import rules
-from priqn.agents.config import AGENT_SPECS, COMPARATORS, AgentConfig, AgentSpec
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 
 
-def load_preorder(spec: str) -> Any:
-    """'total' | 'partial' | path to a preorder TOML → ``Preorder`` in OBJECTIVES order."""
+def load_preorder(spec: str, objectives: tuple[str, ...] = OBJECTIVES) -> Any:
+    """'total' | 'partial' | 'right-of-way' | path to a preorder TOML → ``Preorder`` over the
+    run's ``objectives``, in their order (one line when it names others)."""
     from priqn.preorder import Preorder
 
     try:
-        return Preorder.resolve(spec, OBJECTIVES)
+        return Preorder.resolve(spec, objectives)
     except PriqnError as exc:
         raise PriqnError(f"agent.preorder: {exc}") from None
 
@@ -88,15 +89,24 @@ class Agent:
     ``[B, H]``; ``head_rewards(rewards_B5)`` → ``[B, H]``. Quantiles are on the fixed grid.
     """
 
-    def __init__(self, name: str, cfg: AgentConfig, spec: AgentSpec, subsets: Any) -> None:
+    def __init__(
+        self,
+        name: str,
+        cfg: AgentConfig,
+        spec: AgentSpec,
+        subsets: Any,
+        objectives: tuple[str, ...] = OBJECTIVES,
+    ) -> None:
         self.name = name
+        self.objectives = tuple(objectives)
+        """The run's objective names (reward-vector and per-objective head order)."""
         self.cfg = cfg
         self.spec = spec
         self.subsets = subsets
         self._reward = rules.lookup(rules.REWARD_RULES, spec.reward_rule, "reward rule")
         self._act = rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule")
         self._target = rules.lookup(rules.TARGET_RULES, spec.target_rule, "target rule")
-        weights = cfg.reward_weights or scheme_weights(cfg.reward_scheme)
+        weights = cfg.reward_weights or scheme_weights(cfg.reward_scheme, objectives=objectives)
         self.reward_weights_5 = torch.tensor(weights, dtype=torch.float32)
 
     @property
@@ -143,32 +153,44 @@ class Agent:
 
 
 def _resolve(
-    name: str, cfg: AgentConfig | None, overrides: dict[str, Any]
+    name: str, cfg: AgentConfig | None, overrides: dict[str, Any], objectives: tuple[str, ...]
 ) -> tuple[AgentConfig, AgentSpec, Any]:
     """The agent's config, spec and preorder (None without one), checked: unknown names,
     comparators and preorders raise a one-line :class:`PriqnError`."""
     cfg = dataclasses.replace(cfg or AgentConfig(), name=name, **overrides)
-    spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg)
+    try:
+        cfg.check_lengths(tuple(objectives))
+    except ValueError as exc:
+        raise PriqnError(f"agent.{exc}") from None
+    spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg, len(objectives))
     preorder = None
     if spec.uses_preorder:
-        if cfg.comparator not in COMPARATORS:  # checked here: a one-line error before training
+        if cfg.comparator not in COMPARATOR_NAMES:  # checked here: a one-line error before training
             raise PriqnError(
-                f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATORS)})"
+                f"agent.comparator: unknown comparator {cfg.comparator!r} (valid: {', '.join(COMPARATOR_NAMES)})"
             )
-        preorder = load_preorder(cfg.preorder)
+        preorder = load_preorder(cfg.preorder, tuple(objectives))
     return cfg, spec, preorder
 
 
-def check_agent(name: str, cfg: AgentConfig | None = None) -> None:
+def check_agent(
+    name: str, cfg: AgentConfig | None = None, objectives: tuple[str, ...] = OBJECTIVES
+) -> None:
     """Raise the one-line :class:`PriqnError` :func:`make_agent` would, without building it."""
-    _resolve(name, cfg, {})
+    _resolve(name, cfg, {}, objectives)
 
 
-def make_agent(name: str, cfg: AgentConfig | None = None, **overrides: Any) -> Agent:
-    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``).
+def make_agent(
+    name: str,
+    cfg: AgentConfig | None = None,
+    objectives: tuple[str, ...] = OBJECTIVES,
+    **overrides: Any,
+) -> Agent:
+    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``) for a run
+    with the given objective names (per-objective heads, preorder, weights follow them).
 
     Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.
     """
-    cfg, spec, preorder = _resolve(name, cfg, overrides)
+    cfg, spec, preorder = _resolve(name, cfg, overrides, objectives)
     subsets = None if preorder is None else PreorderSubsets(preorder, cfg)
-    return Agent(name, cfg, spec, subsets)
+    return Agent(name, cfg, spec, subsets, tuple(objectives))

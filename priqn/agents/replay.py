@@ -31,7 +31,8 @@ class ReplayBuffer:
         num_envs: int,
         capacity: int,
         n_step: int = 1,
-        gamma: float = 0.99,
+        gamma: float | Sequence[float] = 0.99,
+        num_objectives: int = NUM_OBJECTIVES,
     ) -> None:
         if capacity < 2 * num_envs:
             raise ValueError(f"replay capacity {capacity} too small for {num_envs} envs")
@@ -40,15 +41,17 @@ class ReplayBuffer:
         self.num_envs = int(num_envs)
         self.rows = int(capacity) // self.num_envs
         self.n_step = int(n_step)
-        # γ per objective [5] (a number applies to all): the n-step sum discounts each
+        self.num_objectives = int(num_objectives)
+        """N: length of the reward vector (the run's objectives)."""
+        # γ per objective [N] (a number applies to all): the n-step sum discounts each
         # reward component with its own γ_i and the bootstrap discount is γ_i^m.
         self.gamma_5 = np.broadcast_to(
-            np.asarray(gamma, dtype=np.float64), (NUM_OBJECTIVES,)
+            np.asarray(gamma, dtype=np.float64), (self.num_objectives,)
         ).copy()
         E, R = self.num_envs, self.rows
         self.obs = {k: np.zeros((E, R, *shape), dtype=dt) for k, (shape, dt) in obs_spec.items()}
         self.action = np.zeros((E, R), dtype=np.int64)
-        self.reward = np.zeros((E, R, NUM_OBJECTIVES), dtype=np.float32)
+        self.reward = np.zeros((E, R, self.num_objectives), dtype=np.float32)
         self.starts = np.zeros((E, R), dtype=bool)
         """Row starts a transition (False for final-observation rows)."""
         self.ended = np.zeros((E, R), dtype=bool)
@@ -116,7 +119,7 @@ class ReplayBuffer:
     def bytes_per_row(self) -> int:
         """Memory of one row (one observation + action, reward and flags), in bytes."""
         per_obs = sum(a[0, 0].nbytes for a in self.obs.values())
-        return int(per_obs + 8 + 4 * NUM_OBJECTIVES + 3)
+        return int(per_obs + 8 + 4 * self.num_objectives + 3)
 
     def nbytes(self) -> int:
         """Memory held by the buffer's arrays, in bytes."""
@@ -166,8 +169,8 @@ class ReplayBuffer:
 
     def _gather(self, e: np.ndarray, p: np.ndarray) -> dict[str, Any]:
         B = len(p)
-        reward = np.zeros((B, NUM_OBJECTIVES), dtype=np.float32)
-        disc = np.ones((B, NUM_OBJECTIVES), dtype=np.float64)
+        reward = np.zeros((B, self.num_objectives), dtype=np.float32)
+        disc = np.ones((B, self.num_objectives), dtype=np.float64)
         alive = np.ones(B, dtype=bool)
         done = np.zeros(B, dtype=bool)
         nxt = p + self.n_step

@@ -21,6 +21,11 @@ bound holds with a margin ``m``:
     w = (1, c, c/ρ, c/ρ², c/ρ³),   c = P / (m · H_T · (1 + 1/ρ + 1/ρ³))
 
 (risk, lane keeping and comfort are levels 1, 2 and 4 below safety). Torch-free.
+
+With declared objectives (``env.objectives``, docs/your-own-objective.md) the same rule
+holds for any list: ``safety`` is the crash term, the lower penalties are the objectives
+declared ``cost_only`` (their per-decision reward lies in [low, 0]; the bound uses
+``|low|``), and an objective's level is its position in the list (``safety`` first).
 """
 
 from __future__ import annotations
@@ -30,10 +35,13 @@ import math
 from collections.abc import Sequence
 
 from priqn.errors import PriqnError
-from priqn.objectives import OBJECTIVES
+from priqn.objectives import OBJECTIVES, Objective, resolve_objectives
 
 PENALISING_LOWER_OBJECTIVES: tuple[str, ...] = ("risk", "lane_keeping", "comfort")
-"""Lower-level objectives whose per-decision reward lies in [-1, 0] (docs/environment.md)."""
+"""Lower-level objectives of the default list whose per-decision reward lies in [-1, 0]
+(docs/environment.md); for any list: :func:`penalising_lower`."""
+CRASH_OBJECTIVE = "safety"
+"""The objective whose one-off penalty crashing costs."""
 
 DEFAULT_EPISODE_STEPS = 100
 """EnvConfig.max_episode_steps default: the T the named schemes are computed for."""
@@ -50,28 +58,62 @@ def horizon(max_episode_steps: int, gamma: float) -> float:
     return (1.0 - gamma**max_episode_steps) / (1.0 - gamma)
 
 
+Objectives = Sequence[str | Objective]
+"""An ``env.objectives`` list: entries (names, dotted paths) or declarations."""
+
+
+def penalising_lower(objectives: Objectives = OBJECTIVES) -> tuple[tuple[str, float], ...]:
+    """``(name, |low|)`` of every objective declared ``cost_only`` other than safety, in
+    list order: the lower-level penalties the crash bound weighs (|low| = its worst
+    per-decision cost; 1 for the built-in risk, lane keeping and comfort)."""
+    if tuple(objectives) == OBJECTIVES:  # the default list, without resolving anything
+        return tuple((o, 1.0) for o in PENALISING_LOWER_OBJECTIVES)
+    out = []
+    for o in resolve_objectives(objectives):
+        if o.cost_only and o.name != CRASH_OBJECTIVE:
+            if not isinstance(o.bounds, tuple):
+                raise PriqnError(
+                    f"objective {o.name!r}: a cost_only objective needs fixed (low, high) bounds "
+                    "for the weighted-sum crash bound"
+                )
+            out.append((o.name, abs(float(o.bounds[0]))))
+    return tuple(out)
+
+
+def _names(objectives: Objectives) -> tuple[str, ...]:
+    if tuple(objectives) == OBJECTIVES:
+        return OBJECTIVES
+    return tuple(o.name for o in resolve_objectives(objectives))
+
+
 def crash_margin(
     weights: Sequence[float],
     safety_penalty: float = DEFAULT_SAFETY_PENALTY,
     max_episode_steps: int = DEFAULT_EPISODE_STEPS,
     gamma: float | Sequence[float] = DEFAULT_GAMMA,
+    objectives: Objectives = OBJECTIVES,
 ) -> float:
     """Cost of a safety event over the worst accumulable lower-level penalty (> 1 = safe).
 
-    ``weights`` in OBJECTIVES order; ``safety_penalty`` the smaller of the collision and
-    off-road penalties; ``gamma`` one number or one per objective. ``inf`` when no lower
-    objective is penalised.
+    ``weights`` in ``objectives`` order; ``safety_penalty`` the smaller of the collision
+    and off-road penalties; ``gamma`` one number or one per objective. ``inf`` when no
+    lower objective is penalised or there is no ``safety`` objective to protect.
     """
-    w = dict(zip(OBJECTIVES, weights, strict=True))
-    g = dict(zip(OBJECTIVES, _per_objective(gamma), strict=True))
-    worst_lower = sum(w[o] * horizon(max_episode_steps, g[o]) for o in PENALISING_LOWER_OBJECTIVES)
-    crash = w["safety"] * safety_penalty
+    names = _names(objectives)
+    w = dict(zip(names, weights, strict=True))
+    g = dict(zip(names, _per_objective(gamma, len(names)), strict=True))
+    if CRASH_OBJECTIVE not in w:
+        return math.inf
+    worst_lower = sum(  # c = 1.0 for the built-ins: 1.0 * x == x, bit for bit
+        w[o] * (c * horizon(max_episode_steps, g[o])) for o, c in penalising_lower(objectives)
+    )
+    crash = w[CRASH_OBJECTIVE] * safety_penalty
     return math.inf if worst_lower <= 0 else crash / worst_lower
 
 
-def _per_objective(gamma: float | Sequence[float]) -> tuple[float, ...]:
+def _per_objective(gamma: float | Sequence[float], n: int = len(OBJECTIVES)) -> tuple[float, ...]:
     if isinstance(gamma, (int, float)):
-        return (float(gamma),) * len(OBJECTIVES)
+        return (float(gamma),) * n
     return tuple(float(x) for x in gamma)
 
 
@@ -81,12 +123,20 @@ def hierarchy_weights(
     safety_penalty: float = DEFAULT_SAFETY_PENALTY,
     max_episode_steps: int = DEFAULT_EPISODE_STEPS,
     gamma: float = DEFAULT_GAMMA,
+    objectives: Objectives = OBJECTIVES,
 ) -> tuple[float, ...]:
-    """``(1, c, c/ρ, c/ρ², c/ρ³)`` with ``c`` such that :func:`crash_margin` = ``margin``."""
-    levels = {o: i for i, o in enumerate(OBJECTIVES)}  # safety 0, risk 1, ... comfort 4
-    share = sum(ratio ** -(levels[o] - 1) for o in PENALISING_LOWER_OBJECTIVES)
+    """``(1, c, c/ρ, c/ρ², c/ρ³)`` with ``c`` such that :func:`crash_margin` = ``margin``
+    (one weight per objective, level = position; ``safety`` must come first)."""
+    names = _names(objectives)
+    if names[0] != CRASH_OBJECTIVE:
+        raise PriqnError(
+            f"agent.reward_scheme: the weighted-sum schemes need {CRASH_OBJECTIVE!r} first in "
+            f"env.objectives (got {', '.join(names)}); or give agent.reward_weights"
+        )
+    levels = {o: i for i, o in enumerate(names)}  # safety 0, risk 1, ... comfort 4
+    share = sum(c * ratio ** -(levels[o] - 1) for o, c in penalising_lower(objectives))
     c = safety_penalty / (margin * horizon(max_episode_steps, gamma) * share)
-    return (1.0,) + tuple(c * ratio ** -(i - 1) for i in range(1, len(OBJECTIVES)))
+    return (1.0,) + tuple(c * ratio ** -(i - 1) for i in range(1, len(names)))
 
 
 def task_progress_weights(
@@ -96,15 +146,20 @@ def task_progress_weights(
     safety_penalty: float = DEFAULT_SAFETY_PENALTY,
     max_episode_steps: int = DEFAULT_EPISODE_STEPS,
     gamma: float = DEFAULT_GAMMA,
+    objectives: Objectives = OBJECTIVES,
 ) -> tuple[float, ...]:
     """:func:`hierarchy_weights` for the penalising levels, and a progress weight such
     that a whole episode of full progress is worth ``episode_share`` safety events:
     ``w_progress · H_T = episode_share · P``. Progress is ≥ 0, so it cannot make crashing
     cheap (the crash margin is that of the penalties alone)."""
-    w = list(hierarchy_weights(ratio, margin, safety_penalty, max_episode_steps, gamma))
-    w[OBJECTIVES.index("progress")] = (
-        episode_share * safety_penalty / horizon(max_episode_steps, gamma)
-    )
+    names = _names(objectives)
+    if "progress" not in names:
+        raise PriqnError(
+            "agent.reward_scheme: this scheme weighs the 'progress' objective, which "
+            f"env.objectives lacks ({', '.join(names)}); pick hln-2 / hln-4 or agent.reward_weights"
+        )
+    w = list(hierarchy_weights(ratio, margin, safety_penalty, max_episode_steps, gamma, objectives))
+    w[names.index("progress")] = episode_share * safety_penalty / horizon(max_episode_steps, gamma)
     return tuple(w)
 
 
@@ -129,8 +184,15 @@ class Scheme:
         safety_penalty: float = DEFAULT_SAFETY_PENALTY,
         max_episode_steps: int = DEFAULT_EPISODE_STEPS,
         gamma: float = DEFAULT_GAMMA,
+        objectives: Objectives = OBJECTIVES,
     ) -> tuple[float, ...]:
         if self.weights is not None:
+            if len(self.weights) != len(objectives):
+                raise PriqnError(
+                    f"agent.reward_scheme: fixed weights for the {len(self.weights)} default "
+                    f"objectives, but env.objectives has {len(objectives)}; pick hln-2, hln-4 "
+                    "or give agent.reward_weights"
+                )
             return self.weights
         assert self.ratio is not None and self.margin is not None
         if self.progress_share is not None:
@@ -141,8 +203,11 @@ class Scheme:
                 safety_penalty,
                 max_episode_steps,
                 gamma,
+                objectives,
             )
-        return hierarchy_weights(self.ratio, self.margin, safety_penalty, max_episode_steps, gamma)
+        return hierarchy_weights(
+            self.ratio, self.margin, safety_penalty, max_episode_steps, gamma, objectives
+        )
 
 
 SCHEMES: dict[str, Scheme] = {
@@ -173,10 +238,12 @@ def scheme_weights(
     safety_penalty: float = DEFAULT_SAFETY_PENALTY,
     max_episode_steps: int = DEFAULT_EPISODE_STEPS,
     gamma: float = DEFAULT_GAMMA,
+    objectives: Objectives = OBJECTIVES,
 ) -> tuple[float, ...]:
-    """Weights of the named scheme for an episode of ``max_episode_steps`` decisions."""
+    """Weights of the named scheme for an episode of ``max_episode_steps`` decisions, one
+    per objective of ``objectives`` (``env.objectives``)."""
     if name not in SCHEMES:
         raise PriqnError(
             f"agent.reward_scheme: unknown scheme {name!r} (valid: {', '.join(SCHEMES)})"
         )
-    return SCHEMES[name].resolve(safety_penalty, max_episode_steps, gamma)
+    return SCHEMES[name].resolve(safety_penalty, max_episode_steps, gamma, objectives)

@@ -22,7 +22,7 @@ from priqn.analysis.claims import ClaimResult  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
-from priqn.objectives import OBJECTIVES  # noqa: E402
+from priqn.objectives import names_in_columns  # noqa: E402
 
 plt.rcParams["svg.hashsalt"] = "priqn"
 plt.rcParams["pdf.compression"] = 6
@@ -211,7 +211,8 @@ def training_curve_figure(rows: Sequence[Mapping[str, Any]], title: str) -> plt.
             "return_weighted",
         ):
             df[col] = pd.to_numeric(df[col], errors="coerce")
-        for o in OBJECTIVES:
+        objectives = names_in_columns(list(df.columns))  # the run's env.objectives
+        for o in objectives:
             df[f"return_{o}"] = pd.to_numeric(df[f"return_{o}"], errors="coerce")
         tr, ev = df[df["kind"] == "train"], df[df["kind"] == "eval"]
         win = max(1, min(50, len(tr) // 5 or 1))
@@ -242,7 +243,7 @@ def training_curve_figure(rows: Sequence[Mapping[str, Any]], title: str) -> plt.
         )
         ax.legend(fontsize=8)
         ax = axes[0, 1]
-        for o in OBJECTIVES:
+        for o in objectives:
             if len(tr):
                 ax.plot(tr["step"], tr[f"return_{o}"].rolling(win, min_periods=1).mean(), label=o)
         ax.set(xlabel="env decisions", ylabel="episode return", title="train return per objective")

@@ -18,12 +18,11 @@ import pandas as pd
 
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import EPISODE_COLUMNS
+from priqn.evaluate import episode_columns, is_nets_evaluation
 from priqn.io import read_json
-from priqn.runs import RunFolder
-
-CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
-"""Columns that define a policy configuration (one row of Table II)."""
+from priqn.labels import CONFIG_COLUMNS
+from priqn.objectives import OBJECTIVES, names_in_columns
+from priqn.runs import RunFolder, Status
 
 SORT_COLUMNS: tuple[str, ...] = ("label", "train_seed", "eval_run", "net", "density", "episode")
 """Canonical row order of the loaded table (so every statistic sees the same order)."""
@@ -111,10 +110,12 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
     unevaluated = []
     for run in run_dirs:
         folder = RunFolder(run)
-        for control in ["", *folder.control_evaluations()]:
+        # Evaluations on other nets (eval-nets-*) are reported apart (analysis.generalisation).
+        controls = [c for c in folder.control_evaluations() if not is_nets_evaluation(c)]
+        for control in ["", *controls]:
             eval_dir = folder.evaluation_dir(control)
             name = f"{run.name}/{eval_dir.name}" if control else run.name
-            if folder.recorded_eval_status(control) == "complete":
+            if folder.recorded_eval_status(control) == Status.COMPLETE:
                 evaluations.append((name, run, eval_dir))
             else:
                 unevaluated.append(name)
@@ -129,39 +130,9 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
 
     frames, infos = [], []
     for name, run, eval_dir in evaluations:
-        meta_path = eval_dir / RunFolder.META
-        meta = read_json(meta_path)
-        csv = eval_dir / RunFolder.EVAL_EPISODES
-        try:
-            frame = pd.read_csv(csv, keep_default_na=True)
-        except (OSError, ValueError) as exc:
-            raise PriqnError(f"{csv}: unreadable episode table ({exc})") from exc
-        missing = [c for c in EPISODE_COLUMNS if c not in frame.columns]
-        if missing:
-            raise PriqnError(
-                f"{csv}: missing column {missing[0]!r}; re-run 'priqn evaluate --force'"
-            )
-        if frame.empty:
-            raise PriqnError(f"{csv}: no episodes; re-run 'priqn evaluate --force {run}'")
-        for column in ("holdout_hash", "label", "train_seed"):
-            if frame[column].nunique(dropna=False) != 1:
-                raise PriqnError(f"{csv}: column {column!r} is not constant within one run")
-        holdout = str(meta.get("holdout_hash"))
-        if str(frame["holdout_hash"].iloc[0]) != holdout:
-            raise PriqnError(f"{csv}: holdout_hash differs from {meta_path}")
-        frame["run"] = name
-        frames.append(frame[list(EPISODE_COLUMNS)])
-        infos.append(
-            RunInfo(
-                name=name,
-                path=run,
-                holdout_hash=holdout,
-                eval_config=dict(meta.get("eval_config") or {}),
-                label=str(frame["label"].iloc[0]),
-                train_seed=int(frame["train_seed"].iloc[0]),
-                eval_dir=eval_dir.name,
-            )
-        )
+        frame, info = read_evaluation(name, run, eval_dir)
+        frames.append(frame)
+        infos.append(info)
 
     _check_same(
         infos, "holdout_hash", lambda i: i.holdout_hash, "evaluated on different hold-out sets"
@@ -181,6 +152,55 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
         eval_config=infos[0].eval_config,
         left_out=tuple(unevaluated),
     )
+
+
+def read_evaluation(
+    name: str, run: Path, eval_dir: Path, reference: bool = False
+) -> tuple[pd.DataFrame, RunInfo]:
+    """One finished evaluation folder: its episode table (``run`` column set to ``name``,
+    columns of ``EPISODE_COLUMNS``) and its :class:`RunInfo`; a one-line error for a table
+    that is unreadable, lacks a column, is empty or disagrees with its ``meta.json``, and
+    for a reference driver's evaluation (``priqn evaluate --reference``) read as a run's or
+    the other way round (``reference``)."""
+    meta_path = eval_dir / RunFolder.META
+    meta = read_json(meta_path)
+    if bool(meta.get("reference")) != reference:
+        raise PriqnError(
+            f"{meta_path}: the {meta['reference']!r} reference driver's evaluation, not a run's; "
+            f"report it with 'priqn report RUNS --reference {run}', not among the runs"
+            if meta.get("reference")
+            else f"{meta_path}: a run's evaluation, not a reference driver's "
+            "('priqn evaluate --reference sumo|random --out DIR' makes one)"
+        )
+    csv = eval_dir / RunFolder.EVAL_EPISODES
+    try:
+        frame = pd.read_csv(csv, keep_default_na=True)
+    except (OSError, ValueError) as exc:
+        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from exc
+    # The default columns, or those of the run's own objectives (env.objectives).
+    columns = episode_columns(names_in_columns(list(frame.columns)) or OBJECTIVES)
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise PriqnError(f"{csv}: missing column {missing[0]!r}; re-run 'priqn evaluate --force'")
+    if frame.empty:
+        raise PriqnError(f"{csv}: no episodes; re-run 'priqn evaluate --force {run}'")
+    for column in ("holdout_hash", "label", "train_seed"):
+        if frame[column].nunique(dropna=False) != 1:
+            raise PriqnError(f"{csv}: column {column!r} is not constant within one run")
+    holdout = str(meta.get("holdout_hash"))
+    if str(frame["holdout_hash"].iloc[0]) != holdout:
+        raise PriqnError(f"{csv}: holdout_hash differs from {meta_path}")
+    frame["run"] = name
+    info = RunInfo(
+        name=name,
+        path=run,
+        holdout_hash=holdout,
+        eval_config=dict(meta.get("eval_config") or {}),
+        label=str(frame["label"].iloc[0]),
+        train_seed=int(frame["train_seed"].iloc[0]),
+        eval_dir=eval_dir.name,
+    )
+    return frame[list(columns)], info
 
 
 def load_episodes(runs_dir: str | Path) -> pd.DataFrame:

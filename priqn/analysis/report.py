@@ -14,6 +14,8 @@
                      performance_profile,learning_curves,
                      outcomes_by_command,seeds}.{png,pdf}
     out_dir/figures/claims.{png,pdf}  the claims' success-rate comparisons, when measured
+    out_dir/tables/generalisation_<hash>.{md,csv}  per set of other nets the runs were
+                                      evaluated on (``priqn evaluate --nets``), when any
 
 Same inputs and seed give byte-identical tables and report.md (no timestamps).
 """
@@ -95,6 +97,12 @@ class ReportInputs:
     """At least MIN_SEEDS_FOR_STATISTICS training seeds per policy (marks and CIs)."""
     unranked_why: str = ""
     """Why not ranked (empty when ranked)."""
+    generalisation: list[Any] = dataclasses.field(default_factory=list)
+    """:class:`priqn.analysis.generalisation.NetsEvaluation` per set of other nets the runs
+    were evaluated on (``priqn evaluate --nets``); empty when none, and then the report is
+    exactly what it was before such evaluations existed."""
+    references: Any = None
+    """:class:`priqn.analysis.reference.References` (``--reference``); None without them."""
 
     @property
     def episodes(self) -> Any:
@@ -111,6 +119,10 @@ class ReportTables:
     outcomes: Any
     order: list[str]
     """Policy labels in Table II order (every later step uses it)."""
+    generalisation: list[Any] = dataclasses.field(default_factory=list)
+    """``(NetsEvaluation, table)`` per ``ReportInputs.generalisation`` entry, same order."""
+    reference_order: list[str] = dataclasses.field(default_factory=list)
+    """Reference drivers' labels, shown after the policies (never ranked; not in ``order``)."""
 
 
 @dataclasses.dataclass
@@ -128,12 +140,22 @@ class ReportStatistics:
         return any(not r.missing for r in self.claims)
 
 
-def load_inputs(runs_dir: str | Path, partial: bool, min_seeds: int | None) -> ReportInputs:
-    """Load every evaluated run, check seeds, and collect the notes the report must carry."""
+def load_inputs(
+    runs_dir: str | Path,
+    partial: bool,
+    min_seeds: int | None,
+    references: tuple[str | Path, ...] = (),
+) -> ReportInputs:
+    """Load every evaluated run, check seeds, and collect the notes the report must carry.
+
+    ``references``: reference-driver folders (``priqn evaluate --reference``), checked
+    against the runs (:func:`priqn.analysis.reference.load_references`)."""
+    from priqn.analysis.generalisation import load_generalisation
     from priqn.analysis.load import check_seeds, load_evaluation
 
     runs_root = Path(runs_dir)
     evaluation = load_evaluation(runs_root, partial=partial)
+    generalisation, unfinished = load_generalisation(runs_root, partial=partial)
     episodes = evaluation.episodes
     if min_seeds is not None:
         check_seeds(episodes, min_seeds)
@@ -161,19 +183,46 @@ def load_inputs(runs_dir: str | Path, partial: bool, min_seeds: int | None) -> R
             "policy are needed to rank policies or compute intervals over seeds)."
         )
         notes.append(unranked_why)
-    return ReportInputs(runs_root, evaluation, notes, ranked, unranked_why)
+    if unfinished:
+        notes.append(
+            f"Partial report: {len(unfinished)} evaluation(s) on other nets not complete "
+            f"were left out of the generalisation tables: {', '.join(unfinished)}."
+        )
+    refs = None
+    if references:
+        from priqn.analysis.reference import load_references
+
+        refs = load_references(references, evaluation, generalisation)
+    return ReportInputs(runs_root, evaluation, notes, ranked, unranked_why, generalisation, refs)
 
 
 def build_tables(inputs: ReportInputs) -> ReportTables:
     """Table II, Table I and the outcome breakdown, in Table II's row order."""
     from priqn.analysis import tables
 
-    t2 = tables.table2(inputs.episodes, inputs.ranked)
+    refs = inputs.references
+    ref_order = list(refs.labels) if refs is not None else []
+    t2 = tables.table2(
+        inputs.episodes, inputs.ranked, refs.episodes if refs is not None else None, ref_order
+    )
     t1 = tables.table1(inputs.episodes, inputs.ranked)
     order = list(t2.configs)
     if tables.reference_label(t2.configs) is None:
         inputs.notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
-    return ReportTables(t2, t1, tables.outcomes_by_command(inputs.episodes, order), order)
+    from priqn.analysis.generalisation import generalisation_table
+
+    by_nets = refs.by_nets if refs is not None else {}
+    general = [
+        (g, generalisation_table(g.episodes, None, by_nets.get(g.nets_hash), ref_order))
+        for g in inputs.generalisation
+    ]
+    outcomes = tables.outcomes_by_command(inputs.episodes, order)
+    if refs is not None:  # the reference drivers' rows after the policies'
+        import pandas as pd
+
+        ref_outcomes = tables.outcomes_by_command(refs.episodes, ref_order)
+        outcomes = pd.concat([outcomes, ref_outcomes], ignore_index=True)
+    return ReportTables(t2, t1, outcomes, order, general, ref_order)
 
 
 def compute_statistics(
@@ -205,7 +254,9 @@ def draw_figures(
         out["iqm_optimality_gap"] = figures.aggregates_figure(stats.rliable)
         out["performance_profile"] = figures.performance_profile_figure(sr)
     out["seeds"] = figures.seed_success_figure(inputs.episodes, tabs.order)
-    out["outcomes_by_command"] = figures.outcomes_figure(tabs.outcomes, tabs.order)
+    out["outcomes_by_command"] = figures.outcomes_figure(
+        tabs.outcomes, tabs.order + tabs.reference_order
+    )
     if stats.claims_checked:
         out["claims"] = figures.claims_figure(stats.claims)
     curves, notes = load_learning_curves(find_run_dirs(inputs.runs_root), inputs.evaluation)
@@ -235,6 +286,13 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics) -> None
             frame = pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
             atomic_write_text(tdir / f"{name}.csv", frame.to_csv(**csv_kw))
     atomic_write_text(tdir / "outcomes_by_command.csv", tabs.outcomes.to_csv(**csv_kw))
+    if tabs.generalisation:
+        from priqn.analysis.generalisation import table_markdown
+
+        for nets, table in tabs.generalisation:
+            stem = f"generalisation_{nets.short_hash}"
+            atomic_write_text(tdir / f"{stem}.md", table_markdown(table))
+            atomic_write_text(tdir / f"{stem}.csv", table.to_csv(**csv_kw))
     if stats.claims_checked:
         atomic_write_text(tdir / "claims.csv", claims.to_frame(stats.claims).to_csv(**csv_kw))
 
@@ -260,6 +318,53 @@ def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatis
         "![IQM and optimality gap](figures/iqm_optimality_gap.png) ([pdf](figures/iqm_optimality_gap.pdf))",
         "",
         "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
+        "",
+    ]
+
+
+def _generalisation_section(tabs: ReportTables) -> str:
+    """The "Generalisation" section (evaluations on other nets), one table per set of nets."""
+    from priqn.analysis.generalisation import section_markdown
+
+    groups = [g for g, _ in tabs.generalisation]
+    return section_markdown(groups, [t for _, t in tabs.generalisation])
+
+
+def _row_notes(inputs: ReportInputs, tabs: ReportTables) -> list[str]:
+    """Paragraphs saying what the rows beyond the trained policies are (controls, references)."""
+    md = []
+    if any(r.eval_dir != RunFolder.EVAL for r in inputs.evaluation.runs):
+        md += [
+            "Rows with `near-greedy ε=…` in their name are the acting-randomness control: "
+            "the same networks as the rows without it, evaluated acting at random among "
+            "the actions whose mean return is within ε (per-state std) of the best "
+            "(`priqn evaluate --acting near-greedy`; docs/evaluation.md).",
+            "",
+        ]
+    if tabs.reference_order:
+        md += [
+            "Rows in *italics* ending in `(reference)` are reference drivers on the same "
+            "scenes (`priqn evaluate --reference`; docs/evaluation.md): the ego driven by "
+            "SUMO's own car-following, junction and lane-change models, or by uniform "
+            "random actions. They are never ranked or marked and no claim uses them.",
+            "",
+        ]
+    return md
+
+
+def _inputs_section(inputs: ReportInputs) -> list[str]:
+    """The "Inputs" section: every evaluated run (and reference driver) with its hold-out hash."""
+    refs = inputs.references.runs if inputs.references is not None else ()
+    return [
+        "## Inputs",
+        "",
+        "| run | policy | training seed | hold-out hash |",
+        "|:--|:--|--:|:--|",
+        *[
+            f"| {r.name} | {r.label} | {r.train_seed} | `{r.holdout_hash[:16]}` |"
+            for r in inputs.evaluation.runs
+        ],
+        *[f"| {r.name} | *{r.label}* | – | `{r.holdout_hash[:16]}` |" for r in refs],
         "",
     ]
 
@@ -298,17 +403,7 @@ def report_markdown(
         ),
         f"Made by `{cmd}`; episodes by `priqn evaluate` on every run below.",
         "",
-        *(
-            [
-                "Rows with `near-greedy ε=…` in their name are the acting-randomness control: "
-                "the same networks as the rows without it, evaluated acting at random among "
-                "the actions whose mean return is within ε (per-state std) of the best "
-                "(`priqn evaluate --acting near-greedy`; docs/evaluation.md).",
-                "",
-            ]
-            if any(r.eval_dir != RunFolder.EVAL for r in evaluation.runs)
-            else []
-        ),
+        *_row_notes(inputs, tabs),
         f"- **Hold-out set**: family `{ec.get('family')}`, manifest hash `{evaluation.holdout_hash}` "
         "(identical for every run).",
         f"- **Evaluation**: densities {ec.get('densities')}, {ec.get('eval_runs')} evaluation runs, "
@@ -344,6 +439,7 @@ def report_markdown(
         "## Table I — objective returns",
         "",
         tables.to_markdown(tabs.table1),
+        *([_generalisation_section(tabs)] if tabs.generalisation else []),
         *(
             [
                 "## The paper's claims",
@@ -364,15 +460,7 @@ def report_markdown(
             else "No usable metrics.csv in any run; no learning curves."
         ),
         "",
-        "## Inputs",
-        "",
-        "| run | policy | training seed | hold-out hash |",
-        "|:--|:--|--:|:--|",
-        *[
-            f"| {r.name} | {r.label} | {r.train_seed} | `{r.holdout_hash[:16]}` |"
-            for r in evaluation.runs
-        ],
-        "",
+        *_inputs_section(inputs),
     ]
     if inputs.notes:
         md += ["## Notes", "", *[f"- {n}" for n in inputs.notes], ""]
@@ -388,6 +476,7 @@ def make_report(
     min_seeds: int | None = None,
     command: str | None = None,
     partial: bool = False,
+    references: tuple[str | Path, ...] = (),
 ) -> Path:
     """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
 
@@ -395,12 +484,14 @@ def make_report(
     fewer training seeds. ``seed`` goes to ``np.random.seed`` before every rliable call
     and seeds Monte-Carlo permutation tests (recorded in the report). ``partial``: report
     the fully evaluated runs of a grid still running, and say which were left out.
+    ``references``: reference-driver folders shown as unranked rows
+    (:mod:`priqn.analysis.reference`); none leaves the report as it was.
     """
     from priqn.analysis import figures
     from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
 
     out, runs_root = Path(out_dir), Path(runs_dir)
-    inputs = load_inputs(runs_root, partial, min_seeds)
+    inputs = load_inputs(runs_root, partial, min_seeds, tuple(references))
     tabs = build_tables(inputs)
     stats = compute_statistics(inputs, tabs.order, reps, seed)
     figs, curves, curve_notes = draw_figures(inputs, tabs, stats)
@@ -441,6 +532,31 @@ def make_report(
             "policies": tabs.order,
             "left_out": list(evaluation.left_out),
             "notes": inputs.notes,
+            **(
+                {
+                    "generalisation": [
+                        {
+                            "nets_hash": g.nets_hash,
+                            "nets": list(g.nets),
+                            "eval_config": g.eval_config,
+                            "runs": [r.name for r in g.runs],
+                        }
+                        for g, _ in tabs.generalisation
+                    ]
+                }
+                if tabs.generalisation
+                else {}
+            ),
+            **(
+                {
+                    "references": [
+                        {"folder": r.name, "label": r.label, "holdout_hash": r.holdout_hash}
+                        for r in inputs.references.runs
+                    ]
+                }
+                if inputs.references is not None
+                else {}
+            ),
         },
     )
     return report
@@ -466,6 +582,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "the runs folder, if it has a [sequential] design): report its looks and verdicts",
     )
     parser.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="a reference driver's folder (priqn evaluate --reference sumo|random --out DIR): "
+        "unranked rows in Table II and the outcome breakdown; repeat for several",
+    )
+    parser.add_argument(
         "--partial",
         action="store_true",
         help="report the fully evaluated runs of a grid still running; name the rest",
@@ -476,7 +600,7 @@ def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
     """The experiment with a ``[sequential]`` design whose runs live in ``runs``: the one
     named ``name``, else the experiment file named like the folder (``results/headline`` ->
     ``headline``) if it has such a design; None otherwise."""
-    from priqn.sweep.experiment import load_experiment
+    from priqn.experiment import load_experiment
 
     folder = Path(runs)
     if name is None:
@@ -501,6 +625,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
     exp = sequential_experiment(args.runs, args.experiment)
     if exp is not None:
+        if args.reference:
+            raise PriqnError("--reference: not for a sequential experiment's report")
         from priqn.analysis import sequential
 
         command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
@@ -511,6 +637,7 @@ def run(args: argparse.Namespace) -> int:
         f"--seed {args.seed} --reps {args.reps}"
         + (f" --seeds {args.seeds}" if args.seeds else "")
         + (" --partial" if args.partial else "")
+        + "".join(f" --reference {shlex.quote(str(d))}" for d in args.reference)
     )
     print(
         make_report(
@@ -521,6 +648,7 @@ def run(args: argparse.Namespace) -> int:
             min_seeds=args.seeds,
             command=command,
             partial=args.partial,
+            references=tuple(args.reference),
         )
     )
     return 0

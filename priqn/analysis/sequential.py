@@ -1,7 +1,7 @@
 """A pre-registered group-sequential experiment over training seeds, replayed from its cells.
 
 The design lives in the experiment file's ``[sequential]`` table
-(:class:`priqn.sweep.experiment.SequentialSpec`); this module only reads it. From the
+(:class:`priqn.experiment.SequentialSpec`); this module only reads it. From the
 run folders it
 
 1. collects one **endpoint** score per (row, training seed): the hold-out success rate
@@ -31,7 +31,8 @@ import pandas as pd
 from priqn.analysis import inference
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.runs import RunFolder
+from priqn.experiment import cell_dir_name
+from priqn.runs import RunFolder, Status
 
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
 """AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at
@@ -57,9 +58,9 @@ class Score:
 def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
     """The endpoint of one complete cell, or None when it is not complete yet."""
     folder = RunFolder(run_dir)
-    if not run_dir.is_dir() or folder.recorded_status() != "complete":
+    if not run_dir.is_dir() or folder.recorded_status() != Status.COMPLETE:
         return None
-    if folder.recorded_eval_status() != "complete":
+    if folder.recorded_eval_status() != Status.COMPLETE:
         return None
     csv = folder.evaluation_dir() / RunFolder.EVAL_EPISODES
     try:
@@ -93,11 +94,16 @@ def collect_scores(exp: Any) -> pd.DataFrame:
     the design lists any) is refused in one line. Columns: those of :class:`Score`.
     """
     seq = exp.sequential
+    if seq.prior_seeds and not Path(seq.prior_runs).is_dir():
+        raise PriqnError(
+            f"{exp.path} [sequential].prior_runs: {seq.prior_runs} is not a folder here "
+            f"({Path.cwd()}); run from the folder it is relative to (the repository root)"
+        )
     rows = []
     for pol in exp.policies:
         for seed in [*seq.prior_seeds, *exp.experiment.seeds]:
             root = Path(seq.prior_runs) if seed in seq.prior_seeds else exp.runs_dir
-            run_dir = root / f"{pol.name}__seed{seed}"
+            run_dir = root / cell_dir_name(pol.name, seed)
             score = _cell_score(run_dir, pol.name, seed)
             if score is None:
                 continue
@@ -517,7 +523,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         "The design is finished: every comparison is decided or the last look is taken."
         if result.finished
         else f"Look {result.next_look} needs {len(nxt)} more cell(s): "
-        + ", ".join(f"{p}__seed{s}" for p, s in nxt)
+        + ", ".join(cell_dir_name(p, s) for p, s in nxt)
         + f" (`priqn sweep {e.name} --code <frozen worktree>`).",
         "",
         "## Cells",

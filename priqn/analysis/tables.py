@@ -25,9 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from priqn.agents.config import AGENT_SPECS
+from priqn.agent_config import AGENT_SPECS
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
 from priqn.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
+from priqn.objectives import OBJECTIVES, names_in_columns
 
 AGENT_ORDER: tuple[str, ...] = tuple(AGENT_SPECS)
 """Row order of agents (the paper's, as registered); unknown agents follow alphabetically."""
@@ -235,17 +236,47 @@ class Table:
     """Label -> configuration, in row order."""
     with_delta: bool = False
     """Show Δ% next to every value (Table I)."""
+    references: tuple[str, ...] = ()
+    """Labels of reference-driver rows (``priqn report --reference``): in ``long``, shown
+    after the policies with dashes for the configuration, never ranked nor marked."""
 
 
-def table2(episodes: pd.DataFrame, ranked: bool = True) -> Table:
-    """Table II: CR, OR, SR, RP per density and policy configuration."""
+def table2(
+    episodes: pd.DataFrame,
+    ranked: bool = True,
+    references: pd.DataFrame | None = None,
+    reference_order: Sequence[str] = (),
+) -> Table:
+    """Table II: CR, OR, SR, RP per density and policy configuration.
+
+    ``references``: reference drivers' episodes (rows ``reference_order``), summarised the
+    same way but apart, so they never take part in the best / second marks.
+    """
     configs = policy_configs(episodes)
+    long = summarise(episodes, TABLE2_METRICS, list(configs), ranked)
+    if references is not None and len(references):
+        refs = summarise(references, TABLE2_METRICS, list(reference_order), ranked=False)
+        long = pd.concat([long, refs], ignore_index=True)
     return Table(
         "Table II: driving metrics (mean ± sample std over training seeds × evaluation runs)",
-        summarise(episodes, TABLE2_METRICS, list(configs), ranked),
+        long,
         TABLE2_METRICS,
         configs,
+        references=tuple(reference_order) if references is not None and len(references) else (),
     )
+
+
+def _rows(table: Table) -> list[tuple[str, tuple, bool]]:
+    """``(label, configuration, is a reference)`` of every row in order: the policies, then
+    the reference drivers (no configuration)."""
+    none = (None,) * len(CONFIG_COLUMNS)
+    rows = [(label, key, False) for label, key in table.configs.items()]
+    return rows + [(label, none, True) for label in table.references]
+
+
+def reference_cells(label: str) -> list[str]:
+    """The configuration cells of a reference driver's row: its name, then dashes."""
+    return [label, *[DASH] * (len(CONFIG_HEADERS) - 1)]
 
 
 def table1(episodes: pd.DataFrame, ranked: bool = True) -> Table:
@@ -254,16 +285,24 @@ def table1(episodes: pd.DataFrame, ranked: bool = True) -> Table:
     steps = episodes["steps"].where(episodes["steps"] > 0)  # -1: length not recorded
     episodes = episodes.assign(**{k: episodes[v] / steps for k, v in PER_DECISION.items()})
     configs = policy_configs(episodes)
-    long = add_delta(
-        summarise(episodes, TABLE1_METRICS, list(configs), ranked), reference_label(configs)
-    )
+    metrics = (*TABLE1_METRICS[:3], *declared_metrics(episodes), *TABLE1_METRICS[3:])
+    long = add_delta(summarise(episodes, metrics, list(configs), ranked), reference_label(configs))
     return Table(
         "Table I: episode returns per objective, per-decision means and episode length "
         "(mean ± sample std over training seeds × evaluation runs) and Δ% relative to IQN",
         long,
-        TABLE1_METRICS,
+        metrics,
         configs,
         with_delta=True,
+    )
+
+
+def declared_metrics(episodes: pd.DataFrame) -> tuple[MetricColumn, ...]:
+    """Table I columns of the objectives a run declared beyond the default five
+    (``return_<name>`` columns of ``env.objectives``, e.g. ``right_of_way``)."""
+    extra = [n for n in names_in_columns(list(episodes.columns)) if n not in OBJECTIVES]
+    return tuple(
+        MetricColumn(n.replace("_", " ").capitalize(), f"return_{n}", True, 2) for n in extra
     )
 
 
@@ -323,10 +362,12 @@ def to_markdown(table: Table) -> str:
     ]
     for density in sorted(table.long["density"].unique()):
         lines.append(f"| *Traffic density {_density_label(density)}* |" + " |" * (len(heads) - 1))
-        for label, key in table.configs.items():
+        for label, key, reference in _rows(table):
             if not ((table.long["density"] == density) & (table.long["label"] == label)).any():
                 continue
             row = config_cells(key, label)
+            if reference:
+                row = [f"*{label}*", *reference_cells(label)[1:]]
             for text, mark, delta in _cells(table, density, label):
                 row.append(
                     f"**{text}**"
@@ -380,10 +421,13 @@ def to_latex(table: Table) -> str:
             f"\\multicolumn{{{len(heads)}}}{{l}}{{\\textit{{Traffic density {_density_label(density)}}}}} \\\\"
         )
         lines.append("\\midrule")
-        for label, key in table.configs.items():
+        for label, key, reference in _rows(table):
             if not ((table.long["density"] == density) & (table.long["label"] == label)).any():
                 continue
             row = [_tex_escape(c) for c in config_cells(key, label)]
+            if reference:
+                cells = reference_cells(label)
+                row = [f"\\textit{{{_tex_escape(cells[0])}}}", *map(_tex_escape, cells[1:])]
             for text, mark, delta in _cells(table, density, label):
                 t = _tex_escape(text)
                 row.append(
@@ -404,7 +448,7 @@ def to_csv(table: Table) -> str:
     """Raw numbers, one row per (density, policy): ``<M>_mean, <M>_std, <M>_n, <M>_mark``."""
     records = []
     for density in sorted(table.long["density"].unique()):
-        for label, key in table.configs.items():
+        for label, key, reference in _rows(table):
             sel = table.long[(table.long["density"] == density) & (table.long["label"] == label)]
             if sel.empty:
                 continue
@@ -412,6 +456,8 @@ def to_csv(table: Table) -> str:
             rec.update(
                 {c: ("" if v is None else v) for c, v in zip(CONFIG_COLUMNS, key, strict=True)}
             )
+            if table.references:  # only then: a report without references stays as it was
+                rec["reference"] = reference
             for _, row in sel.iterrows():
                 name = row["metric"].lower().replace(" ", "_")
                 rec[f"{name}_mean"] = row["mean"]

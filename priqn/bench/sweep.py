@@ -270,7 +270,7 @@ def _check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of ``priqn bench sweep``."""
-    from priqn.sweep.experiment import ResourceSpec
+    from priqn.experiment import ResourceSpec
     from priqn.sweep.scheduler import default_jobs
 
     _check(args)

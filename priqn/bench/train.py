@@ -89,7 +89,13 @@ def _make_learner(preset: str, agent_name: str, batch_size: int, device: str) ->
     space, num_actions = _obs_space(cfg)
     dev = select_device(device)
     net = build_network(cfg, space, num_actions, seed=0)
-    learner = Learner(net, make_agent(agent_name, cfg.agent_config), cfg.learner, dev, tau_seed=0)
+    learner = Learner(
+        net,
+        make_agent(agent_name, cfg.agent_config, cfg.objective_names),
+        cfg.learner,
+        dev,
+        tau_seed=0,
+    )
     rng = np.random.default_rng(0)
     batches = []
     for _ in range(4):

@@ -6,7 +6,8 @@ centre; a Frenet planner plans from the ego's current state (speed and lateral
 position stay continuous); the ego follows the plan with ``moveToXY`` for
 ``decision_interval_s / sim_step_s`` SUMO steps. Our own oriented-box collision
 test and footprint-on-road test, at every SUMO step, decide the episode's end. The
-reward is a ``float32 [5]`` vector in :data:`priqn.objectives.OBJECTIVES` order.
+reward is a ``float32 [N]`` vector over the declared objectives (``EnvConfig.objectives``,
+default :data:`priqn.objectives.OBJECTIVES`), in that order.
 
 ``step()`` reads plan → simulate → measures → rewards → observation; the concepts
 live in their own modules: the pool of nets and what is cached per net
@@ -37,6 +38,7 @@ from gymnasium import spaces
 
 from priqn.env import geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
+from priqn.env.objective_terms import DecisionContext, EnvObjectives
 from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
 from priqn.env.traffic import Traffic, check_density
@@ -55,6 +57,8 @@ RESET_OPTIONS = ("net", "density", "command")
 """Keys ``reset(options=...)`` accepts."""
 EGO_HEIGHT_M = 1.5
 """Ego height [m] (LiDAR)."""
+EGO_DRIVERS = ("planner", "sumo")
+"""Values of ``EnvConfig.ego_driver``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,9 +120,33 @@ class EnvConfig:
     """Radius around the ego within which actors are read from SUMO each step [m]."""
     reward: R.RewardConfig = dataclasses.field(default_factory=R.RewardConfig)
     """Reward term parameters."""
+    objectives: tuple[str, ...] = OBJECTIVES
+    """The objectives, in reward-vector / head order: built-in names (safety, risk,
+    lane_keeping, progress, comfort, right_of_way), ``package.module:NAME`` of your own
+    :class:`priqn.objectives.Objective`, or entry points of group ``priqn.objectives``
+    (docs/your-own-objective.md). Weighted-sum schemes read the order as priority."""
+    ego_driver: str = "planner"
+    """Who drives the ego: "planner" (the action, through the Frenet planner and
+    ``moveToXY``) or "sumo" (the ego handed back to SUMO's own car-following, junction and
+    lane-change models on its route; the action is ignored: the ``sumo`` reference driver,
+    :mod:`priqn.env.handback`). Everything else (scenes, measures, rewards) is the same."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "nets", _net_entries(self.nets))
+        if isinstance(self.objectives, str) or not all(
+            isinstance(o, str) and o for o in self.objectives
+        ):
+            raise ValueError(
+                "objectives: expected a list of objective names or 'package.module:NAME' "
+                f"entries, got {self.objectives!r}"
+            )
+        object.__setattr__(self, "objectives", tuple(self.objectives))
+        if not self.objectives:
+            raise ValueError("objectives: expected at least one objective")
+        if self.ego_driver not in EGO_DRIVERS:
+            raise ValueError(
+                f"ego_driver: {self.ego_driver!r} is not one of {', '.join(EGO_DRIVERS)}"
+            )
         if self.family not in FAMILIES:
             raise ValueError(f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})")
         if self.obs_size_px < 16:
@@ -233,9 +261,8 @@ class _Episode:
     actors: Actors
     """Actors read after the last SUMO step."""
     steps: int = 0
-    returns: np.ndarray = dataclasses.field(
-        default_factory=lambda: np.zeros(len(OBJECTIVES), np.float32)
-    )
+    returns: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
+    """Undiscounted return per objective so far (``float32 [N]``)."""
     outcome: Outcome = dataclasses.field(default_factory=Outcome)
     done: bool = False
 
@@ -331,16 +358,12 @@ class IntersectionEnv(gymnasium.Env):
             np.meshgrid(self._speeds, self._offsets, indexing="ij"), axis=-1
         ).reshape(-1, 2)
         self.action_space = spaces.Discrete(len(self._table))
-        rc = cfg.reward
-        # Per-decision bounds of the reward vector (OBJECTIVES order; docs/environment.md),
+        self.objectives = EnvObjectives(cfg.objectives, cfg.reward)
+        """The declared objectives, resolved (names, bounds, reward vector)."""
+        # Per-decision bounds of the reward vector (declared order; docs/environment.md),
         # for multi-objective libraries (MO-Gymnasium reads env.unwrapped.reward_space).
         self.reward_space = spaces.Box(
-            low=np.array(
-                [-max(rc.collision_penalty, rc.off_road_penalty), -1.0, -1.0, 0.0, -1.0],
-                np.float32,
-            ),
-            high=np.array([0.0, 0.0, 0.0, 1.0 + rc.success_bonus, 0.0], np.float32),
-            dtype=np.float32,
+            low=self.objectives.low, high=self.objectives.high, dtype=np.float32
         )
 
         self._sensors = sensors.Sensors(cfg.sensor_config())
@@ -452,6 +475,7 @@ class IntersectionEnv(gymnasium.Env):
             target_speed_mps=min(cfg.reward.target_speed_mps, route.speed_limit_mps),
             ego=EgoState.start(ref, route.start_s_m, v0),
             actors=actors,
+            returns=np.zeros(len(self.objectives), np.float32),
         )
         return self._observe(), self._info()
 
@@ -459,13 +483,18 @@ class IntersectionEnv(gymnasium.Env):
         self, action: Any
     ) -> tuple[dict[str, np.ndarray], np.ndarray, bool, bool, dict[str, Any]]:
         ep = self._running_episode()
-        plan = self._plan(ep, self._check_action(action))
-        with self._sumo_failure(ep):
-            sim = self._simulate(plan)
+        action = self._check_action(action)
+        if self.config.ego_driver == "sumo":  # SUMO drives; what it did is measured as a plan
+            with self._sumo_failure(ep):
+                plan, sim = self._drive_by_sumo(ep)
+        else:
+            plan = self._plan(ep, action)
+            with self._sumo_failure(ep):
+                sim = self._simulate(plan)
         m = self._measure(ep, plan, sim)
         with self._sumo_failure(ep):
             self._advance(ep, sim, m)
-        reward = self._reward(ep, m)
+        reward = self._reward(ep, plan, sim, m)
         ep.returns += reward
         return self._observe(), reward, ep.outcome.terminated, ep.outcome.timeout, self._info()
 
@@ -593,8 +622,9 @@ class IntersectionEnv(gymnasium.Env):
             departPos=f"{route.start_pos_m:.3f}",
             departSpeed=f"{v0:.3f}",
         )
-        sim.vehicle.setSpeedMode(EGO_ID, 0)
-        sim.vehicle.setLaneChangeMode(EGO_ID, 0)
+        if cfg.ego_driver == "planner":  # the planner moves it; SUMO's driver keeps its modes
+            sim.vehicle.setSpeedMode(EGO_ID, 0)
+            sim.vehicle.setLaneChangeMode(EGO_ID, 0)
         lo, hi = cfg.obstacles_per_episode or spec.obstacles_per_episode
         n_obstacles = int(trng.integers(lo, hi + 1))
         sim.simulationStep()  # inserts the ego (obstacles are moved into place after insertion)
@@ -640,6 +670,52 @@ class IntersectionEnv(gymnasium.Env):
             arrived.append(sim.simulation.getArrivedIDList())
             raw.append(reads.read_actors(sim, EGO_ID))
         return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
+
+    def _drive_by_sumo(self, ep: _Episode) -> tuple[_Plan, _Decision]:
+        """Let SUMO drive the ego for one decision (``ego_driver = "sumo"``).
+
+        One SUMO step at a time, reading the ego's pose and the actors; stops after the
+        first step that reaches the goal or leaves the road (as a plan is cut there), or
+        when the ego has finished its route (counted as reaching the goal). Returns what
+        happened as a :class:`_Plan` (:func:`priqn.env.handback.driven_trajectory`) so that
+        :meth:`_measure` measures it exactly as a planned decision.
+        """
+        from priqn.env import handback
+
+        cfg, sim, route = self.config, self._session.sim, ep.route
+        window = (
+            ep.ego.frenet.s - handback.S_WINDOW_M[0],
+            ep.ego.frenet.s + handback.S_WINDOW_M[1],
+        )
+        poses: list[handback.Pose] = []
+        off_road, at_goal, raw, departed, arrived = [], [], [], [], []
+        for _ in range(cfg.substeps):
+            sim.simulationStep()
+            departed.append(sim.simulation.getDepartedIDList())
+            arrived.append(sim.simulation.getArrivedIDList())
+            if EGO_ID in arrived[-1]:  # the end of its route: past the goal, where it stopped
+                e = ep.ego
+                poses.append(
+                    poses[-1] if poses else handback.Pose(e.x_m, e.y_m, e.heading_rad, 0, 0)
+                )
+                raw.append({})
+                off_road.append(False)
+                at_goal.append(True)
+                break
+            pose = handback.read_pose(sim, EGO_ID, cfg.ego_length_m)
+            poses.append(pose)
+            raw.append(reads.read_actors(sim, EGO_ID))
+            x, y, h = np.array([pose.x_m]), np.array([pose.y_m]), np.array([pose.heading_rad])
+            off = measures.off_road_steps(ep.raster, x, y, h, cfg.ego_length_m, cfg.ego_width_m)
+            s, _ = ep.ref.to_frenet(np.stack([x, y], axis=1), window)
+            off_road.append(bool(off[0]))
+            at_goal.append(bool(s[0] >= route.goal_s_m))
+            if off_road[-1] or at_goal[-1]:
+                break
+        n_look = measures.look_ahead_samples(cfg.reward.conflict_time_safe_s, cfg.sim_step_s)
+        traj = handback.driven_trajectory(ep.ref, ep.ego, poses, cfg.sim_step_s, n_look + 1)
+        plan = _Plan(traj, np.array(off_road), np.array(at_goal), len(poses))
+        return plan, _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
     def _measure(self, ep: _Episode, plan: _Plan, sim: _Decision) -> _Measures:
         """Termination events and the reward inputs; the first collision ends the decision."""
@@ -691,23 +767,19 @@ class IntersectionEnv(gymnasium.Env):
         ep.steps += 1
         ep.done = out.terminated or out.timeout
 
-    def _reward(self, ep: _Episode, m: _Measures) -> np.ndarray:
-        """The reward vector of the decision (``float32 [5]``)."""
-        cfg, rc = self.config, self.config.reward
-        return R.reward_vector(
-            R.safety(m.collision, m.off_road, rc),
-            R.risk(m.conflict_time_s, rc),
-            R.lane_keeping(m.lateral_offset_m, m.heading_error_rad, rc),
-            R.progress(
-                m.advance_m,
-                m.speed_mps,
-                ep.target_speed_mps,
-                cfg.decision_interval_s,
-                m.success,
-                rc,
-            ),  # fmt: skip
-            R.comfort(m.jerk_mps3, m.lateral_accel_mps2, rc),
+    def _reward(self, ep: _Episode, plan: _Plan, sim: _Decision, m: _Measures) -> np.ndarray:
+        """The reward vector of the decision (``float32 [N]``, declared objectives' order)."""
+        ctx = DecisionContext(
+            config=self.config,
+            measures=m,
+            trajectory=plan.traj,
+            steps=np.arange(1, m.steps + 1),
+            actors=sim.seen.first(m.steps),
+            route=ep.route,
+            scene=ep.scene,
+            target_speed_mps=ep.target_speed_mps,
         )
+        return self.objectives.reward_vector(ctx)
 
     def _sense(self, sensor: sensors.Sensors) -> tuple[np.ndarray, np.ndarray]:
         """BEV and LiDAR grids of the current state from ``sensor`` (its resolution)."""
@@ -735,7 +807,7 @@ class IntersectionEnv(gymnasium.Env):
         span = max(route.goal_s_m - route.start_s_m, 1e-6)
         progress = (ep.ego.frenet.s - route.start_s_m) / span
         return {
-            "reward_names": OBJECTIVES,
+            "reward_names": self.objectives.names,
             "success": out.success,
             "collision": out.collision,
             "off_road": out.off_road,

@@ -1,4 +1,8 @@
-"""The five reward terms, in ``OBJECTIVES`` order: safety, risk, lane keeping, progress, comfort.
+"""The five built-in reward terms: safety, risk, lane keeping, progress, comfort.
+
+The env's reward vector follows its declared objectives (``EnvConfig.objectives``,
+:mod:`priqn.objectives`); these are the built-ins' reward functions
+(:mod:`priqn.env.objective_terms` wires them to their measures).
 
 Each term is a pure function of quantities the env measures over one decision
 (0.5 s = several SUMO steps, see :mod:`priqn.env.measures`); per-step values are
@@ -59,6 +63,9 @@ class RewardConfig:
     """Comfort: |lateral acceleration| [m/s^2] that costs the full lateral part."""
     jerk_weight: float = 0.5
     """Comfort: weight of the jerk part (lateral acceleration gets 1 - this) [-]."""
+    right_of_way_horizon_s: float = 3.0
+    """Right of way (the optional ``right_of_way`` objective): a priority foe that reaches
+    the conflict area within this time counts as due there [s] (docs/environment.md)."""
 
     def __post_init__(self) -> None:
         positive = (
@@ -68,6 +75,7 @@ class RewardConfig:
             "target_speed_mps",
             "jerk_scale_mps3",
             "lateral_accel_scale_mps2",
+            "right_of_way_horizon_s",
         )
         for name in positive:
             if not getattr(self, name) > 0:

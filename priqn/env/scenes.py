@@ -196,11 +196,12 @@ class ScenePool:
         return len(self.refs)
 
 
-def own_net_files(entries: Sequence[str]) -> dict[str, Path]:
+def own_net_files(entries: Sequence[str], where: str = "env.nets") -> dict[str, Path]:
     """``"<folder>/<stem>" -> path`` for ``env.nets``: ``.net.xml`` files and folders of them.
 
     A missing path, a file that is not a ``.net.xml``, a folder without one, or two nets
-    that would get the same name is a one-line error naming ``env.nets``.
+    that would get the same name is a one-line error naming ``where`` (the setting or flag
+    the entries came from: ``env.nets``, ``--nets``).
     """
     files: list[Path] = []
     for entry in entries:
@@ -208,19 +209,19 @@ def own_net_files(entries: Sequence[str]) -> dict[str, Path]:
         if p.is_dir():
             found = sorted(p.glob("*.net.xml"))
             if not found:
-                raise PriqnError(f"env.nets: {p} holds no .net.xml file")
+                raise PriqnError(f"{where}: {p} holds no .net.xml file")
             files += found
         elif p.is_file() and p.name.endswith(".net.xml"):
             files.append(p)
         elif p.exists():
-            raise PriqnError(f"env.nets: {p} is not a .net.xml file or a folder of them")
+            raise PriqnError(f"{where}: {p} is not a .net.xml file or a folder of them")
         else:
-            raise PriqnError(f"env.nets: {p}: no such file or folder")
+            raise PriqnError(f"{where}: {p}: no such file or folder")
     out: dict[str, Path] = {}
     for f in files:
         ref = f"{f.parent.name or '.'}/{f.name.removesuffix('.net.xml')}"
         if ref in out and out[ref].resolve() != f.resolve():
-            raise PriqnError(f"env.nets: {out[ref]} and {f} would both be net {ref!r}; rename one")
+            raise PriqnError(f"{where}: {out[ref]} and {f} would both be net {ref!r}; rename one")
         out[ref] = f
     return out
 

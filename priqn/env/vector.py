@@ -161,7 +161,7 @@ def make_vector_env(
     ``config`` is an :class:`~priqn.env.intersection.EnvConfig` (None = defaults). Call
     ``reset()`` without a seed to use the per-worker seeds derived from ``seed``
     (:func:`worker_seeds`); ``reset(seed=s)`` reseeds worker i with ``s + i`` as gymnasium
-    does. Rewards come out ``float32 [num_envs, 5]``.
+    does. Rewards come out ``float32 [num_envs, N]`` (N = ``len(config.objectives)``).
     """
     if not isinstance(num_envs, int) or num_envs < 1:
         raise PriqnError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
@@ -170,13 +170,15 @@ def make_vector_env(
 
         config = EnvConfig()
     fns = [_EnvFactory(config, s, render_mode) for s in worker_seeds(seed, num_envs)]
-    return PriqnVectorEnv(
+    venv = PriqnVectorEnv(
         fns,
         context="spawn",
         autoreset_mode=AutoresetMode.SAME_STEP,
         daemon=True,
         shared_memory=True,
     )
+    venv.objectives = tuple(config.objectives)  # the reward vector's entries, in order
+    return venv
 
 
 def make_vec(

@@ -1,8 +1,8 @@
 """``priqn sweep``: train, evaluate and report a whole experiment grid.
 
-An experiment file (``experiments/<name>.toml``) names a grid: policies (agent and
-preorder options) × training seeds, the training preset and budget, the scenario
-family and the evaluation settings. :func:`expand` turns it into :class:`Cell` s, one
+An experiment file (``experiments/<name>.toml``, parsed by :mod:`priqn.experiment`) names
+a grid: policies (agent and preorder options) × training seeds, the training preset and
+budget, the scenario family and the evaluation settings. :func:`expand` turns it into :class:`Cell` s, one
 run folder each (``<runs_dir>/<experiment>/<policy>__seed<k>/``); :func:`run_sweep`
 trains and evaluates every cell that is not complete yet, then runs the report.
 
@@ -14,67 +14,29 @@ same child runs locally (a pool of ``--jobs`` slots) or inside Ray tasks, so bot
 back-ends produce the same run folders; completion is always read from the run
 folders, so a re-run skips finished cells and resumes interrupted ones.
 
-The package's modules import one way, each only from those before it:
+The package's modules import one way, each only from those before it (the experiment
+file itself is :mod:`priqn.experiment`, below the package, so the analysis can read it):
 
-    experiment → cells → process → backends → scheduler → cli       (child: cells, process)
+    cells → process → backends → scheduler → cli       (child: cells, process)
+
+The names below are the package's public API; anything else is imported from its module.
 """
 
 from __future__ import annotations
 
-from priqn.sweep.backends import Backend, LocalBackend, RayBackend, ray_cell
-from priqn.sweep.cells import (
-    Cell,
-    build_eval_config,
-    build_train_config,
-    cell_state,
-    expand,
-    is_complete,
-    stale_cells,
-    validate,
-)
+from priqn.experiment import Experiment, ResourceSpec, load_experiment, resolve_experiment_path
+from priqn.sweep.cells import Cell, build_train_config, cell_state, expand, is_complete
 from priqn.sweep.cli import configure_parser, run
-from priqn.sweep.experiment import (
-    COMPARATORS,
-    NORMALISATIONS,
-    PREORDERS,
-    Experiment,
-    ExperimentSpec,
-    PolicySpec,
-    ResourceSpec,
-    load_experiment,
-    policy_overrides,
-    resolve_experiment_path,
-)
-from priqn.sweep.process import (
-    DEFAULT_CELL_FN,
-    ERROR_MARK,
-    cell_command,
-    cell_error,
-    describe_failure,
-    log_tail,
-    run_cell_process,
-)
-from priqn.sweep.scheduler import SweepResult, _sweep_lock, default_jobs, run_sweep
+from priqn.sweep.process import ERROR_MARK, cell_error, describe_failure
+from priqn.sweep.scheduler import SweepResult, default_jobs, run_sweep
 
 __all__ = [
-    "COMPARATORS",
-    "DEFAULT_CELL_FN",
     "ERROR_MARK",
-    "NORMALISATIONS",
-    "PREORDERS",
-    "Backend",
     "Cell",
     "Experiment",
-    "ExperimentSpec",
-    "LocalBackend",
-    "PolicySpec",
-    "RayBackend",
     "ResourceSpec",
     "SweepResult",
-    "_sweep_lock",
-    "build_eval_config",
     "build_train_config",
-    "cell_command",
     "cell_error",
     "cell_state",
     "configure_parser",
@@ -83,13 +45,7 @@ __all__ = [
     "expand",
     "is_complete",
     "load_experiment",
-    "log_tail",
-    "policy_overrides",
-    "ray_cell",
     "resolve_experiment_path",
     "run",
-    "run_cell_process",
     "run_sweep",
-    "stale_cells",
-    "validate",
 ]

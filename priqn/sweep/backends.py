@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from priqn.errors import PriqnError
-from priqn.sweep.experiment import ResourceSpec
+from priqn.experiment import ResourceSpec
 from priqn.sweep.process import _STOP_GRACE_S, run_cell_process
 
 # --------------------------------------------------------------------------- back-ends

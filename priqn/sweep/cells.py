@@ -1,8 +1,9 @@
 """Cells: one (policy, seed) of a grid, its run folder, its state and its configs.
 
 A cell is complete iff its run's ``meta.json`` and its ``eval/meta.json`` both say
-``"status": "complete"``; the state is always read from the run folder
-(:class:`priqn.runs.RunFolder`), never from a sweep's memory.
+``"status": "complete"``; the state (a :class:`priqn.runs.Status`) is always read from the
+run folder (:class:`priqn.runs.RunFolder`), never from a sweep's memory. The cell's folder
+is ``<runs_dir>/<experiment>/<policy>__seed<k>`` (:func:`priqn.experiment.cell_dir_name`).
 """
 
 from __future__ import annotations
@@ -12,11 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from priqn.agents.config import has_scalar_value
+from priqn.agent_config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
-from priqn.runs import RunFolder
-from priqn.sweep.experiment import Experiment, policy_overrides
+from priqn.experiment import Experiment, cell_dir_name, policy_overrides
+from priqn.runs import RunFolder, Status
 
 # --------------------------------------------------------------------------- cells
 
@@ -54,15 +55,20 @@ class Cell:
     @property
     def name(self) -> str:
         """``<experiment>/<policy>__seed<k>``: unique, readable, filesystem-safe."""
-        return f"{self.experiment}/{self.policy}__seed{self.seed}"
+        return f"{self.experiment}/{self.dir_name}"
 
-    def state(self) -> str:
+    @property
+    def dir_name(self) -> str:
+        """``<policy>__seed<k>``: the run folder's name (:func:`priqn.experiment.cell_dir_name`)."""
+        return cell_dir_name(self.policy, self.seed)
+
+    def state(self) -> Status:
         """The cell's state, read from its run folder (:func:`cell_state`)."""
         return cell_state(self.run_dir, self.controls)
 
     def is_complete(self) -> bool:
         """Trained and every evaluation (its own and each control) complete."""
-        return self.state() == "complete"
+        return self.state() == Status.COMPLETE
 
     def to_spec(self) -> dict[str, Any]:
         """JSON-able description handed to the cell's child process."""
@@ -98,7 +104,7 @@ def expand(exp: Experiment) -> list[Cell]:
             experiment=e.name,
             policy=pol.name,
             seed=seed,
-            run_dir=exp.runs_dir / f"{pol.name}__seed{seed}",
+            run_dir=exp.cell_dir(pol.name, seed),
             agent=pol.agent,
             net=e.net,
             preset=e.preset,
@@ -112,7 +118,7 @@ def expand(exp: Experiment) -> list[Cell]:
     ]
 
 
-def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> str:
+def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> Status:
     """``complete`` | ``trained`` (an evaluation missing) | ``running`` | ``interrupted``
     (its trainer died) | ``failed`` | ``new``.
 
@@ -122,20 +128,20 @@ def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> str:
     """
     folder = RunFolder(run_dir)
     run = folder.recorded_status()
-    if run == "running" and folder.status() == "interrupted":
-        return "interrupted"  # its trainer died (kill -9, crash): the next sweep resumes it
-    if run == "complete":
+    if run == Status.RUNNING and folder.status() == Status.INTERRUPTED:
+        return Status.INTERRUPTED  # its trainer died (kill -9, crash): the next sweep resumes it
+    if run == Status.COMPLETE:
         names = ("", *controls)
-        done = all(folder.recorded_eval_status(n) == "complete" for n in names)
-        return "complete" if done else "trained"
-    if run in ("running", "failed"):
-        return run
-    return "new"
+        done = all(folder.recorded_eval_status(n) == Status.COMPLETE for n in names)
+        return Status.COMPLETE if done else Status.TRAINED
+    if run in (Status.RUNNING, Status.FAILED):
+        return Status(run)
+    return Status.NEW
 
 
 def is_complete(run_dir: Path, controls: tuple[str, ...] = ()) -> bool:
     """A cell is complete iff training and every evaluation say ``"status": "complete"``."""
-    return cell_state(run_dir, controls) == "complete"
+    return cell_state(run_dir, controls) == Status.COMPLETE
 
 
 # --------------------------------------------------------------------------- one cell (child)

@@ -16,7 +16,7 @@ import sys
 import traceback
 
 from priqn.errors import PriqnError
-from priqn.runs import RunFolder
+from priqn.runs import RunFolder, Status
 from priqn.sweep.cells import Cell, build_eval_config, build_train_config
 from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 
@@ -28,7 +28,7 @@ def train_and_evaluate(cell: Cell) -> None:
     from priqn.train import train
 
     state = cell.state()
-    if state not in ("complete", "trained"):
+    if state not in (Status.COMPLETE, Status.TRAINED):
         cfg = build_train_config(cell)
         has_checkpoint = RunFolder(cell.run_dir).latest_checkpoint.is_file()
         if has_checkpoint:

@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import Any
 
 from priqn.errors import PriqnError
+from priqn.experiment import cell_dir_name, load_experiment
 from priqn.sweep.cells import expand, stale_cells, validate
-from priqn.sweep.experiment import load_experiment
 from priqn.sweep.process import DEFAULT_CELL_FN
-from priqn.sweep.scheduler import _SWEEP_DIR, run_sweep
+from priqn.sweep.scheduler import SweepFolder, run_sweep
 
 # --------------------------------------------------------------------------- CLI
 
@@ -92,11 +92,11 @@ def run(args: argparse.Namespace) -> int:
     if args.retries < 0:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     code_dir = _code_dir(args.code)
-    if exp.sequential is not None:
-        _check_code_commit(exp, code_dir)
     if args.list:
         _list(exp)
         return 0
+    if exp.sequential is not None:
+        _check_code_commit(exp, code_dir)
     if args.cell_fn == DEFAULT_CELL_FN:
         validate(exp)
         stale = stale_cells(exp)
@@ -133,7 +133,7 @@ def _summarise(exp: Any, result: Any) -> int:
     for name, error in result.failed.items():
         print(f"  FAILED {name}: {error}")
     if result.failed:
-        print(f"  logs: {exp.runs_dir / _SWEEP_DIR / 'logs'}")
+        print(f"  logs: {SweepFolder(exp.runs_dir).logs_dir}")
     return 1 if result.failed else 0
 
 
@@ -145,7 +145,7 @@ def _list(exp: Any) -> None:
         from priqn.analysis import sequential
 
         plan = sequential.replay(exp, sequential.collect_scores(exp))
-        needed = {f"{p}__seed{s}" for p, s in sequential.next_cells(exp, plan)}
+        needed = {cell_dir_name(p, s) for p, s in sequential.next_cells(exp, plan)}
     cells = expand(exp)
     states = [c.state() for c in cells]
     for c, state in zip(cells, states, strict=True):
@@ -182,7 +182,7 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
             f"cell(s) of {', '.join(plan.open_rows)}",
             file=sys.stderr,
         )
-        only = [f"{exp.experiment.name}/{p}__seed{s}" for p, s in cells]
+        only = [f"{exp.experiment.name}/{cell_dir_name(p, s)}" for p, s in cells]
         result = run_sweep(exp, only=only, report=False, **kw)
         if result.failed or result.interrupted:
             return _summarise(exp, result)

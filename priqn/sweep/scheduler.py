@@ -1,9 +1,10 @@
 """The scheduler: run every cell that is not complete, retry failures, then report.
 
-:func:`run_sweep` takes an :class:`~priqn.sweep.experiment.Experiment`, skips complete
+:func:`run_sweep` takes an :class:`~priqn.experiment.Experiment`, skips complete
 cells, submits the rest to a back-end, retries a failed cell once with its log, stops
 cleanly on Ctrl-C (unfinished cells resume on the next run), writes ``summary.json``
-and runs the report. One sweep per experiment folder at a time (a lock).
+and runs the report. One sweep per experiment folder at a time (a lock). The sweep's own
+files live in the experiment folder's ``.sweep/`` (:class:`SweepFolder`).
 """
 
 from __future__ import annotations
@@ -19,13 +20,72 @@ from pathlib import Path
 from typing import Any
 
 from priqn.errors import PriqnError
+from priqn.experiment import Experiment, ResourceSpec
 from priqn.io import atomic_write_json
 from priqn.sweep.backends import Backend, LocalBackend, RayBackend
 from priqn.sweep.cells import Cell, expand
-from priqn.sweep.experiment import Experiment, ResourceSpec
 from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
 
-_SWEEP_DIR = ".sweep"
+# --------------------------------------------------------------------------- the sweep's files
+
+
+class SweepFolder:
+    """``<runs_dir>/<experiment>/.sweep/``: every file a sweep writes beside its cells.
+
+    ``lock`` (one sweep per experiment folder), ``logs/<policy>__seed<k>.attempt<n>.log``
+    (each attempt's child output) and ``summary.json`` (the cells' states when the sweep
+    ended). Nothing else spells these names.
+    """
+
+    DIR = ".sweep"
+    LOCK = "lock"
+    LOGS = "logs"
+    SUMMARY = "summary.json"
+
+    def __init__(self, exp_dir: str | os.PathLike) -> None:
+        self.exp_dir = Path(exp_dir)
+        """The experiment folder (the cells' run folders are its other children)."""
+        self.path = self.exp_dir / self.DIR
+        """The ``.sweep/`` folder itself."""
+
+    @property
+    def lock_path(self) -> Path:
+        return self.path / self.LOCK
+
+    @property
+    def logs_dir(self) -> Path:
+        return self.path / self.LOGS
+
+    @property
+    def summary_path(self) -> Path:
+        return self.path / self.SUMMARY
+
+    def log_path(self, cell: Cell, attempt: int) -> Path:
+        """The log of ``cell``'s ``attempt`` (1 = the first)."""
+        return self.logs_dir / f"{cell.dir_name}.attempt{attempt}.log"
+
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[None]:
+        """One sweep per experiment folder at a time (advisory lock, released on exit)."""
+        import fcntl
+
+        self.path.mkdir(parents=True, exist_ok=True)
+        with self.lock_path.open("a") as fh:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                raise PriqnError(
+                    f"{self.exp_dir}: another 'priqn sweep' is running this experiment "
+                    f"(lock {self.lock_path}); wait for it or stop it first"
+                ) from None
+            try:
+                yield
+            finally:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        """summary.json (atomically)."""
+        atomic_write_json(self.summary_path, summary)
 
 
 # --------------------------------------------------------------------------- the scheduler
@@ -53,27 +113,6 @@ class SweepResult:
     def complete(self) -> list[str]:
         """All cells complete now (skipped + completed)."""
         return self.skipped + self.completed
-
-
-@contextlib.contextmanager
-def _sweep_lock(exp_dir: Path) -> Iterator[None]:
-    """One sweep per experiment folder at a time (advisory lock, released on exit)."""
-    import fcntl
-
-    lock_path = exp_dir / _SWEEP_DIR / "lock"
-    lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with lock_path.open("a") as fh:
-        try:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise PriqnError(
-                f"{exp_dir}: another 'priqn sweep' is running this experiment "
-                f"(lock {lock_path}); wait for it or stop it first"
-            ) from None
-        try:
-            yield
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 def default_jobs(resources: ResourceSpec) -> int:
@@ -116,7 +155,7 @@ def run_sweep(
     exp_dir = exp.runs_dir
     exp_dir.mkdir(parents=True, exist_ok=True)
     result = SweepResult()
-    with _sweep_lock(exp_dir):
+    with SweepFolder(exp_dir).lock():
         todo = []
         for c in cells:
             if c.is_complete():
@@ -206,12 +245,7 @@ def _schedule(
                 spec = {**cell.to_spec(), "attempt": attempt, "cell_fn": cell_fn}
                 if code_dir is not None:
                     spec["code_dir"] = str(code_dir)
-                log_path = (
-                    exp.runs_dir
-                    / _SWEEP_DIR
-                    / "logs"
-                    / f"{cell.policy}__seed{cell.seed}.attempt{attempt}.log"
-                )
+                log_path = SweepFolder(exp.runs_dir).log_path(cell, attempt)
                 inflight[backend.submit(spec, log_path)] = (cell, attempt)
             bar.set_postfix_str(counts(), refresh=True)
             for handle, rc, tail, complete in backend.wait(list(inflight), timeout_s=1.0):
@@ -241,8 +275,7 @@ def _schedule(
 
 def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> None:
     states = {c.name: c.state() for c in cells}
-    atomic_write_json(
-        exp.runs_dir / _SWEEP_DIR / "summary.json",
+    SweepFolder(exp.runs_dir).write_summary(
         {
             "experiment": exp.experiment.name,
             "file": str(exp.path),

@@ -1,17 +1,26 @@
-"""Configuration dataclasses of the agents (torch-free, so the CLI can import them fast)."""
+"""The agents' facts that torch-free code needs: configs, specs, comparator and preset names.
+
+``AgentConfig`` / ``NetworkConfig`` / ``LearnerConfig`` (the ``[agent]``, ``[network]`` and
+``[learner]`` tables of a TrainConfig), what each agent is (:data:`AGENT_SPECS`: display
+name, heads, rule names) and the names of the Pr-IQN options. It lives outside
+:mod:`priqn.agents` so that :mod:`priqn.preorder`, :mod:`priqn.labels`, the sweep's
+experiment files and the analysis can read these facts without importing torch or the
+agents package (which itself imports the preorder and the labels).
+"""
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
 
-from priqn.objectives import NUM_OBJECTIVES, OBJECTIVES
+from priqn.objectives import NUM_OBJECTIVES
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
-COMPARATORS: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd": "FSD"}
-"""Comparator name → display name (the functions: ``priqn.preorder.COMPARATORS``)."""
-PREORDER_PRESETS: tuple[str, ...] = ("total", "partial")
+COMPARATOR_NAMES: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd": "FSD"}
+"""Comparator name → its display name in tables (the functions, in the same order:
+``priqn.preorder.COMPARATOR_FUNCTIONS``)."""
+PREORDER_PRESETS: tuple[str, ...] = ("total", "partial", "right-of-way")
 """Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
 
 
@@ -30,26 +39,25 @@ class AgentConfig:
     scale_momentum: float = 0.01
     """Scaled normalisation: weight of each learner batch in the running spread average [-]."""
     eps: float | tuple[float, ...] = 0.2
-    """Pr-IQN tolerance ε: one number for all objectives or one per objective (OBJECTIVES order)."""
+    """Pr-IQN tolerance ε: one number for all objectives or one per objective (env.objectives order)."""
     preorder: str = "total"
-    """Pr-IQN preorder: 'total' (chain safety>risk>lane>progress>comfort), 'partial', or a TOML file."""
+    """Pr-IQN preorder: 'total' (the chain of env.objectives in their order: safety>risk>lane>progress>comfort by default), 'partial', 'right-of-way', or a TOML file."""
     train_preorder: bool = True
     """Pr-IQN Eq. 6: head h bootstraps from argmax over its optimal subset S_h (off: all actions)."""
     reward_scheme: str = "hln-2-task"
     """Weighted-sum scheme of IQN / Ensemble / MA-IQN: hln-2-task (the sensitivity check's best), hln-2, hln-4 or halving (priqn.agents.scalarise; docs/implementation-details.md)."""
     reward_weights: tuple[float, ...] | None = None
-    """Explicit weights Σ w_i r_i in OBJECTIVES order, overriding reward_scheme (unset = the scheme's, resolved for the run's episode length, discount and safety penalty)."""
+    """Explicit weights Σ w_i r_i in env.objectives order, overriding reward_scheme (unset = the scheme's, resolved for the run's episode length, discount and safety penalty)."""
     ensemble_heads: int = 5
     """Heads of ensemble-iqn (the paper matches the number of objectives)."""
 
     def __post_init__(self) -> None:
-        if self.reward_weights is not None and len(self.reward_weights) != NUM_OBJECTIVES:
-            raise ValueError(
-                f"reward_weights: expected {NUM_OBJECTIVES} numbers ({', '.join(OBJECTIVES)})"
-            )
+        # Lengths against the run's objectives: check_lengths (TrainConfig, make_agent).
+        if self.reward_weights is not None and not self.reward_weights:
+            raise ValueError("reward_weights: expected one number per objective")
         if isinstance(self.eps, tuple):
-            if len(self.eps) != NUM_OBJECTIVES:
-                raise ValueError(f"eps: expected one number or {NUM_OBJECTIVES} numbers")
+            if not self.eps:
+                raise ValueError("eps: expected one number or one per objective")
             if min(self.eps) < 0:
                 raise ValueError("eps: expected non-negative tolerances")
         elif self.eps < 0:
@@ -62,6 +70,15 @@ class AgentConfig:
             raise ValueError("scale_fraction >= 0 and scale_momentum in (0, 1] expected")
         if self.ensemble_heads < 1:
             raise ValueError("ensemble_heads: expected a positive integer")
+
+    def check_lengths(self, objectives: tuple[str, ...]) -> None:
+        """Per-objective values (``eps``, ``reward_weights``) must have one entry per
+        objective of the run; ValueError naming the field otherwise."""
+        n = len(objectives)
+        if self.reward_weights is not None and len(self.reward_weights) != n:
+            raise ValueError(f"reward_weights: expected {n} numbers ({', '.join(objectives)})")
+        if isinstance(self.eps, tuple) and len(self.eps) != n:
+            raise ValueError(f"eps: expected one number or {n} numbers ({', '.join(objectives)})")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,7 +111,7 @@ class LearnerConfig:
     """IQN learning hyper-parameters (names follow Dabney et al. 2018)."""
 
     gamma: float | tuple[float, ...] = 0.99
-    """Discount γ per decision (0.5 s): one number, or one per objective (OBJECTIVES order; the paper defines a γ_i per objective). Agents whose heads learn a weighted sum need equal values."""
+    """Discount γ per decision (0.5 s): one number, or one per objective (env.objectives order; the paper defines a γ_i per objective). Agents whose heads learn a weighted sum need equal values."""
     lr: float = 1e-4
     """Adam learning rate."""
     adam_eps: float = 3.125e-4
@@ -120,8 +137,8 @@ class LearnerConfig:
 
     def __post_init__(self) -> None:
         gammas = self.gamma if isinstance(self.gamma, tuple) else (self.gamma,)
-        if isinstance(self.gamma, tuple) and len(self.gamma) != NUM_OBJECTIVES:
-            raise ValueError(f"gamma: expected one number or {NUM_OBJECTIVES} numbers")
+        if not gammas:  # the length against the run's objectives: TrainConfig
+            raise ValueError("gamma: expected one number or one per objective")
         if not all(0.0 <= g <= 1.0 for g in gammas):
             raise ValueError("gamma: expected numbers in [0, 1]")
         for name in (
@@ -139,10 +156,18 @@ class LearnerConfig:
 
     @property
     def gamma_5(self) -> tuple[float, ...]:
-        """γ per objective (OBJECTIVES order)."""
+        """γ per objective of the default list (:func:`gammas` for any list)."""
+        return self.gammas(NUM_OBJECTIVES)
+
+    def gammas(self, num_objectives: int) -> tuple[float, ...]:
+        """γ per objective of a run with ``num_objectives`` objectives (declared order)."""
         if isinstance(self.gamma, tuple):
+            if len(self.gamma) != num_objectives:
+                raise ValueError(
+                    f"gamma: expected one number or {num_objectives} numbers (one per objective)"
+                )
             return tuple(float(g) for g in self.gamma)
-        return (float(self.gamma),) * NUM_OBJECTIVES
+        return (float(self.gamma),) * num_objectives
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,9 +193,9 @@ class AgentSpec:
         return self.acting_rule == "leaf-uniform"
 
 
-AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
-    "iqn": lambda c: AgentSpec("IQN", 1, "weighted-sum", "argmax", "own-argmax"),
-    "ensemble-iqn": lambda c: AgentSpec(
+AGENT_SPECS: dict[str, Callable[..., AgentSpec]] = {
+    "iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec("IQN", 1, "weighted-sum", "argmax", "own-argmax"),
+    "ensemble-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
         "Ensemble",
         c.ensemble_heads,
         "weighted-sum",
@@ -178,18 +203,18 @@ AGENT_SPECS: dict[str, Callable[[AgentConfig], AgentSpec]] = {
         "own-argmax",
         own_taus=True,
     ),
-    "ma-iqn": lambda c: AgentSpec(
-        "MA-IQN", NUM_OBJECTIVES, "per-objective", "argmax-sum-of-heads", "own-argmax"
+    "ma-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
+        "MA-IQN", n, "per-objective", "argmax-sum-of-heads", "own-argmax"
     ),
-    "pr-iqn": lambda c: AgentSpec(
+    "pr-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
         "Pr-IQN",
-        NUM_OBJECTIVES,
+        n,
         "per-objective",
         "leaf-uniform",
         "optimal-subset" if c.train_preorder else "own-argmax",
     ),
 }
-"""Agent name → its :class:`AgentSpec` given the config."""
+"""Agent name → its :class:`AgentSpec` given the config and the number of objectives."""
 
 
 def has_scalar_value(name: str) -> bool:
@@ -199,7 +224,10 @@ def has_scalar_value(name: str) -> bool:
     return spec is not None and not spec.uses_preorder
 
 
-def agent_spec(name: str, cfg: AgentConfig | None = None) -> AgentSpec | None:
-    """The spec of agent ``name`` (under ``cfg``, else the defaults); None if unknown."""
+def agent_spec(
+    name: str, cfg: AgentConfig | None = None, num_objectives: int = NUM_OBJECTIVES
+) -> AgentSpec | None:
+    """The spec of agent ``name`` (under ``cfg``, else the defaults) for a run with
+    ``num_objectives`` objectives; None if unknown."""
     make = AGENT_SPECS.get(name)
-    return None if make is None else make(cfg or AgentConfig(name=name))
+    return None if make is None else make(cfg or AgentConfig(name=name), num_objectives)

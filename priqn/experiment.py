@@ -1,8 +1,12 @@
 """An experiment file (``experiments/<name>.toml``) parsed and checked: the grid's schema.
 
 ``load_experiment`` reads the ``[experiment]`` table (name, seeds, pool, preset, budget,
-overrides), the ``[[policy]]`` rows (agent and Pr-IQN options), ``[evaluate]`` and
-``[resources]``; every mistake is one line naming the file and the key.
+overrides), the ``[[policy]]`` rows (agent and Pr-IQN options), ``[evaluate]``,
+``[resources]`` and ``[sequential]``; every mistake is one line naming the file and the key.
+
+Torch-free and below both readers of an experiment: :mod:`priqn.sweep` runs its cells,
+:mod:`priqn.analysis` reports on them. Where a cell's run folder lives is spelled here
+once (:func:`cell_dir_name`, :meth:`Experiment.cell_dir`).
 """
 
 from __future__ import annotations
@@ -17,8 +21,13 @@ from pathlib import Path
 from typing import Any
 
 from priqn import paths
-from priqn.agents.config import AGENT_SPECS, NORMALISATIONS, PREORDER_PRESETS, agent_spec
-from priqn.agents.config import COMPARATORS as COMPARATOR_DISPLAY
+from priqn.agent_config import (
+    AGENT_SPECS,
+    COMPARATOR_NAMES,
+    NORMALISATIONS,
+    PREORDER_PRESETS,
+    agent_spec,
+)
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
 
@@ -194,10 +203,6 @@ class SequentialSpec:
 
 
 _PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
-COMPARATORS: tuple[str, ...] = tuple(COMPARATOR_DISPLAY)
-"""Comparison metrics of Table II (from the agent spec, :mod:`priqn.agents.config`)."""
-PREORDERS: tuple[str, ...] = PREORDER_PRESETS
-"""Preorder presets (from the agent spec)."""
 
 # Policy option -> TrainConfig key (``priqn train --set`` name).
 _TRAIN_KEYS = {
@@ -234,8 +239,18 @@ class Experiment:
 
     @property
     def report_dir(self) -> Path:
-        """Where :func:`run_sweep` writes the report."""
+        """Where :func:`priqn.sweep.run_sweep` writes the report."""
         return Path(self.experiment.report_dir or Path("reports") / self.experiment.name)
+
+    def cell_dir(self, policy: str, seed: int) -> Path:
+        """The run folder of ``policy`` trained with ``seed``: ``<runs_dir>/<name>/<policy>__seed<k>``."""
+        return self.runs_dir / cell_dir_name(policy, seed)
+
+
+def cell_dir_name(policy: str, seed: int) -> str:
+    """``<policy>__seed<k>``: the run-folder name of one cell of a grid (unique in the
+    experiment's folder, readable, filesystem-safe)."""
+    return f"{policy}__seed{seed}"
 
 
 def resolve_experiment_path(name_or_path: str | os.PathLike) -> Path:
@@ -313,8 +328,8 @@ def load_experiment(
                         f"{where}.{opt}: applies only to agent {_preorder_agents()}, not {pol.agent!r}"
                     )
         for opt, valid in (
-            ("comparator", COMPARATORS),
-            ("preorder", PREORDERS),
+            ("comparator", tuple(COMPARATOR_NAMES)),
+            ("preorder", PREORDER_PRESETS),
             ("normalisation", NORMALISATIONS),
         ):
             value = getattr(pol, opt)
