@@ -848,10 +848,14 @@ def evaluate_reference(
     def make_env(num_envs: int) -> Any:
         return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
 
+    from priqn.provenance import git_sha, versions
+
     extra_meta: dict[str, Any] = {
         "reference": name,
         "env_of": list(env_of),
         "env_config": to_dict(env_cfg),
+        "git_sha": git_sha(),  # a reference has no run folder: its provenance lives here
+        "versions": versions(),
     }
     if nets is not None:
         extra_meta.update(nets=nets["nets"], nets_hash=holdout_hash)
