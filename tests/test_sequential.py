@@ -242,11 +242,15 @@ def test_scores_use_contiguous_seeds_only() -> None:
 RECORD = """
 import os
 
+import priqn
 from priqn.io import atomic_write_json
 
 
 def cell(c):
-    atomic_write_json(c.run_dir / "env.json", {"PYTHONPATH": os.environ.get("PYTHONPATH", "")})
+    atomic_write_json(
+        c.run_dir / "env.json",
+        {"PYTHONPATH": os.environ.get("PYTHONPATH", ""), "priqn": priqn.__file__},
+    )
     atomic_write_json(c.run_dir / "meta.json", {"status": "complete"})
     atomic_write_json(c.run_dir / "eval" / "meta.json", {"status": "complete"})
 """
@@ -267,16 +271,24 @@ def test_code_dir_goes_first_on_the_cells_path(tmp_path: Path, monkeypatch) -> N
         '[[policy]]\nname = "a"\nagent = "iqn"\n'
     )
     repo = Path(__file__).resolve().parent.parent
+    # The snapshot: the same package under another path. The sweep runs from the repository
+    # root, whose own priqn/ must not shadow the snapshot's (`python -m` puts the working
+    # directory first on sys.path).
+    snapshot = tmp_path / "snapshot"
+    snapshot.mkdir()
+    (snapshot / "priqn").symlink_to(repo / "priqn", target_is_directory=True)
+    monkeypatch.chdir(repo)
     result = run_sweep(
         load_experiment(exp_path),
         cell_fn="recordcell:cell",
         report=False,
         progress=False,
         log=lambda m: None,
-        code_dir=repo,
+        code_dir=snapshot,
     )
     assert result.completed == ["x/a__seed0"]
     env = json.loads((tmp_path / "runs" / "x" / "a__seed0" / "env.json").read_text())
-    assert env["PYTHONPATH"].split(os.pathsep) == [str(repo), str(mods)]
+    assert env["PYTHONPATH"].split(os.pathsep) == [str(snapshot), str(mods)]
+    assert env["priqn"] == str(snapshot / "priqn" / "__init__.py")
     with pytest.raises(PriqnError, match="--code nowhere: no priqn package there"):
         _code_dir("nowhere")

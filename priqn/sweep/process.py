@@ -82,6 +82,9 @@ def run_cell_process(
         env["PYTHONPATH"] = os.pathsep.join(
             p for p in (str(spec["code_dir"]), env.get("PYTHONPATH", "")) if p
         )
+        # `python -m` puts the working directory first on sys.path, ahead of PYTHONPATH:
+        # a checkout there would shadow the snapshot (Python >= 3.11: PYTHONSAFEPATH).
+        env["PYTHONSAFEPATH"] = "1"
     spec = {**spec, "parent_pid": os.getpid()}
     log_path.parent.mkdir(parents=True, exist_ok=True)
     interrupted: BaseException | None = None
