@@ -396,10 +396,11 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
                 ms=6,
             )
             ax.annotate(
-                f"paper vs {c.b}",
+                f"vs {c.b}",
                 (means[c.b] + c.paper_difference, policies.index(c.a) - 0.38),
-                xytext=(4, -2),
+                xytext=(0, 5),
                 textcoords="offset points",
+                ha="center",
                 fontsize=6,
                 color="tab:red",
             )
@@ -418,7 +419,13 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
         ),
         plt.Line2D([], [], color="black", lw=1.8, label="mean; thin: 95 % t interval"),
         plt.Line2D(
-            [], [], ls="", marker="D", mfc="none", mec="tab:red", label="paper's difference"
+            [],
+            [],
+            ls="",
+            marker="D",
+            mfc="none",
+            mec="tab:red",
+            label="where a would be at the paper's difference",
         ),
     ]
     ax.legend(
