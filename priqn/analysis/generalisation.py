@@ -31,11 +31,12 @@ from priqn.analysis.load import (
     _check_policies,
     _check_same,
     find_run_dirs,
+    list_evaluations,
     read_evaluation,
 )
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import NETS_HASH_CHARS, is_nets_evaluation
+from priqn.evaluate import NETS_HASH_CHARS
 from priqn.io import read_json
 from priqn.runs import RunFolder
 
@@ -82,19 +83,7 @@ def load_generalisation(
     No such evaluation: ``([], [])``.
     """
     root = Path(runs_dir)
-    found: list[tuple[str, Path, Path]] = []
-    unfinished: list[str] = []
-    for run in find_run_dirs(root):
-        folder = RunFolder(run)
-        for name in folder.control_evaluations():
-            if not is_nets_evaluation(name):
-                continue
-            eval_dir = folder.evaluation_dir(name)
-            label = f"{run.name}/{eval_dir.name}"
-            if folder.recorded_eval_status(name) == "complete":
-                found.append((label, run, eval_dir))
-            else:
-                unfinished.append(label)
+    found, unfinished = list_evaluations(find_run_dirs(root), nets=True)
     if unfinished and not partial:
         shown = ", ".join(unfinished[:5]) + (" ..." if len(unfinished) > 5 else "")
         raise PriqnError(

@@ -92,6 +92,29 @@ def find_run_dirs(runs_dir: str | Path) -> list[Path]:
     return sorted(p for p in root.iterdir() if p.is_dir() and is_run(p))
 
 
+def list_evaluations(
+    run_dirs: list[Path], nets: bool
+) -> tuple[list[tuple[str, Path, Path]], list[str]]:
+    """``(complete, unfinished)`` evaluations of ``run_dirs``: ``(name, run, eval_dir)`` of
+    each complete one, the names of the rest. A name is ``<run>`` for ``eval/`` and
+    ``<run>/eval-<name>`` for any other folder. ``nets``: only evaluations on other nets
+    (``eval-nets-*``, reported apart by :mod:`priqn.analysis.generalisation`); otherwise
+    ``eval/`` and its controls."""
+    complete: list[tuple[str, Path, Path]] = []
+    unfinished: list[str] = []
+    for run in run_dirs:
+        folder = RunFolder(run)
+        names = [c for c in folder.control_evaluations() if is_nets_evaluation(c) == nets]
+        for control in names if nets else ["", *names]:
+            eval_dir = folder.evaluation_dir(control)
+            name = f"{run.name}/{eval_dir.name}" if control else run.name
+            if folder.recorded_eval_status(control) == Status.COMPLETE:
+                complete.append((name, run, eval_dir))
+            else:
+                unfinished.append(name)
+    return complete, unfinished
+
+
 def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
     """Load and cross-check every evaluated run under ``runs_dir``.
 
@@ -106,19 +129,7 @@ def load_evaluation(runs_dir: str | Path, partial: bool = False) -> Evaluation:
         )
     # Every evaluation of every run: its own (eval/) and any control (eval-<name>/), each
     # named like "<run>" or "<run>/eval-<name>" and reported as its own policy row.
-    evaluations: list[tuple[str, Path, Path]] = []
-    unevaluated = []
-    for run in run_dirs:
-        folder = RunFolder(run)
-        # Evaluations on other nets (eval-nets-*) are reported apart (analysis.generalisation).
-        controls = [c for c in folder.control_evaluations() if not is_nets_evaluation(c)]
-        for control in ["", *controls]:
-            eval_dir = folder.evaluation_dir(control)
-            name = f"{run.name}/{eval_dir.name}" if control else run.name
-            if folder.recorded_eval_status(control) == Status.COMPLETE:
-                evaluations.append((name, run, eval_dir))
-            else:
-                unevaluated.append(name)
+    evaluations, unevaluated = list_evaluations(run_dirs, nets=False)
     if unevaluated and not partial:
         shown = ", ".join(unevaluated[:5]) + (" ..." if len(unevaluated) > 5 else "")
         raise PriqnError(
