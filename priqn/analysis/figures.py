@@ -46,6 +46,20 @@ def save_figure(fig: plt.Figure, out_dir: Path, name: str) -> list[Path]:
     return paths
 
 
+def legend_above(ax: plt.Axes, handles: list, title: str, ncol: int) -> None:
+    """The legend of a dot / interval figure: small, frameless, centred above the axes."""
+    ax.legend(
+        handles=handles,
+        fontsize=7,
+        loc="lower center",
+        ncol=ncol,
+        bbox_to_anchor=(0.5, 1.0),
+        title=title,
+        title_fontsize="medium",
+        frameon=False,
+    )
+
+
 def _colors(labels: list[str]) -> dict[str, tuple]:
     cmap = plt.get_cmap("tab10" if len(labels) <= 10 else "tab20")
     return {label: cmap(i % cmap.N) for i, label in enumerate(labels)}
@@ -356,15 +370,11 @@ def claims_figure(results: Sequence[ClaimResult]) -> plt.Figure | None:
         for word, color in CLAIM_WORD_COLORS.items()
         if word in used
     ] + [plt.Line2D([], [], ls="", marker="D", mfc="none", mec="tab:blue", label="paper")]
-    ax.legend(
-        handles=handles,
-        fontsize=7,
-        loc="lower center",
+    legend_above(
+        ax,
+        handles,
+        "The paper's claims: Welch 95 % intervals over training seeds (seeds per row)",
         ncol=3,
-        bbox_to_anchor=(0.5, 1.0),
-        title="The paper's claims: Welch 95 % intervals over training seeds (seeds per row)",
-        title_fontsize="medium",
-        frameon=False,
     )
     return fig
 
@@ -391,14 +401,5 @@ def seed_success_figure(episodes: pd.DataFrame, order: list[str]) -> plt.Figure:
     handles = [
         plt.Line2D([], [], ls="", marker="o", color=colors[s], label=f"seed {s}") for s in seeds
     ] + [plt.Line2D([], [], color="black", lw=1.5, label="mean over seeds")]
-    ax.legend(
-        handles=handles,
-        fontsize=7,
-        loc="lower center",
-        ncol=len(handles),
-        bbox_to_anchor=(0.5, 1.0),
-        title="Success rate per training seed",
-        title_fontsize="medium",
-        frameon=False,
-    )
+    legend_above(ax, handles, "Success rate per training seed", ncol=len(handles))
     return fig

@@ -367,7 +367,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     sit if the paper's difference to each baseline held (diamonds on the compared row)."""
     from scipy import stats
 
-    from priqn.analysis.figures import plt
+    from priqn.analysis.figures import legend_above, plt
 
     seq = exp.sequential
     policies = [p.name for p in exp.policies]
@@ -428,16 +428,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
             label="where a would be at the paper's difference",
         ),
     ]
-    ax.legend(
-        handles=handles,
-        fontsize=7,
-        loc="lower center",
-        ncol=2,
-        bbox_to_anchor=(0.5, 1.0),
-        title=f"{exp.experiment.name}: per-seed success of each row",
-        title_fontsize="medium",
-        frameon=False,
-    )
+    legend_above(ax, handles, f"{exp.experiment.name}: per-seed success of each row", ncol=2)
     return fig
 
 
