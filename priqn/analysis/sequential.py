@@ -310,13 +310,14 @@ def _look_rows(
     return tuple(out)
 
 
-def next_cells(exp: Any, result: Replay) -> list[tuple[str, int]]:
-    """(policy, seed) cells the next look needs that are not complete yet, in seed order."""
+def next_cells(exp: Any, result: Replay, scores: pd.DataFrame) -> list[tuple[str, int]]:
+    """(policy, seed) cells the next look needs that are not among ``scores`` (the complete
+    cells, :func:`collect_scores`, which ``result`` was replayed from), in seed order."""
     if result.next_look is None:
         return []
     seq = exp.sequential
     upto = result.next_look * seq.seeds_per_look
-    done = {(p, s) for p, s in collect_scores(exp)[["policy", "seed"]].itertuples(index=False)}
+    done = {(p, s) for p, s in scores[["policy", "seed"]].itertuples(index=False)}
     return [
         (row, seed) for seed in range(upto) for row in result.open_rows if (row, seed) not in done
     ]
@@ -514,7 +515,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
             ],
             "",
         ]
-    nxt = next_cells(exp, result)
+    nxt = next_cells(exp, result, scores)
     lines += [
         "## Next",
         "",

@@ -144,8 +144,9 @@ def _list(exp: Any) -> None:
     if exp.sequential is not None:
         from priqn.analysis import sequential
 
-        plan = sequential.replay(exp, sequential.collect_scores(exp))
-        needed = {cell_dir_name(p, s) for p, s in sequential.next_cells(exp, plan)}
+        scores = sequential.collect_scores(exp)
+        plan = sequential.replay(exp, scores)
+        needed = {cell_dir_name(p, s) for p, s in sequential.next_cells(exp, plan, scores)}
     cells = expand(exp)
     states = [c.state() for c in cells]
     for c, state in zip(cells, states, strict=True):
@@ -167,8 +168,9 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
     from priqn.analysis import sequential
 
     while True:
-        plan = sequential.replay(exp, sequential.collect_scores(exp))
-        cells = sequential.next_cells(exp, plan)
+        scores = sequential.collect_scores(exp)
+        plan = sequential.replay(exp, scores)
+        cells = sequential.next_cells(exp, plan, scores)
         if not cells:
             state = "finished" if plan.finished else f"waiting for look {plan.next_look}"
             print(
