@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from test_analysis import EVAL_CONFIG, IQN, PR, iqn_value, pr_value, write_run
+from fake_runs import EVAL_CONFIG, IQN, PR, iqn_value, pr_value, write_run
 from test_own_nets import netconvert, write_net
 
 from priqn.analysis.generalisation import generalisation_table, load_generalisation
@@ -209,15 +209,6 @@ def write_nets_evaluation(
     meta = json.loads(meta_path.read_text())
     meta_path.write_text(json.dumps({**meta, "nets": NETS_META, "nets_hash": kw["holdout"]}))
     return root / name / folder
-
-
-@pytest.fixture()
-def runs(tmp_path: Path) -> Path:
-    root = tmp_path / "runs"
-    for seed in (0, 1):
-        write_run(root, f"iqn_s{seed}", "IQN", IQN, seed, iqn_value)
-        write_run(root, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, pr_value)
-    return root
 
 
 def test_generalisation_is_reported_apart_from_table2(runs: Path, tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_analysis import HASH, IQN, PR, iqn_value, pr_value, write_run
+from fake_runs import HASH, IQN, iqn_value, pr_value, write_run
 from test_generalisation import NETS_HASH, write_nets_evaluation
 
 from priqn.analysis.report import make_report
@@ -141,15 +141,6 @@ def always(outcome: str):
         return {"success": outcome == "success", "collision": outcome == "collision"}
 
     return value
-
-
-@pytest.fixture()
-def runs(tmp_path: Path) -> Path:
-    root = tmp_path / "runs"
-    for seed in (0, 1):
-        write_run(root, f"iqn_s{seed}", "IQN", IQN, seed, iqn_value)
-        write_run(root, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, pr_value)
-    return root
 
 
 def test_report_shows_reference_rows_unranked_and_claims_ignore_them(
