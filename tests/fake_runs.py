@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from priqn.evaluate import EPISODE_COLUMNS
+from priqn.evaluate import episode_columns
 from priqn.objectives import OBJECTIVES
 
 HASH = "a" * 64
@@ -59,10 +59,12 @@ def write_run(
     eval_config=None,
     eval_dir_name="eval",
     status="complete",
+    objectives=OBJECTIVES,
 ):
     """One evaluated run; ``value(seed, eval_run, density, net, episode) -> dict`` of episode fields.
 
-    ``eval_dir_name`` ``eval-<name>`` writes a control evaluation beside the run's own."""
+    ``eval_dir_name`` ``eval-<name>`` writes a control evaluation beside the run's own;
+    ``objectives`` are the run's ``env.objectives`` (its ``return_<name>`` columns)."""
     cfg = eval_config or EVAL_CONFIG
     rows = []
     for r in range(cfg["eval_runs"]):
@@ -74,7 +76,7 @@ def write_run(
                         "collision": False,
                         "off_road": False,
                         "route_progress": 0.5,
-                        **{f"return_{o}": 0.0 for o in OBJECTIVES},
+                        **{f"return_{o}": 0.0 for o in objectives},
                     }
                     v.update(value(seed, r, d, net, e))
                     rows.append(
@@ -99,7 +101,9 @@ def write_run(
     eval_dir = root / name / eval_dir_name
     eval_dir.mkdir(parents=True)
     (root / name / "config.toml").write_text("")
-    pd.DataFrame(rows, columns=list(EPISODE_COLUMNS)).to_csv(eval_dir / "episodes.csv", index=False)
+    pd.DataFrame(rows, columns=list(episode_columns(objectives))).to_csv(
+        eval_dir / "episodes.csv", index=False
+    )
     (eval_dir / "meta.json").write_text(
         json.dumps({"status": status, "holdout_hash": holdout, "eval_config": cfg})
     )

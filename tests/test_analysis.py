@@ -11,7 +11,7 @@ import pytest
 from fake_runs import ENS, EVAL_CONFIG, HASH, IQN, PR, iqn_value, pr_value, write_run
 
 from priqn.analysis import tables
-from priqn.analysis.claims import CLAIMS
+from priqn.analysis.claims import CLAIMS, evaluate_claims
 from priqn.analysis.load import check_seeds, load_evaluation
 from priqn.analysis.report import make_report
 from priqn.analysis.stats import (
@@ -435,3 +435,25 @@ def test_seed_success_figure_by_hand() -> None:
     means = sorted({float(ln.get_xdata()[0]) for ln in ax.lines if ln.get_marker() != "o"})
     assert means == [0.375, 1.0]
     figures.plt.close(fig)
+
+
+def test_a_report_over_runs_with_their_own_objective_list(tmp_path) -> None:
+    """Runs that drive with only safety and progress (``env.objectives``) get a report whose
+    Table I shows the returns they have, and no column for the objectives they lack."""
+    root = tmp_path / "runs"
+    own = ("safety", "progress")
+    for seed in (0, 1):
+        write_run(root, f"iqn_s{seed}", "IQN", IQN, seed, iqn_value, objectives=own)
+        write_run(root, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, pr_value, objectives=own)
+    ev = load_evaluation(root)
+    t1 = tables.table1(ev.episodes)
+    assert [m.name for m in t1.metrics] == ["Safety", "Length"]
+    # IQN's safety return at density 0.5 is -10 in every episode, Pr-IQN's -5: Δ +50 %.
+    pr = t1.long[(t1.long["label"] == "Pr-IQN QD ✓ 0.2 ✗") & (t1.long["density"] == 0.5)]
+    assert pr.set_index("metric").loc["Safety", "delta_pct"] == pytest.approx(50.0)
+    # The claim on risk and lane-keeping returns waits, saying why; the others are checked.
+    results = {r.claim.key: r for r in evaluate_claims(ev.episodes)}
+    assert results["table1"].verdict == "pending"
+    assert results["table1"].why == "no return_lane_keeping, return_risk in these runs' episodes"
+    make_report(root, tmp_path / "report", seed=0, reps=20, command="c")
+    assert "Risk" not in (tmp_path / "report/tables/table1.md").read_text()

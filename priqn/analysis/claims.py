@@ -415,6 +415,9 @@ def _pending(claim: Claim, episodes: pd.DataFrame, seeds: pd.Series) -> ClaimRes
         {c.first.render() for c in claim.comparisons}
         | {c.second.render() for c in claim.comparisons}
     )
+    absent = sorted({c.metric for c in claim.comparisons} - set(episodes.columns))
+    if absent:  # the runs drove with other objectives (env.objectives)
+        return ClaimResult(claim, "pending", f"no {', '.join(absent)} in these runs' episodes")
     missing = tuple(label for label in labels if label not in seeds.index)
     if missing:
         why = f"no evaluated runs of {', '.join(missing)}"

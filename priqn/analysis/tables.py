@@ -281,11 +281,19 @@ def reference_cells(label: str) -> list[str]:
 
 def table1(episodes: pd.DataFrame, ranked: bool = True) -> Table:
     """Table I: safety / risk / lane-keeping episode returns with Δ% relative to IQN,
-    per-decision risk and lane keeping, and the mean episode length."""
+    per-decision risk and lane keeping, and the mean episode length.
+
+    Columns follow the runs' objectives: one a run did not drive with (``env.objectives``)
+    has no column, one it declared beyond the default five gets one."""
     steps = episodes["steps"].where(episodes["steps"] > 0)  # -1: length not recorded
-    episodes = episodes.assign(**{k: episodes[v] / steps for k, v in PER_DECISION.items()})
+    per_decision = {k: v for k, v in PER_DECISION.items() if v in episodes.columns}
+    episodes = episodes.assign(**{k: episodes[v] / steps for k, v in per_decision.items()})
     configs = policy_configs(episodes)
-    metrics = (*TABLE1_METRICS[:3], *declared_metrics(episodes), *TABLE1_METRICS[3:])
+    returns, derived = (
+        [m for m in part if m.column in episodes.columns]
+        for part in (TABLE1_METRICS[:3], TABLE1_METRICS[3:])
+    )
+    metrics = (*returns, *declared_metrics(episodes), *derived)
     long = add_delta(summarise(episodes, metrics, list(configs), ranked), reference_label(configs))
     return Table(
         "Table I: episode returns per objective, per-decision means and episode length "
