@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import json
 import os
 import subprocess
@@ -73,7 +75,7 @@ name = "same"
 agent = "iqn"
 [sequential]
 interims = [4, 8]
-alpha = 0.05
+alpha = 0.1
 permutations = 2000
 seed = 1
 code_commits = {commits}
@@ -123,7 +125,8 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
     empty = sequential.replay(exp, scores_frame({}))
     assert (empty.looks, empty.next_look) == ((), 1)
     # After look 1: good beats bad in all 4 seeds: of the 70 splits only the observed one
-    # is as extreme (1/70 <= α/K = 0.025): decided. good vs same is not (seeds overlap).
+    # and its mirror image are as extreme (two-sided, 2/70 <= α/K = 0.05): decided. good
+    # vs same is not (seeds overlap).
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
     r = sequential.replay(exp, four)
     assert [look.k for look in r.looks] == [1]
@@ -157,9 +160,76 @@ def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
     assert r.decisions[claim.name] == "equal"
     assert sequential.verdict(exp, r, claim) == "paper's effect ruled out"
     # Wide: inconclusive.
-    wide = scores_frame({"good": [0, 1, 1, 1, 0, 1, 1, 0], "bad": [0.4, 0.6] * 4, "same": SAME})
+    wide = scores_frame({"good": [0, 1, 1, 1, 0, 1, 1, 0], "bad": [0.2, 0.6] * 4, "same": SAME})
     r = sequential.replay(exp, wide)
     assert sequential.verdict(exp, r, claim) == "inconclusive at 8 seeds"
+
+
+def exact_two_sided_p(a: list[float], b: list[float]) -> float:
+    """Share of the splits of a + b into two groups of len(a) whose |mean difference| is at
+    least the observed one (the exact two-sided permutation p)."""
+    z = np.array(a + b)
+    observed = abs(np.mean(a) - np.mean(b))
+    splits = list(itertools.combinations(range(z.size), len(a)))
+    hits = 0
+    for s in splits:
+        inside = np.isin(np.arange(z.size), s)
+        hits += abs(z[inside].mean() - z[~inside].mean()) >= observed - 1e-12
+    return hits / len(splits)
+
+
+def adastop_decision(comparator_class: type, a: list[float], b: list[float]) -> str:
+    """One look (K 1) of a vs b at α 0.05; B 10,000 > 252 splits, so every split is used."""
+    comparator = comparator_class(n=5, K=1, B=10_000, alpha=0.05, beta=0.0, seed=0)
+    comparator.partial_compare({"a": np.array(a), "b": np.array(b)}, verbose=False)
+    return comparator.decisions["[0 1]"]
+
+
+def test_adastop_boundary_is_two_sided() -> None:
+    """a = .5 .7 .8 .9 1 vs b = .1 .2 .3 .6 .8: of the 252 splits, 8 give a mean difference
+    at least +0.38 and 8 at most -0.38, so the exact two-sided p is 16/252 = 0.063 > 0.05
+    (one-sided 8/252 = 0.032). The two-sided comparator keeps it undecided; adastop's own
+    reads its boundary off the signed differences and rejects. a = .6 .7 .8 .9 1 vs
+    b = .1 .2 .3 .4 .8 (two-sided 8/252 = 0.032) is rejected by both."""
+    from adastop import MultipleAgentsComparator
+
+    fixed = sequential.two_sided_comparator()
+    close = ([0.5, 0.7, 0.8, 0.9, 1.0], [0.1, 0.2, 0.3, 0.6, 0.8])
+    clear = ([0.6, 0.7, 0.8, 0.9, 1.0], [0.1, 0.2, 0.3, 0.4, 0.8])
+    assert exact_two_sided_p(*close) == pytest.approx(16 / 252)
+    assert exact_two_sided_p(*clear) == pytest.approx(8 / 252)
+    assert adastop_decision(fixed, *close) == "equal"
+    assert adastop_decision(fixed, *clear) == "larger"
+    assert adastop_decision(fixed, *clear[::-1]) == "smaller"
+    # If this fails, adastop has fixed its boundary: two_sided_comparator can go.
+    assert adastop_decision(MultipleAgentsComparator, *close) == "larger"
+
+
+@pytest.mark.slow
+def test_headline_design_keeps_its_family_wise_error_under_the_null() -> None:
+    """The headline design (4 rows, two families of 2, looks at 5/10/15/20 seeds, α 0.05)
+    on 400 null data sets (every row's seeds from one normal, SD 0.17 like the rows'):
+    the share with any rejection in a family is at most α plus two standard errors. With
+    adastop's one-sided boundary it was 0.11 (primary) and 0.13 (secondary). 2,000
+    permutations instead of 10,000, for time."""
+    exp = load_experiment("headline")
+    seq = dataclasses.replace(exp.sequential, permutations=2000)
+    rng = np.random.default_rng(0)
+    rows = [p.name for p in exp.policies]
+    any_rejection = {"primary": 0, "secondary": 0}
+    sims = 400
+    for i in range(sims):
+        rates = {r: list(rng.normal(0.65, 0.17, 20)) for r in rows}
+        design_i = dataclasses.replace(exp, sequential=dataclasses.replace(seq, seed=i))
+        decisions = sequential.replay(design_i, scores_frame(rates)).decisions
+        for family in any_rejection:
+            any_rejection[family] += any(
+                decisions[c.name] in ("larger", "smaller")
+                for c in seq.comparisons
+                if c.family == family
+            )
+    bound = 0.05 + 2 * np.sqrt(0.05 * 0.95 / sims)
+    assert all(n / sims <= bound for n in any_rejection.values()), any_rejection
 
 
 def test_sweep_trains_only_what_each_look_needs_then_reports(
