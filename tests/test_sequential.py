@@ -135,6 +135,9 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
     look = r.looks[0].comparisons[0]
     assert (look.diff, look.n_a, look.n_b, look.decided_at) == (pytest.approx(0.8), 4, 4, 1)
     assert sequential.verdict(exp, r, exp.sequential.comparisons[0]) == "reproduced"
+    # The boundary the open comparison (good - same = 0.90 - 0.85) failed to pass lies
+    # between it and the decided one's 0.8.
+    assert 0.05 < r.looks[0].needed["primary"] < 0.8
     # Look 2 needs seeds 4-7 of the open rows only.
     eight = scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME})
     r2 = sequential.replay(exp, eight)

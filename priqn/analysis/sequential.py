@@ -171,6 +171,11 @@ class Look:
     comparisons: tuple[ComparisonLook, ...]
     level_spent: dict[str, float]
     """Family -> α spent so far (AdaStop's linear spending: at most α k / K)."""
+    needed: dict[str, float]
+    """Family -> the |mean difference| (endpoint units) a comparison left open at this look
+    had to exceed to be decided here: AdaStop's boundary over the k blocks, divided by k.
+    ``inf`` when the look had too few splits to reject anything; absent once the family
+    was finished at an earlier look."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -258,6 +263,7 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
         if not open_rows or any(len(by_policy[r]) < (k + 1) * n for r in open_rows):
             break
         level: dict[str, float] = {}
+        needed: dict[str, float] = {}
         for family, comps in families.items():
             comparator, agents = state[family]
             if comparator.is_finished:
@@ -277,6 +283,7 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
                     decided_at[c.name] = k + 1
                 decisions[c.name] = word
             level[family] = float(comparator.level_spent)
+            needed[family] = float(comparator.boundary[-1][1]) / (k + 1)
         seeds_now = {r: min(len(by_policy[r]), (k + 1) * n) for r in policies}
         looks.append(
             Look(
@@ -284,6 +291,7 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
                 seeds_now,
                 _look_rows(seq, by_policy, seeds_now, decisions, decided_at),
                 level,
+                needed,
             )
         )
     open_rows = tuple(
@@ -376,11 +384,17 @@ def verdict(exp: Any, result: Replay, comparison: Any) -> str:
 def looks_frame(result: Replay) -> pd.DataFrame:
     """One row per (look, comparison): ``tables/looks.csv``."""
     rows = [
-        {"look": look.k, **dataclasses.asdict(c), "level_spent": look.level_spent[c.family]}
+        {
+            "look": look.k,
+            **dataclasses.asdict(c),
+            "level_spent": look.level_spent[c.family],
+            "needed": look.needed.get(c.family, np.nan),
+        }
         for look in result.looks
         for c in look.comparisons
     ]
-    columns = ["look", *[f.name for f in dataclasses.fields(ComparisonLook)], "level_spent"]
+    fields = [f.name for f in dataclasses.fields(ComparisonLook)]
+    columns = ["look", *fields, "level_spent", "needed"]
     return pd.DataFrame(rows, columns=columns).astype({"decided_at": "Int64"})
 
 
@@ -455,6 +469,11 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     return fig
 
 
+def _needed(x: float) -> str:
+    """A look's boundary in points, or why the look could not reject."""
+    return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
+
+
 def _pts(x: float) -> str:
     return f"{100 * x:+.1f}"
 
@@ -524,10 +543,16 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         ]
     for look in result.looks:
         spent = ", ".join(f"{f} {v:.4f}" for f, v in look.level_spent.items())
+        needed = ", ".join(f"{f} {_needed(v)}" for f, v in look.needed.items())
         lines += [
             f"**Look {look.k}** — seeds per row: "
             + ", ".join(f"{p} {n}" for p, n in look.seeds_per_row.items())
-            + f"; α spent: {spent}.",
+            + f"; α spent: {spent}"
+            + (
+                f"; |difference| an open comparison needed to be decided: {needed}."
+                if needed
+                else "."
+            ),
             "",
             "| comparison | estimate [95% CI], points | decision |",
             "|:--|:--|:--|",
