@@ -365,3 +365,58 @@ def test_code_dir_goes_first_on_the_cells_path(tmp_path: Path, monkeypatch) -> N
     assert env["priqn"] == str(snapshot / "priqn" / "__init__.py")
     with pytest.raises(PriqnError, match="--code nowhere: no priqn package there"):
         _code_dir("nowhere")
+
+
+def test_forecast_completes_the_committed_seeds_and_tallies_the_verdicts(tmp_path: Path) -> None:
+    from priqn.analysis import forecast
+
+    exp = load_experiment(design(tmp_path))
+    scores = scores_frame(
+        {"good": [0.9, 0.8, 0.9, 0.85], "bad": [0.1, 0.2, 0.1, 0.15], "same": SAME[:4]}
+    )
+    observed = {"good": 0.8625, "bad": 0.1375, "same": 0.85}
+    # The paper says good - bad = +0.5: bad's future seeds sit 0.5 below good's mean.
+    assert forecast.scenario_means(exp, observed, "paper")["bad"] == pytest.approx(0.3625)
+    assert forecast.scenario_means(exp, observed, "observed") == observed
+    table = forecast.forecast(exp, scores, sims=4, permutations=200)
+    assert list(table.columns) == list(forecast.FORECAST_COLUMNS)
+    # good beats bad in every committed seed (two-sided 2/70 <= α/K = 0.05): decided at
+    # look 1 in every simulated experiment, whatever the future draws are.
+    good_bad = table[table["comparison"] == "good > bad"]
+    assert good_bad[["verdict", "share", "mean_seeds"]].values.tolist() == [
+        ["reproduced", 1.0, 4.0],
+        ["reproduced", 1.0, 4.0],
+    ]
+    # Every simulated experiment ends with one verdict per comparison.
+    assert table.groupby(["scenario", "comparison"])["share"].sum().tolist() == [1.0] * 4
+    with pytest.raises(PriqnError, match=r"need at least 2 committed seeds per row: bad \(1\)"):
+        forecast.forecast(exp, scores_frame({"good": [0.9] * 4, "bad": [0.1], "same": SAME}))
+
+
+def test_sweep_forecast_prints_the_verdict_shares_and_trains_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from priqn.cli import main
+
+    path = design(tmp_path)
+    # Two seeds of every row, written as complete fake cells.
+    for policy, rate in (("good", 0.9), ("bad", 0.1), ("same", 0.8)):
+        for seed in (0, 1):
+            run = tmp_path / "runs" / "seq" / f"{policy}__seed{seed}"
+            (run / "eval").mkdir(parents=True)
+            (run / "meta.json").write_text(json.dumps({"status": "complete", "git_sha": "abc"}))
+            (run / "eval" / "meta.json").write_text(json.dumps({"status": "complete"}))
+            success = [e < 10 * (rate + 0.05 * seed) for e in range(10)]
+            outcomes = {"collision": False, "off_road": False, "timeout": False}
+            pd.DataFrame({"density": 0.5, "success": success, **outcomes}).to_csv(
+                run / "eval" / "episodes.csv", index=False
+            )
+    assert main(["sweep", str(path), "--forecast", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "seq: if the seeds still to train (up to 8 per row)" in out
+    assert "good > bad: reproduced 100%" in out
+    assert sorted(p.name for p in (tmp_path / "runs" / "seq").iterdir()) == sorted(
+        f"{p}__seed{s}" for p in ("good", "bad", "same") for s in (0, 1)
+    )
+    assert main(["sweep", str(path), "--forecast", "0"]) == 2
+    assert "--forecast 0: expected a positive number" in capsys.readouterr().err

@@ -63,6 +63,16 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--list", action="store_true", help="list the cells and their state; run nothing"
     )
     parser.add_argument(
+        "--forecast",
+        type=int,
+        default=None,
+        metavar="SIMS",
+        help="sequential designs: simulate SIMS completions of the experiment from the "
+        "committed seeds and print how likely each comparison is to be decided, if the "
+        "estimates so far or the paper's differences are true; run nothing "
+        "(priqn.analysis.forecast)",
+    )
+    parser.add_argument(
         "--code",
         default=None,
         metavar="DIR",
@@ -95,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
     if args.list:
         _list(exp)
         return 0
+    if args.forecast is not None:
+        return _forecast(exp, args.forecast)
     if exp.sequential is not None:
         _check_code_commit(exp, code_dir)
     if args.cell_fn == DEFAULT_CELL_FN:
@@ -135,6 +147,37 @@ def _summarise(exp: Any, result: Any) -> int:
     if result.failed:
         print(f"  logs: {SweepFolder(exp.runs_dir).logs_dir}")
     return 1 if result.failed else 0
+
+
+def _forecast(exp: Any, sims: int) -> int:
+    """``--forecast SIMS``: the planning simulation of a sequential design (stdout)."""
+    from tqdm import tqdm
+
+    from priqn.analysis import forecast, sequential
+
+    if exp.sequential is None:
+        raise PriqnError(f"--forecast: {exp.path} has no [sequential] design")
+    if sims < 1:
+        raise PriqnError(f"--forecast {sims}: expected a positive number of simulations")
+    scores = sequential.collect_scores(exp)
+    with tqdm(total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim") as bar:
+        table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
+    have = sequential.scores_by_policy(scores, [p.name for p in exp.policies])
+    print(
+        f"{exp.experiment.name}: if the seeds still to train (up to "
+        f"{exp.sequential.interims[-1]} per row) follow each row's spread so far "
+        f"({', '.join(f'{r} {v.size} seeds, SD {v.std(ddof=1):.3f}' for r, v in have.items())}):"
+    )
+    for scenario, part in table.groupby("scenario", sort=False):
+        print(f"  {forecast.SCENARIO_TEXT[scenario]}:")
+        for name, rows in part.groupby("comparison", sort=False):
+            words = ", ".join(f"{r.verdict} {r.share:.0%}" for r in rows.itertuples())
+            print(f"    {name}: {words}; {rows['mean_seeds'].iloc[0]:.1f} seeds per row on average")
+    print(
+        f"({sims} simulated experiments a scenario, 2000 permutations each; planning only, "
+        "not a verdict: docs/statistics.md)"
+    )
+    return 0
 
 
 def _list(exp: Any) -> None:

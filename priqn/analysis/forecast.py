@@ -1,0 +1,137 @@
+"""How likely a sequential design is to decide, given the seeds it has: a simulation.
+
+For planning only: nothing here enters a look, a decision or a verdict. The committed
+seeds are kept as they are; the seeds still to train (up to the design's last look) are
+drawn per row from a normal with the row's committed standard deviation over seeds,
+clipped to the endpoint's range [0, 1], around a mean set by a **scenario**:
+
+- ``observed``: each row's committed mean (the estimates so far are the truth);
+- ``paper``: for every comparison with a ``paper_difference``, row ``b`` sits that far
+  below row ``a``'s committed mean (the paper's differences are the truth), the other
+  rows at their committed means.
+
+AdaStop is then replayed on each completed data set exactly as the report replays it
+(:func:`priqn.analysis.sequential.replay`), with ``permutations`` draws instead of the
+design's for time. Arrays: ``scores_S`` per row, seeds in order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from priqn.analysis import sequential
+from priqn.errors import PriqnError
+
+SCENARIOS: tuple[str, ...] = ("observed", "paper")
+"""The scenarios :func:`forecast` simulates, in order."""
+
+SCENARIO_TEXT: dict[str, str] = {
+    "observed": "if each row's mean so far is its true mean",
+    "paper": "if the paper's differences are true (b = a's mean so far - the paper's difference)",
+}
+"""One line per scenario, for printing."""
+
+FORECAST_COLUMNS: tuple[str, ...] = (
+    "scenario",
+    "comparison",
+    "verdict",
+    "share",
+    "mean_seeds",
+    "sims",
+)
+"""One row per (scenario, comparison, verdict word reached): the share of the simulated
+experiments that ended with that pre-registered verdict
+(:func:`priqn.analysis.sequential.verdict`), and the mean seeds per row the comparison
+took over all of them (decided early: fewer)."""
+
+
+def scenario_means(exp: Any, observed: dict[str, float], scenario: str) -> dict[str, float]:
+    """Row -> the mean its future seeds are drawn around under ``scenario``."""
+    if scenario == "observed":
+        return dict(observed)
+    if scenario != "paper":
+        raise PriqnError(f"forecast scenario {scenario!r}: expected one of {list(SCENARIOS)}")
+    means, pinned = dict(observed), set()
+    for c in exp.sequential.comparisons:
+        if c.paper_difference is not None and c.b not in pinned:
+            means[c.b] = observed[c.a] - c.paper_difference
+            pinned.add(c.b)
+    return means
+
+
+def forecast(
+    exp: Any,
+    scores: pd.DataFrame,
+    sims: int = 200,
+    permutations: int = 2000,
+    seed: int = 0,
+    on_sim: Callable[[], None] | None = None,
+) -> pd.DataFrame:
+    """:data:`FORECAST_COLUMNS` for every scenario and comparison (see the module docstring).
+
+    ``scores`` are the committed cells (:func:`sequential.collect_scores`); every row needs
+    at least two seeds for its spread. ``seed`` seeds the draws and the permutations;
+    ``on_sim`` is called once per simulated experiment (a progress bar)."""
+    seq = exp.sequential
+    rows = [p.name for p in exp.policies]
+    have = sequential.scores_by_policy(scores, rows)
+    few = [f"{r} ({have[r].size})" for r in rows if have[r].size < 2]
+    if few:
+        raise PriqnError(f"forecast: need at least 2 committed seeds per row: {', '.join(few)}")
+    observed = {r: float(have[r].mean()) for r in rows}
+    sd = {r: float(have[r].std(ddof=1)) for r in rows}
+    cap, cap_look = seq.interims[-1], len(seq.interims)
+    design = dataclasses.replace(
+        exp, sequential=dataclasses.replace(seq, permutations=permutations)
+    )
+    rng = np.random.default_rng(seed)
+    out = []
+    for scenario in SCENARIOS:
+        means = scenario_means(exp, observed, scenario)
+        verdicts: dict[str, dict[str, int]] = {c.name: {} for c in seq.comparisons}
+        seeds_used = dict.fromkeys(verdicts, 0)
+        for i in range(sims):
+            frame = pd.DataFrame(
+                [
+                    {"policy": r, "seed": s, "score": x}
+                    for r in rows
+                    for s, x in enumerate(_completed(have[r], means[r], sd[r], cap, rng))
+                ]
+            )
+            run = dataclasses.replace(
+                design, sequential=dataclasses.replace(design.sequential, seed=seed + i)
+            )
+            result = sequential.replay(run, frame)
+            last = {c.name: c for c in result.looks[-1].comparisons}
+            for c in seq.comparisons:
+                word = sequential.verdict(run, result, c)
+                verdicts[c.name][word] = verdicts[c.name].get(word, 0) + 1
+                seeds_used[c.name] += seq.interims[(last[c.name].decided_at or cap_look) - 1]
+            if on_sim is not None:
+                on_sim()
+        out += [
+            {
+                "scenario": scenario,
+                "comparison": name,
+                "verdict": word,
+                "share": n / sims,
+                "mean_seeds": seeds_used[name] / sims,
+                "sims": sims,
+            }
+            for name, counts in verdicts.items()
+            for word, n in sorted(counts.items(), key=lambda kv: -kv[1])
+        ]
+    return pd.DataFrame(out, columns=list(FORECAST_COLUMNS))
+
+
+def _completed(
+    scores_S: np.ndarray, mean: float, sd: float, cap: int, rng: np.random.Generator
+) -> np.ndarray:
+    """A row's committed seeds followed by draws up to ``cap`` seeds, clipped to [0, 1]."""
+    drawn = np.clip(rng.normal(mean, sd, max(0, cap - scores_S.size)), 0.0, 1.0)
+    return np.concatenate([scores_S, drawn])
