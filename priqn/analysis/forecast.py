@@ -30,6 +30,10 @@ from priqn.errors import PriqnError
 SCENARIOS: tuple[str, ...] = ("observed", "paper")
 """The scenarios :func:`forecast` simulates, in order."""
 
+PERMUTATIONS: int = 2000
+"""AdaStop's B in each simulated replay. With n = 5 a look has only 252 splits, so any B
+above that gives the design's own permutation sets (docs/statistics.md)."""
+
 SCENARIO_TEXT: dict[str, str] = {
     "observed": "if each row's mean so far is its true mean",
     "paper": "if the paper's differences are true (b = a's mean so far - the paper's difference)",
@@ -68,7 +72,7 @@ def forecast(
     exp: Any,
     scores: pd.DataFrame,
     sims: int = 200,
-    permutations: int = 2000,
+    permutations: int = PERMUTATIONS,
     seed: int = 0,
     on_sim: Callable[[], None] | None = None,
 ) -> pd.DataFrame:

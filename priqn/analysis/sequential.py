@@ -204,7 +204,8 @@ def two_sided_comparator() -> type:
     look rejects at twice its level (measured: 9.4 % of 1,000 null data sets at α 0.05,
     n 5, one look; 11-13 % family-wise for the headline design). Here the distribution the
     boundary is read from is the max of the absolute differences, as in the AdaStop paper;
-    the signed sums the later looks add to are kept. docs/statistics.md, "AdaStop".
+    the signed sums the later looks add to are kept (docs/statistics.md, "Sequential
+    experiments").
     """
     try:
         from adastop import MultipleAgentsComparator

@@ -174,8 +174,8 @@ def _forecast(exp: Any, sims: int) -> int:
             words = ", ".join(f"{r.verdict} {r.share:.0%}" for r in rows.itertuples())
             print(f"    {name}: {words}; {rows['mean_seeds'].iloc[0]:.1f} seeds per row on average")
     print(
-        f"({sims} simulated experiments a scenario, 2000 permutations each; planning only, "
-        "not a verdict: docs/statistics.md)"
+        f"({sims} simulated experiments a scenario, {forecast.PERMUTATIONS} permutations each; "
+        "planning only, not a verdict: docs/statistics.md)"
     )
     return 0
 
