@@ -423,25 +423,25 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
         if len(x) >= 2:
             half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
             ax.plot([x.mean() - half, x.mean() + half], [i + 0.32] * 2, color="black", lw=0.9)
-    for c in seq.comparisons:
-        if c.paper_difference is not None and c.b in means:
-            ax.plot(
-                means[c.b] + c.paper_difference,
-                policies.index(c.a) - 0.38,
-                "D",
-                mfc="none",
-                mec="tab:red",
-                ms=6,
-            )
-            ax.annotate(
-                f"vs {c.b}",
-                (means[c.b] + c.paper_difference, policies.index(c.a) - 0.38),
-                xytext=(0, 5),
-                textcoords="offset points",
-                ha="center",
-                fontsize=6,
-                color="tab:red",
-            )
+    diamonds = sorted(
+        (means[c.b] + c.paper_difference, policies.index(c.a), c.b)
+        for c in seq.comparisons
+        if c.paper_difference is not None and c.b in means
+    )
+    for x, row, baseline in diamonds:
+        ax.plot(x, row - 0.38, "D", mfc="none", mec="tab:red", ms=6)
+        # A row's leftmost label sits to its left, the others to their right: no overlap.
+        first = min(d[0] for d in diamonds if d[1] == row) == x
+        ax.annotate(
+            f"vs {baseline}",
+            (x, row - 0.38),
+            xytext=(-6, 0) if first else (6, 0),
+            textcoords="offset points",
+            ha="right" if first else "left",
+            va="center",
+            fontsize=6,
+            color="tab:red",
+        )
     counts = scores.groupby("policy")["seed"].nunique()
     ax.set_yticks(
         range(len(policies)), [f"{p} ({int(counts.get(p, 0))} seeds)" for p in policies], fontsize=8
