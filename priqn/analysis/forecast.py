@@ -68,6 +68,16 @@ def scenario_means(exp: Any, observed: dict[str, float], scenario: str) -> dict[
     return means
 
 
+def committed_rows(exp: Any, scores: pd.DataFrame) -> dict[str, np.ndarray]:
+    """Row -> ``scores_S`` of its committed contiguous seeds; a one-line PriqnError when a
+    row has fewer than two (no spread to draw its future seeds with)."""
+    have = sequential.scores_by_policy(scores, [p.name for p in exp.policies])
+    few = [f"{r} ({v.size})" for r, v in have.items() if v.size < 2]
+    if few:
+        raise PriqnError(f"forecast: need at least 2 committed seeds per row: {', '.join(few)}")
+    return have
+
+
 def forecast(
     exp: Any,
     scores: pd.DataFrame,
@@ -82,17 +92,11 @@ def forecast(
     at least two seeds for its spread. ``seed`` seeds the draws and the permutations;
     ``on_sim`` is called once per simulated experiment (a progress bar)."""
     seq = exp.sequential
-    rows = [p.name for p in exp.policies]
-    have = sequential.scores_by_policy(scores, rows)
-    few = [f"{r} ({have[r].size})" for r in rows if have[r].size < 2]
-    if few:
-        raise PriqnError(f"forecast: need at least 2 committed seeds per row: {', '.join(few)}")
-    observed = {r: float(have[r].mean()) for r in rows}
-    sd = {r: float(have[r].std(ddof=1)) for r in rows}
+    have = committed_rows(exp, scores)
+    rows = list(have)
+    observed = {r: float(v.mean()) for r, v in have.items()}
+    sd = {r: float(v.std(ddof=1)) for r, v in have.items()}
     cap, cap_look = seq.interims[-1], len(seq.interims)
-    design = dataclasses.replace(
-        exp, sequential=dataclasses.replace(seq, permutations=permutations)
-    )
     rng = np.random.default_rng(seed)
     out = []
     for scenario in SCENARIOS:
@@ -108,7 +112,7 @@ def forecast(
                 ]
             )
             run = dataclasses.replace(
-                design, sequential=dataclasses.replace(design.sequential, seed=seed + i)
+                exp, sequential=dataclasses.replace(seq, permutations=permutations, seed=seed + i)
             )
             result = sequential.replay(run, frame)
             last = {c.name: c for c in result.looks[-1].comparisons}

@@ -160,9 +160,9 @@ def _forecast(exp: Any, sims: int) -> int:
     if sims < 1:
         raise PriqnError(f"--forecast {sims}: expected a positive number of simulations")
     scores = sequential.collect_scores(exp)
+    have = forecast.committed_rows(exp, scores)
     with tqdm(total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim") as bar:
         table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
-    have = sequential.scores_by_policy(scores, [p.name for p in exp.policies])
     print(
         f"{exp.experiment.name}: if the seeds still to train (up to "
         f"{exp.sequential.interims[-1]} per row) follow each row's spread so far "
