@@ -150,6 +150,30 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
     assert sequential.replay(exp, eight) == r2
 
 
+def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: Path) -> None:
+    exp = load_experiment(design(tmp_path))
+    assert sequential.looks_figure(exp, sequential.replay(exp, scores_frame({}))) is None
+    four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
+    r = sequential.replay(exp, four)
+    fig = sequential.looks_figure(exp, r)
+    good_bad, good_same = fig.axes[:2]
+    needed = 100 * r.looks[0].needed["primary"]
+    for ax in (good_bad, good_same):
+        # Look 1's grey band spans x 1 ± 0.3 and y ± needed, in points.
+        (band,) = ax.collections[:1]
+        xs, ys = band.get_paths()[0].vertices.T
+        assert (xs.min(), xs.max()) == pytest.approx((0.7, 1.3))
+        assert (ys.min(), ys.max()) == pytest.approx((-needed, needed))
+    # good - bad = +80 points, decided (orange, outside the band); good - same = +5, open.
+    (dot,) = good_bad.lines[2:3]
+    assert dot.get_ydata()[0] == pytest.approx(80.0) and dot.get_color() == "tab:orange"
+    (dot,) = good_same.lines[1:2]  # no paper line: 0 line, then the dot
+    assert dot.get_ydata()[0] == pytest.approx(5.0) and dot.get_color() == "black"
+    assert good_bad.get_title() == "good > bad: reproduced"
+    # The paper's +50 is drawn on its comparison only.
+    assert [ln.get_ydata()[0] for ln in good_bad.lines[:2]] == [0, 50.0]
+
+
 def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
     tmp_path: Path,
 ) -> None:
@@ -271,6 +295,8 @@ def test_sweep_trains_only_what_each_look_needs_then_reports(
     assert "**reproduced**" in report and "**no difference found at 8 seeds**" in report
     # The report regenerates byte for byte from the same cells.
     first = {p.name: p.read_bytes() for p in (tmp_path / "reports" / "seq").rglob("*.*")}
+    assert {"headline.png", "looks.png", "looks.pdf"} <= set(first)
+    assert "![each comparison look by look](figures/looks.png)" in report
     again = subprocess.run(
         [
             sys.executable,

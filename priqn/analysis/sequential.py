@@ -470,6 +470,82 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     return fig
 
 
+def looks_figure(exp: Any, result: Replay) -> Any:
+    """The monitoring chart: one panel per comparison, its estimate at each look taken (dot,
+    Welch 95 % interval) inside the band AdaStop would not decide at that look (grey, ±the
+    look's ``needed``), with 0 and the paper's difference marked. A dot outside its band is
+    a decision; the looks still to come are empty slots. None before the first look."""
+    from priqn.analysis.figures import plt
+
+    if not result.looks:
+        return None
+    seq = exp.sequential
+    comps = seq.comparisons
+    ncols = min(2, len(comps))
+    nrows = -(-len(comps) // ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(3.9 * ncols, 2.5 * nrows + 0.6), sharey=True, squeeze=False
+    )
+    K = len(seq.interims)
+    for ax, c in zip(axes.flat, comps, strict=False):
+        ax.axhline(0, color="0.6", lw=0.8)
+        if c.paper_difference is not None:
+            ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
+        for look in result.looks:
+            row = next(x for x in look.comparisons if x.name == c.name)
+            needed = look.needed.get(c.family)
+            if needed is not None and row.decided_at in (None, look.k):
+                if np.isfinite(needed):
+                    ax.fill_between(
+                        [look.k - 0.3, look.k + 0.3],
+                        -100 * needed,
+                        100 * needed,
+                        color="0.88",
+                        lw=0,
+                        zorder=0,
+                    )
+                else:  # too few splits to reject anything: the whole column
+                    ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
+            decided = row.decided_at is not None and row.decided_at <= look.k
+            ax.errorbar(
+                look.k,
+                100 * row.diff,
+                yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
+                fmt="o",
+                color="tab:orange" if decided else "black",
+                ms=4,
+                lw=1,
+                capsize=2,
+            )
+        ax.set_xticks(range(1, K + 1), [f"{n}" for n in seq.interims], fontsize=8)
+        ax.set_xlim(0.4, K + 0.6)
+        ax.set_xlabel("seeds per row at the look", fontsize=8)
+        ax.set_title(f"{c.name}: {verdict(exp, result, c)}", fontsize=8)
+        ax.tick_params(axis="y", labelsize=8)
+    for ax in axes.flat[len(comps) :]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("difference, points", fontsize=8)
+    handles = [
+        plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
+        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="decided"),
+        plt.Rectangle((0, 0), 1, 1, color="0.88", label="not decided at that look"),
+        plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
+    ]
+    top = 1 - 0.45 / fig.get_figheight()  # room for the title and the legend's row
+    fig.suptitle(f"{exp.experiment.name}: each comparison look by look", y=0.995, fontsize=10)
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()),
+        ncol=4,
+        fontsize=7,
+        frameon=False,
+    )
+    fig.tight_layout(rect=(0, 0, 1, top))
+    return fig
+
+
 def _needed(x: float) -> str:
     """A look's boundary in points, or why the look could not reject."""
     return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
@@ -536,6 +612,14 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         "## Looks",
         "",
     ]
+    if result.looks:
+        lines += [
+            "Each comparison look by look: a dot outside its look's grey band is decided "
+            "there (the band is ± the |difference| it needed).",
+            "",
+            "![each comparison look by look](figures/looks.png) ([pdf](figures/looks.pdf))",
+            "",
+        ]
     if not result.looks:
         lines += [
             f"No look yet: the first needs {seq.interims[0]} seeds of every row "
@@ -584,7 +668,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         ],
         "",
         "Files: `tables/scores.csv`, `tables/looks.csv`, `figures/headline.{png,pdf}`, "
-        "`meta.json`.",
+        "`figures/looks.{png,pdf}` (from the first look on), `meta.json`.",
         "",
     ]
     return "\n".join(lines)
@@ -605,6 +689,9 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     atomic_write_text(out / "tables" / "scores.csv", scores.to_csv(**csv_kw))
     atomic_write_text(out / "tables" / "looks.csv", looks_frame(result).to_csv(**csv_kw))
     save_figure(figure(exp, scores), out / "figures", "headline")
+    monitoring = looks_figure(exp, result)
+    if monitoring is not None:
+        save_figure(monitoring, out / "figures", "looks")
     report = out / "report.md"
     atomic_write_text(report, report_markdown(exp, scores, result, command))
     atomic_write_json(
