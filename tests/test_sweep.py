@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -32,6 +33,7 @@ from priqn.sweep import (
     load_experiment,
     run_sweep,
 )
+from priqn.sweep.cells import time_left
 from priqn.sweep.scheduler import SweepFolder
 
 FAKE_CELLS = '''
@@ -611,13 +613,50 @@ def test_cli_exit_status_summary_and_list(tmp_path: Path, fake_cells: str) -> No
     assert listed.returncode == 0
     states = dict(line.split()[:2] for line in listed.stdout.splitlines())
     assert states == {"fake/ok__seed0": "complete", "fake/boom__seed0": "new"}
-    assert listed.stderr.strip() == "fake: 2 cells: 1 complete, 1 new"
+    assert listed.stderr.splitlines() == [
+        "fake: 2 cells: 1 complete, 1 new",
+        "fake: time left for 1 cell(s): unknown until boom has a complete cell to time it by",
+    ]
     bad = subprocess.run(
         _sweep_cli(exp_path, "--jobs", "0"), capture_output=True, text=True, timeout=60
     )
     assert bad.returncode == 2 and bad.stderr.strip() == (
         "priqn: error: --jobs 0: expected a positive number of cells"
     )
+
+
+def test_time_left_times_the_cells_left_by_their_rows_complete_cells(tmp_path: Path) -> None:
+    exp = load_experiment(write_experiment(tmp_path, ["a", "b"], [0, 1, 2, 3], steps="1000"))
+    cells = {c.name: c for c in expand(exp)}
+
+    def complete(name: str, train_s: float, eval_s: float) -> None:
+        d = cells[name].run_dir
+        atomic_write_json(d / "meta.json", {"status": "complete", "wall_s": train_s})
+        atomic_write_json(d / "eval" / "meta.json", {"status": "complete", "wall_s": eval_s})
+
+    # Row a's cells took 10, 20 and 40 min (training + evaluation): median 20 min.
+    complete("fake/a__seed0", 540, 60)
+    complete("fake/a__seed1", 1140, 60)
+    complete("fake/a__seed2", 2340, 60)
+    # Row b: one cell, 30 min. b's seed 1 is training (pid 1 lives), 3/4 of its steps logged.
+    complete("fake/b__seed0", 1740, 60)
+    running = cells["fake/b__seed1"].run_dir
+    atomic_write_json(
+        running / "meta.json", {"status": "running", "pid": 1, "host": socket.gethostname()}
+    )
+    (running / "metrics.csv").write_text("phase,step\ntrain,500\ntrain,750\n")
+    left = [cells[n] for n in ("fake/b__seed1", "fake/a__seed3", "fake/b__seed2")]
+    est = time_left(exp, left, slots=2)
+    assert est.minutes_per_cell == {"a": pytest.approx(20.0), "b": pytest.approx(30.0)}
+    # b1 has 30 * 1/4 = 7.5 min left and a3 20 min; b2 (30 min) takes the slot free at
+    # 7.5 min and ends at 37.5 min.
+    assert est.hours == pytest.approx(37.5 / 60)
+    assert time_left(exp, left, slots=1).hours == pytest.approx((7.5 + 20 + 30) / 60)
+    # A row without a complete cell cannot be timed.
+    exp_c = load_experiment(write_experiment(tmp_path, ["a", "c"], [0, 1, 2, 3]))
+    c_cells = [c for c in expand(exp_c) if c.policy == "c"]
+    est = time_left(exp_c, c_cells, 2)
+    assert (est.hours, est.untimed) == (None, ("c",))
 
 
 @pytest.mark.parametrize("backend", ["local", pytest.param("ray", marks=pytest.mark.ray)])

@@ -17,6 +17,7 @@ from priqn.agent_config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, cell_dir_name, policy_overrides
+from priqn.io import read_json
 from priqn.runs import RunFolder, Status
 
 # --------------------------------------------------------------------------- cells
@@ -210,3 +211,63 @@ def validate(exp: Experiment) -> None:
             build_train_config(c)
     if cells:
         build_eval_config(cells[0])
+
+
+# --------------------------------------------------------------------------- time left
+
+
+def cell_minutes(cell: Cell) -> float | None:
+    """Wall minutes a complete cell took: training plus each of its evaluations (the
+    ``wall_s`` their ``meta.json`` files record); None if it is not complete."""
+    if not cell.is_complete():
+        return None
+    folder = RunFolder(cell.run_dir)
+    seconds = float(folder.meta().get("wall_s") or 0.0)
+    for name in ("", *cell.controls):
+        seconds += float(read_json(folder.evaluation_dir(name) / folder.META).get("wall_s") or 0.0)
+    return seconds / 60.0
+
+
+def training_fraction_done(cell: Cell) -> float:
+    """Share of a cell's training decisions its ``metrics.csv`` has logged (0 when none)."""
+    rows = RunFolder(cell.run_dir).read_metrics()
+    return min(1.0, int(float(rows[-1]["step"])) / cell.steps) if rows else 0.0
+
+
+@dataclass(frozen=True)
+class TimeLeft:
+    """Estimated wall time until ``cells`` are complete, ``slots`` at a time."""
+
+    hours: float | None
+    """Makespan of the cells left, handed in order to the first free slot; None when a
+    row has no complete cell to time it by."""
+    minutes_per_cell: dict[str, float]
+    """Policy -> median wall minutes of its complete cells in this experiment."""
+    untimed: tuple[str, ...]
+    """Policies with cells left but no complete cell yet."""
+
+
+def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
+    """How long ``cells`` (the ones still to run, in the order the sweep starts them) will
+    take at ``slots`` cells at a time, timed by this experiment's complete cells: each
+    row's median, less what a running cell's ``metrics.csv`` has already logged (as a share
+    of the whole cell). An estimate from the cells' own history, for planning only."""
+    import heapq
+    import statistics
+
+    done: dict[str, list[float]] = {}
+    for c in expand(exp):
+        minutes = cell_minutes(c)
+        if minutes is not None:
+            done.setdefault(c.policy, []).append(minutes)
+    per_cell = {p: statistics.median(m) for p, m in sorted(done.items())}
+    untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
+    if untimed:
+        return TimeLeft(None, per_cell, untimed)
+    running = [c for c in cells if c.state() == Status.RUNNING]
+    queue = [per_cell[c.policy] * (1 - training_fraction_done(c)) for c in running]
+    queue += [per_cell[c.policy] for c in cells if c not in running]
+    free_at = [0.0] * max(1, slots)  # minutes from now at which each slot is free
+    for minutes in queue:
+        heapq.heappush(free_at, heapq.heappop(free_at) + minutes)
+    return TimeLeft(max(free_at) / 60.0, per_cell, ())

@@ -11,9 +11,10 @@ from typing import Any
 
 from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, load_experiment
-from priqn.sweep.cells import expand, stale_cells, validate
+from priqn.runs import Status
+from priqn.sweep.cells import expand, stale_cells, time_left, validate
 from priqn.sweep.process import DEFAULT_CELL_FN
-from priqn.sweep.scheduler import SweepFolder, run_sweep
+from priqn.sweep.scheduler import SweepFolder, default_jobs, run_sweep
 
 # --------------------------------------------------------------------------- CLI
 
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     code_dir = _code_dir(args.code)
     if args.list:
-        _list(exp)
+        _list(exp, args.jobs)
         return 0
     if args.forecast is not None:
         return _forecast(exp, args.forecast)
@@ -180,9 +181,9 @@ def _forecast(exp: Any, sims: int) -> int:
     return 0
 
 
-def _list(exp: Any) -> None:
+def _list(exp: Any, jobs: int | None) -> None:
     """``--list``: every cell and its state (stdout); for a sequential design, which cells
-    the next look needs; the tally on stderr."""
+    the next look needs; the tally and the time left (:func:`time_left`) on stderr."""
     needed: set[str] = set()
     if exp.sequential is not None:
         from priqn.analysis import sequential
@@ -203,6 +204,27 @@ def _list(exp: Any) -> None:
             "finished" if plan.finished else f"look {plan.next_look} needs {len(needed)} cell(s)"
         )
         print(f"{exp.experiment.name}: sequential design: {where}", file=sys.stderr)
+        left = [c for c in cells if c.run_dir.name in needed]
+    else:
+        left = [c for c, state in zip(cells, states, strict=True) if state != Status.COMPLETE]
+    if left:
+        slots = jobs or default_jobs(exp.resources)
+        print(f"{exp.experiment.name}: {_time_left_line(exp, left, slots)}", file=sys.stderr)
+
+
+def _time_left_line(exp: Any, left: list[Any], slots: int) -> str:
+    """One line: about how long the cells ``left`` take, ``slots`` at a time."""
+    est = time_left(exp, left, slots)
+    if est.hours is None:
+        return (
+            f"time left for {len(left)} cell(s): unknown until {', '.join(est.untimed)} "
+            "has a complete cell to time it by"
+        )
+    per = ", ".join(f"{p} {m:.0f} min" for p, m in est.minutes_per_cell.items())
+    return (
+        f"about {est.hours:.1f} h left for {len(left)} cell(s), {slots} at a time "
+        f"(per cell, the median of this experiment's complete cells: {per}; an estimate)"
+    )
 
 
 def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
