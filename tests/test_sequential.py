@@ -50,7 +50,8 @@ def cell(c):
     atomic_write_json(c.run_dir / "eval" / "meta.json", {"status": "complete"})
     atomic_write_json(
         c.run_dir / "meta.json",
-        {"status": "complete", "seed": c.seed, "git_sha": os.environ.get("FAKE_SHA", "abc")},
+        {"status": "complete", "seed": c.seed, "git_sha": os.environ.get("FAKE_SHA", "abc"),
+         "labels": {"label": "IQN" if c.policy == "good" else c.policy}},
     )
 """
 
@@ -319,6 +320,19 @@ def test_sweep_trains_only_what_each_look_needs_then_reports(
     assert set(first) == set(second) and all(
         first[k] == second[k] for k in first if k != "meta.json"
     )
+    # Per density, descriptive: good is 0.9 at both densities on all 8 seeds, beside the
+    # paper's IQN values (its label); same's 8 seeds at density 1.0 average 0.8875, SD
+    # 0.1126, t(7) 2.3646: 95 % interval 0.8875 ± 0.0941. No paper row is labelled "same".
+    density = pd.read_csv(tmp_path / "reports" / "seq" / "tables" / "density.csv")
+    good = density[density["policy"] == "good"].set_index("density")
+    assert list(good["seeds"]) == [8, 8] and list(good["mean"]) == pytest.approx([0.9, 0.9])
+    assert list(good["paper"]) == [0.737, 0.434]
+    same = density[density["policy"] == "same"].set_index("density").loc[1.0]
+    assert (same["mean"], same["lo"], same["hi"]) == pytest.approx(
+        (0.8875, 0.7934, 0.9816), abs=2e-4
+    )
+    assert np.isnan(same["paper"])
+    assert "| good | 8 | 0.900 [0.900, 0.900] (paper 0.737) |" in report
     looks = pd.read_csv(tmp_path / "reports" / "seq" / "tables" / "looks.csv")
     assert list(looks["look"]) == [1, 1, 2, 2]
     meta = json.loads((tmp_path / "reports" / "seq" / "meta.json").read_text())
@@ -459,3 +473,9 @@ def test_sweep_forecast_prints_the_verdict_shares_and_trains_nothing(
     )
     assert main(["sweep", str(path), "--forecast", "0"]) == 2
     assert "--forecast 0: expected a positive number" in capsys.readouterr().err
+
+
+def test_the_papers_training_budget_is_the_paper_presets() -> None:
+    from priqn.train_config import resolve_config
+
+    assert resolve_config(preset="paper").total_steps == sequential.PAPER_TRAINING_DECISIONS

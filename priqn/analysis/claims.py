@@ -117,6 +117,9 @@ PAPER_SUCCESS: dict[str, tuple[float, float, float]] = {
 }
 """The paper's Table II success rates at densities 0.5 / 0.75 / 1.0, per row label."""
 
+PAPER_DENSITIES: tuple[float, float, float] = (0.5, 0.75, 1.0)
+"""The traffic densities of the paper's Table II columns (the order of PAPER_SUCCESS)."""
+
 
 def paper_difference(first: PolicyLabel, second: PolicyLabel) -> float:
     """The paper's success-rate difference first − second on the endpoint (mean over its
@@ -189,7 +192,7 @@ def _endpoint_and_densities(
         "comparisons": (Comparison(first, second, paper=paper_difference(first, second)),),
         "by_density": tuple(
             Comparison(first, second, "success", d, p)
-            for d, p in zip((0.5, 0.75, 1.0), paper_at, strict=True)
+            for d, p in zip(PAPER_DENSITIES, paper_at, strict=True)
         ),
     }
 
@@ -205,7 +208,7 @@ def _acting_control(key: str, how: str, eps: float) -> Claim:
         tuple(Comparison(PR_IQN_STAR, row) for row in rows),
         family="ours",
         by_density=tuple(
-            Comparison(PR_IQN_STAR, row, "success", d) for row in rows for d in (0.5, 0.75, 1.0)
+            Comparison(PR_IQN_STAR, row, "success", d) for row in rows for d in PAPER_DENSITIES
         ),
     )
 

@@ -34,6 +34,9 @@ from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name
 from priqn.runs import RunFolder, Status
 
+PAPER_TRAINING_DECISIONS = 2_000_000
+"""The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
+
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
 """AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at
 the last look with β = 0), or undecided yet."""
@@ -120,6 +123,52 @@ def collect_scores(exp: Any) -> pd.DataFrame:
                 )
             rows.append(dataclasses.asdict(score))
     columns = [f.name for f in dataclasses.fields(Score)]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
+    """Descriptive only (the endpoint is the mean over densities): per row and evaluation
+    density, the hold-out success over the row's scored cells — mean and 95 % t interval
+    over training seeds — beside the paper's Table II value for the row's label, if it has
+    one. Columns: policy, density, seeds, mean, lo, hi, paper. ``tables/density.csv``."""
+    from scipy import stats
+
+    from priqn.analysis.claims import PAPER_DENSITIES, PAPER_SUCCESS
+
+    rows = []
+    for policy in [p.name for p in exp.policies]:
+        mine = scores[scores["policy"] == policy]
+        if mine.empty:
+            continue
+        success_SD = pd.DataFrame(  # one row per cell (seed), one column per density
+            [
+                resolve_outcomes(pd.read_csv(RunFolder(d).eval_episodes_path))
+                .groupby("density")["success"]
+                .mean()
+                for d in mine["run_dir"]
+            ]
+        ).sort_index(axis=1)
+        label = RunFolder(mine["run_dir"].iloc[0]).meta().get("labels", {}).get("label")
+        paper = dict(zip(PAPER_DENSITIES, PAPER_SUCCESS.get(str(label), ()), strict=False))
+        for density, column in success_SD.items():
+            x = column.dropna().to_numpy(float)
+            half = (
+                stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
+                if x.size >= 2
+                else np.nan
+            )
+            rows.append(
+                {
+                    "policy": policy,
+                    "density": float(density),
+                    "seeds": x.size,
+                    "mean": x.mean(),
+                    "lo": x.mean() - half,
+                    "hi": x.mean() + half,
+                    "paper": paper.get(float(density), np.nan),
+                }
+            )
+    columns = ["policy", "density", "seeds", "mean", "lo", "hi", "paper"]
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -555,6 +604,35 @@ def _pts(x: float) -> str:
     return f"{100 * x:+.1f}"
 
 
+def _density_lines(frame: pd.DataFrame, steps: int | None) -> list[str]:
+    """The report's per-density section (descriptive) from :func:`density_frame`; ``steps``:
+    the cells' training decisions (the paper's values come from the paper preset's)."""
+    if frame.empty:
+        return []
+    densities = sorted(frame["density"].unique())
+    lines = [
+        "## Per density (descriptive)",
+        "",
+        "Hold-out success by traffic density, mean [95 % t interval] over each row's "
+        "committed seeds, with the paper's Table II value where the row is one of its rows "
+        f"(trained for {PAPER_TRAINING_DECISIONS:,} decisions; these cells for "
+        f"{f'{steps:,}' if steps else 'their preset'}). The decisions above use the mean over "
+        "densities only.",
+        "",
+        "| row | seeds | " + " | ".join(f"density {d:g}" for d in densities) + " |",
+        "|:--|--:|" + "|".join(":--" for _ in densities) + "|",
+    ]
+    for policy, rows in frame.groupby("policy", sort=False):
+        cells = []
+        for r in rows.sort_values("density").itertuples():
+            text = f"{r.mean:.3f} [{r.lo:.3f}, {r.hi:.3f}]"
+            if np.isfinite(r.paper):
+                text += f" (paper {r.paper:.3f})"
+            cells.append(text)
+        lines.append(f"| {policy} | {int(rows['seeds'].iloc[0])} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
 def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str) -> str:
     """``report.md`` of a sequential experiment."""
     seq, e = exp.sequential, exp.experiment
@@ -647,6 +725,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
             ],
             "",
         ]
+    lines += _density_lines(density_frame(exp, scores), e.steps)
     nxt = next_cells(exp, result, scores)
     lines += [
         "## Next",
@@ -667,7 +746,8 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
             for r in scores.sort_values(["policy", "seed"], kind="mergesort").itertuples()
         ],
         "",
-        "Files: `tables/scores.csv`, `tables/looks.csv`, `figures/headline.{png,pdf}`, "
+        "Files: `tables/scores.csv`, `tables/looks.csv`, `tables/density.csv`, "
+        "`figures/headline.{png,pdf}`, "
         "`figures/looks.{png,pdf}` (from the first look on), `meta.json`.",
         "",
     ]
@@ -688,6 +768,7 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
     atomic_write_text(out / "tables" / "scores.csv", scores.to_csv(**csv_kw))
     atomic_write_text(out / "tables" / "looks.csv", looks_frame(result).to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "density.csv", density_frame(exp, scores).to_csv(**csv_kw))
     save_figure(figure(exp, scores), out / "figures", "headline")
     monitoring = looks_figure(exp, result)
     if monitoring is not None:
