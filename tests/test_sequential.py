@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from priqn.analysis import sequential
+from priqn.analysis import sequential, sequential_report
 from priqn.errors import PriqnError
 from priqn.sweep import load_experiment
 
@@ -153,10 +153,10 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
 
 def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
-    assert sequential.looks_figure(exp, sequential.replay(exp, scores_frame({}))) is None
+    assert sequential_report.looks_figure(exp, sequential.replay(exp, scores_frame({}))) is None
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
     r = sequential.replay(exp, four)
-    fig = sequential.looks_figure(exp, r)
+    fig = sequential_report.looks_figure(exp, r)
     good_bad, good_same = fig.axes[:2]
     needed = 100 * r.looks[0].needed["primary"]
     for ax in (good_bad, good_same):
@@ -478,4 +478,4 @@ def test_sweep_forecast_prints_the_verdict_shares_and_trains_nothing(
 def test_the_papers_training_budget_is_the_paper_presets() -> None:
     from priqn.train_config import resolve_config
 
-    assert resolve_config(preset="paper").total_steps == sequential.PAPER_TRAINING_DECISIONS
+    assert resolve_config(preset="paper").total_steps == sequential_report.PAPER_TRAINING_DECISIONS

@@ -627,10 +627,10 @@ def run(args: argparse.Namespace) -> int:
     if exp is not None:
         if args.reference:
             raise PriqnError("--reference: not for a sequential experiment's report")
-        from priqn.analysis import sequential
+        from priqn.analysis import sequential_report
 
         command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(sequential.write_report(exp, out, command))
+        print(sequential_report.write_report(exp, out, command))
         return 0
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "

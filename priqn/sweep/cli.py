@@ -230,7 +230,7 @@ def _time_left_line(exp: Any, left: list[Any], slots: int) -> str:
 def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
     """A pre-registered sequential design: train the cells the next look needs, take the
     look, and go on until every comparison is decided or the last look is taken."""
-    from priqn.analysis import sequential
+    from priqn.analysis import sequential, sequential_report
 
     while True:
         scores = sequential.collect_scores(exp)
@@ -254,7 +254,7 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
         if result.failed or result.interrupted:
             return _summarise(exp, result)
     if report:
-        path = sequential.write_report(exp, exp.report_dir)
+        path = sequential_report.write_report(exp, exp.report_dir)
         print(f"priqn sweep: report in {path}", file=sys.stderr)
     return 0
 

@@ -1,0 +1,439 @@
+"""The report of a pre-registered sequential experiment, from its replay.
+
+:func:`write_report` writes, deterministically (the same committed cells give the same
+bytes): ``report.md`` (verdicts, each look, per-density success, the next cells, every
+cell), ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` and ``figures/headline``
+(per-seed success of each row) and ``figures/looks`` (each comparison look by look). The
+design and the decisions are :mod:`priqn.analysis.sequential`'s; nothing here decides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from priqn.analysis.sequential import (
+    ComparisonLook,
+    Replay,
+    collect_scores,
+    next_cells,
+    relative_path,
+    replay,
+    verdict,
+)
+from priqn.episodes import resolve_outcomes
+from priqn.experiment import cell_dir_name
+from priqn.runs import RunFolder
+
+PAPER_TRAINING_DECISIONS = 2_000_000
+"""The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
+
+
+def _t_half_width(x: np.ndarray) -> float:
+    """Half the width of the 95 % t interval of the mean of ``x`` (NaN below 2 values)."""
+    from scipy import stats
+
+    if x.size < 2:
+        return float("nan")
+    return float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+
+
+def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
+    """Descriptive only (the endpoint is the mean over densities): per row and evaluation
+    density, the hold-out success over the row's scored cells — mean and 95 % t interval
+    over training seeds — beside the paper's Table II value for the row's label, if it has
+    one. Columns: policy, density, seeds, mean, lo, hi, paper. ``tables/density.csv``."""
+    from priqn.analysis.claims import PAPER_DENSITIES, PAPER_SUCCESS
+
+    rows = []
+    for policy in [p.name for p in exp.policies]:
+        mine = scores[scores["policy"] == policy]
+        if mine.empty:
+            continue
+        success_SD = pd.DataFrame(  # one row per cell (seed), one column per density
+            [
+                resolve_outcomes(pd.read_csv(RunFolder(d).eval_episodes_path))
+                .groupby("density")["success"]
+                .mean()
+                for d in mine["run_dir"]
+            ]
+        ).sort_index(axis=1)
+        label = RunFolder(mine["run_dir"].iloc[0]).meta().get("labels", {}).get("label")
+        paper = dict(zip(PAPER_DENSITIES, PAPER_SUCCESS.get(str(label), ()), strict=False))
+        for density, column in success_SD.items():
+            x = column.dropna().to_numpy(float)
+            half = _t_half_width(x)
+            rows.append(
+                {
+                    "policy": policy,
+                    "density": float(density),
+                    "seeds": x.size,
+                    "mean": x.mean(),
+                    "lo": x.mean() - half,
+                    "hi": x.mean() + half,
+                    "paper": paper.get(float(density), np.nan),
+                }
+            )
+    columns = ["policy", "density", "seeds", "mean", "lo", "hi", "paper"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def looks_frame(result: Replay) -> pd.DataFrame:
+    """One row per (look, comparison): ``tables/looks.csv``."""
+    rows = [
+        {
+            "look": look.k,
+            **dataclasses.asdict(c),
+            "level_spent": look.level_spent[c.family],
+            "needed": look.needed.get(c.family, np.nan),
+        }
+        for look in result.looks
+        for c in look.comparisons
+    ]
+    fields = [f.name for f in dataclasses.fields(ComparisonLook)]
+    columns = ["look", *fields, "level_spent", "needed"]
+    return pd.DataFrame(rows, columns=columns).astype({"decided_at": "Int64"})
+
+
+def figure(exp: Any, scores: pd.DataFrame) -> Any:
+    """Per-seed endpoint of every row (dots: filled = this experiment's cells, open = the
+    prior grid's), the row mean (bar) with its 95 % t interval, and where Pr-IQN* would
+    sit if the paper's difference to each baseline held (diamonds on the compared row)."""
+    from priqn.analysis.figures import legend_above, plt
+
+    seq = exp.sequential
+    policies = [p.name for p in exp.policies]
+    fig, ax = plt.subplots(figsize=(7.5, 0.55 * len(policies) + 1.6))
+    means = {}
+    for i, policy in enumerate(policies):
+        mine = scores[scores["policy"] == policy]
+        x = mine["score"].to_numpy(float)
+        prior = mine["seed"].isin(seq.prior_seeds).to_numpy()
+        ax.plot(x[~prior], np.full((~prior).sum(), i), "o", color="tab:blue", ms=5, alpha=0.8)
+        ax.plot(x[prior], np.full(prior.sum(), i), "o", mfc="none", mec="tab:blue", ms=5)
+        if len(x):
+            means[policy] = float(x.mean())
+            ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
+        if len(x) >= 2:
+            half = _t_half_width(x)
+            ax.plot([x.mean() - half, x.mean() + half], [i + 0.32] * 2, color="black", lw=0.9)
+    diamonds = sorted(
+        (means[c.b] + c.paper_difference, policies.index(c.a), c.b)
+        for c in seq.comparisons
+        if c.paper_difference is not None and c.b in means
+    )
+    for x, row, baseline in diamonds:
+        ax.plot(x, row - 0.38, "D", mfc="none", mec="tab:red", ms=6)
+        # A row's leftmost label sits to its left, the others to their right: no overlap.
+        first = min(d[0] for d in diamonds if d[1] == row) == x
+        ax.annotate(
+            f"vs {baseline}",
+            (x, row - 0.38),
+            xytext=(-6, 0) if first else (6, 0),
+            textcoords="offset points",
+            ha="right" if first else "left",
+            va="center",
+            fontsize=6,
+            color="tab:red",
+        )
+    counts = scores.groupby("policy")["seed"].nunique()
+    ax.set_yticks(
+        range(len(policies)), [f"{p} ({int(counts.get(p, 0))} seeds)" for p in policies], fontsize=8
+    )
+    ax.set_ylim(len(policies) - 0.5, -0.7)
+    ax.set_xlim(0, 1)
+    ax.grid(axis="x", color="0.9")
+    ax.set_xlabel("hold-out success rate, mean over densities (one dot per training seed)")
+    handles = [
+        plt.Line2D([], [], ls="", marker="o", color="tab:blue", label="seed (this experiment)"),
+        plt.Line2D(
+            [], [], ls="", marker="o", mfc="none", mec="tab:blue", label="seed (prior grid)"
+        ),
+        plt.Line2D([], [], color="black", lw=1.8, label="mean; thin: 95 % t interval"),
+        plt.Line2D(
+            [],
+            [],
+            ls="",
+            marker="D",
+            mfc="none",
+            mec="tab:red",
+            label="where a would be at the paper's difference",
+        ),
+    ]
+    legend_above(ax, handles, f"{exp.experiment.name}: per-seed success of each row", ncol=2)
+    return fig
+
+
+def looks_figure(exp: Any, result: Replay) -> Any:
+    """The monitoring chart: one panel per comparison, its estimate at each look taken (dot,
+    Welch 95 % interval) inside the band AdaStop would not decide at that look (grey, ±the
+    look's ``needed``), with 0 and the paper's difference marked. A dot outside its band is
+    a decision; the looks still to come are empty slots. None before the first look."""
+    from priqn.analysis.figures import plt
+
+    if not result.looks:
+        return None
+    seq = exp.sequential
+    comps = seq.comparisons
+    ncols = min(2, len(comps))
+    nrows = -(-len(comps) // ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(3.9 * ncols, 2.5 * nrows + 0.6), sharey=True, squeeze=False
+    )
+    K = len(seq.interims)
+    for ax, c in zip(axes.flat, comps, strict=False):
+        ax.axhline(0, color="0.6", lw=0.8)
+        if c.paper_difference is not None:
+            ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
+        for look in result.looks:
+            row = next(x for x in look.comparisons if x.name == c.name)
+            needed = look.needed.get(c.family)
+            if needed is not None and row.decided_at in (None, look.k):
+                if np.isfinite(needed):
+                    ax.fill_between(
+                        [look.k - 0.3, look.k + 0.3],
+                        -100 * needed,
+                        100 * needed,
+                        color="0.88",
+                        lw=0,
+                        zorder=0,
+                    )
+                else:  # too few splits to reject anything: the whole column
+                    ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
+            decided = row.decided_at is not None and row.decided_at <= look.k
+            ax.errorbar(
+                look.k,
+                100 * row.diff,
+                yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
+                fmt="o",
+                color="tab:orange" if decided else "black",
+                ms=4,
+                lw=1,
+                capsize=2,
+            )
+        ax.set_xticks(range(1, K + 1), [f"{n}" for n in seq.interims], fontsize=8)
+        ax.set_xlim(0.4, K + 0.6)
+        ax.set_xlabel("seeds per row at the look", fontsize=8)
+        ax.set_title(f"{c.name}: {verdict(exp, result, c)}", fontsize=8)
+        ax.tick_params(axis="y", labelsize=8)
+    for ax in axes.flat[len(comps) :]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("difference, points", fontsize=8)
+    handles = [
+        plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
+        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="decided"),
+        plt.Rectangle((0, 0), 1, 1, color="0.88", label="not decided at that look"),
+        plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
+    ]
+    top = 1 - 0.45 / fig.get_figheight()  # room for the title and the legend's row
+    fig.suptitle(f"{exp.experiment.name}: each comparison look by look", y=0.995, fontsize=10)
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()),
+        ncol=4,
+        fontsize=7,
+        frameon=False,
+    )
+    fig.tight_layout(rect=(0, 0, 1, top))
+    return fig
+
+
+def _needed(x: float) -> str:
+    """A look's boundary in points, or why the look could not reject."""
+    return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
+
+
+def _pts(x: float) -> str:
+    return f"{100 * x:+.1f}"
+
+
+def _density_lines(frame: pd.DataFrame, steps: int | None) -> list[str]:
+    """The report's per-density section (descriptive) from :func:`density_frame`; ``steps``:
+    the cells' training decisions (the paper's values come from the paper preset's)."""
+    if frame.empty:
+        return []
+    densities = sorted(frame["density"].unique())
+    lines = [
+        "## Per density (descriptive)",
+        "",
+        "Hold-out success by traffic density, mean [95 % t interval] over each row's "
+        "committed seeds, with the paper's Table II value where the row is one of its rows "
+        f"(trained for {PAPER_TRAINING_DECISIONS:,} decisions; these cells for "
+        f"{f'{steps:,}' if steps else 'their preset'}). The decisions above use the mean over "
+        "densities only.",
+        "",
+        "| row | seeds | " + " | ".join(f"density {d:g}" for d in densities) + " |",
+        "|:--|--:|" + "|".join(":--" for _ in densities) + "|",
+    ]
+    for policy, rows in frame.groupby("policy", sort=False):
+        cells = []
+        for r in rows.sort_values("density").itertuples():
+            text = f"{r.mean:.3f} [{r.lo:.3f}, {r.hi:.3f}]"
+            if np.isfinite(r.paper):
+                text += f" (paper {r.paper:.3f})"
+            cells.append(text)
+        lines.append(f"| {policy} | {int(rows['seeds'].iloc[0])} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str) -> str:
+    """``report.md`` of a sequential experiment."""
+    seq, e = exp.sequential, exp.experiment
+    policies = [p.name for p in exp.policies]
+    counts = scores.groupby("policy")["seed"].nunique()
+    last = result.looks[-1] if result.looks else None
+    lines = [
+        f"# {e.name}: pre-registered sequential experiment",
+        "",
+        f"Made by `{command}` from the cells' run folders and the design in `{exp.path.name}` "
+        "(committed before any of its own cells trained).",
+        "",
+        f"- **Question**: {e.description}",
+        f"- **Endpoint**: per training seed, hold-out success rate averaged over the densities "
+        f"{exp.evaluate.get('densities')}.",
+        f"- **Method**: {seq.method} with a two-sided boundary (docs/statistics.md), looks at "
+        f"{list(seq.interims)} seeds per row (n = {seq.seeds_per_look} new seeds a look), "
+        f"α = {seq.alpha:g} per family (spent linearly over the looks), β = {seq.beta:g}, "
+        f"{seq.permutations} permutations, seed {seq.seed}.",
+        f"- **Seeds**: {list(seq.prior_seeds)} from `{seq.prior_runs}`, the rest from "
+        f"`{relative_path(exp.runs_dir)}`; code commits allowed: "
+        f"{', '.join(c[:12] for c in seq.code_commits) or 'any'}.",
+        f"- **Budget**: {e.steps} decisions per cell ({e.preset} preset); every verdict holds "
+        "at this budget only.",
+        "",
+        "## Verdicts so far",
+        "",
+        "| comparison | family | paper | estimate [95% CI], points | seeds | AdaStop | verdict |",
+        "|:--|:--|--:|:--|:--|:--|:--|",
+    ]
+    for c in seq.comparisons:
+        row = None if last is None else next(x for x in last.comparisons if x.name == c.name)
+        paper = "–" if c.paper_difference is None else _pts(c.paper_difference)
+        if row is None:
+            est, seeds = "no look yet", f"{int(counts.get(c.a, 0))} vs {int(counts.get(c.b, 0))}"
+        else:
+            est = f"{_pts(row.diff)} [{_pts(row.lo)}, {_pts(row.hi)}]"
+            seeds = f"{row.n_a} vs {row.n_b}"
+        decided = result.decisions[c.name]
+        if row is not None and row.decided_at:
+            decided += f" (look {row.decided_at})"
+        lines.append(
+            f"| {c.name} | {c.family} | {paper} | {est} | {seeds} | {decided} | "
+            f"**{verdict(exp, result, c)}** |"
+        )
+    lines += [
+        "",
+        "Intervals are Welch t 95 % over training seeds, descriptive (not adjusted for the "
+        "looks); the decisions are AdaStop's, which control each family's error over all "
+        "looks. *paper's effect ruled out* needs a comparison left undecided at the last look "
+        "and a one-sided Welch bound at α / m below the paper's difference.",
+        "",
+        "![per-seed success](figures/headline.png) ([pdf](figures/headline.pdf))",
+        "",
+        "## Looks",
+        "",
+    ]
+    if result.looks:
+        lines += [
+            "Each comparison look by look: a dot outside its look's grey band is decided "
+            "there (the band is ± the |difference| it needed).",
+            "",
+            "![each comparison look by look](figures/looks.png) ([pdf](figures/looks.pdf))",
+            "",
+        ]
+    if not result.looks:
+        lines += [
+            f"No look yet: the first needs {seq.interims[0]} seeds of every row "
+            f"({', '.join(f'{p}: {int(counts.get(p, 0))}' for p in policies)}).",
+            "",
+        ]
+    for look in result.looks:
+        spent = ", ".join(f"{f} {v:.4f}" for f, v in look.level_spent.items())
+        needed = ", ".join(f"{f} {_needed(v)}" for f, v in look.needed.items())
+        lines += [
+            f"**Look {look.k}** — seeds per row: "
+            + ", ".join(f"{p} {n}" for p, n in look.seeds_per_row.items())
+            + f"; α spent: {spent}"
+            + (
+                f"; |difference| an open comparison needed to be decided: {needed}."
+                if needed
+                else "."
+            ),
+            "",
+            "| comparison | estimate [95% CI], points | decision |",
+            "|:--|:--|:--|",
+            *[
+                f"| {c.name} | {_pts(c.diff)} [{_pts(c.lo)}, {_pts(c.hi)}] | {c.decision} |"
+                for c in look.comparisons
+            ],
+            "",
+        ]
+    lines += _density_lines(density_frame(exp, scores), e.steps)
+    nxt = next_cells(exp, result, scores)
+    lines += [
+        "## Next",
+        "",
+        "The design is finished: every comparison is decided or the last look is taken."
+        if result.finished
+        else f"Look {result.next_look} needs {len(nxt)} more cell(s): "
+        + ", ".join(cell_dir_name(p, s) for p, s in nxt)
+        + f" (`priqn sweep {e.name} --code <frozen worktree>`).",
+        "",
+        "## Cells",
+        "",
+        "| row | seed | success (endpoint) | episodes | commit | run folder |",
+        "|:--|--:|--:|--:|:--|:--|",
+        *[
+            f"| {r.policy} | {r.seed} | {r.score:.3f} | {r.episodes} | `{r.git_sha[:12]}` | "
+            f"`{r.run_dir}` |"
+            for r in scores.sort_values(["policy", "seed"], kind="mergesort").itertuples()
+        ],
+        "",
+        "Files: `tables/scores.csv`, `tables/looks.csv`, `tables/density.csv`, "
+        "`figures/headline.{png,pdf}`, "
+        "`figures/looks.{png,pdf}` (from the first look on), `meta.json`.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> Path:
+    """Write the sequential experiment's report into ``out_dir``; returns ``report.md``.
+
+    Deterministic: the same committed cells give byte-identical files."""
+    from priqn.analysis.figures import save_figure
+    from priqn.io import atomic_write_json, atomic_write_text
+
+    out = Path(out_dir)
+    scores = collect_scores(exp)
+    result = replay(exp, scores)
+    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
+    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+    atomic_write_text(out / "tables" / "scores.csv", scores.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "looks.csv", looks_frame(result).to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "density.csv", density_frame(exp, scores).to_csv(**csv_kw))
+    save_figure(figure(exp, scores), out / "figures", "headline")
+    monitoring = looks_figure(exp, result)
+    if monitoring is not None:
+        save_figure(monitoring, out / "figures", "looks")
+    report = out / "report.md"
+    atomic_write_text(report, report_markdown(exp, scores, result, command))
+    atomic_write_json(
+        out / "meta.json",
+        {
+            "command": command,
+            "experiment": exp.path.name,
+            "looks": len(result.looks),
+            "decisions": result.decisions,
+            "verdicts": {c.name: verdict(exp, result, c) for c in exp.sequential.comparisons},
+            "finished": result.finished,
+            "cells": len(scores),
+        },
+    )
+    return report
