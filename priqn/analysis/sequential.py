@@ -57,6 +57,17 @@ class Score:
     """The run folder, relative to the working directory when possible."""
 
 
+def success_by_density(run_dir: str | Path) -> tuple[pd.Series, int]:
+    """A cell's hold-out success rate per evaluation density (index: density, sorted) and
+    the number of episodes behind it, from its ``eval/episodes.csv``."""
+    csv = RunFolder(run_dir).eval_episodes_path
+    try:
+        episodes = resolve_outcomes(pd.read_csv(csv))
+    except (OSError, ValueError, KeyError) as exc:
+        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+    return episodes.groupby("density")["success"].mean().astype(float), len(episodes)
+
+
 def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
     """The endpoint of one complete cell, or None when it is not complete yet."""
     folder = RunFolder(run_dir)
@@ -64,17 +75,12 @@ def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
         return None
     if folder.recorded_eval_status() != Status.COMPLETE:
         return None
-    csv = folder.evaluation_dir() / RunFolder.EVAL_EPISODES
-    try:
-        episodes = resolve_outcomes(pd.read_csv(csv))
-    except (OSError, ValueError, KeyError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
-    per_density = episodes.groupby("density")["success"].mean().astype(float)
+    per_density, episodes = success_by_density(run_dir)
     return Score(
         policy,
         seed,
         float(per_density.mean()),
-        len(episodes),
+        episodes,
         str(folder.meta().get("git_sha", "")),
         relative_path(run_dir),
     )

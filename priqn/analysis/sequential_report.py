@@ -23,9 +23,9 @@ from priqn.analysis.sequential import (
     next_cells,
     relative_path,
     replay,
+    success_by_density,
     verdict,
 )
-from priqn.episodes import resolve_outcomes
 from priqn.experiment import cell_dir_name
 from priqn.runs import RunFolder
 
@@ -55,12 +55,7 @@ def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
         if mine.empty:
             continue
         success_SD = pd.DataFrame(  # one row per cell (seed), one column per density
-            [
-                resolve_outcomes(pd.read_csv(RunFolder(d).eval_episodes_path))
-                .groupby("density")["success"]
-                .mean()
-                for d in mine["run_dir"]
-            ]
+            [success_by_density(d)[0] for d in mine["run_dir"]]
         ).sort_index(axis=1)
         label = RunFolder(mine["run_dir"].iloc[0]).meta().get("labels", {}).get("label")
         paper = dict(zip(PAPER_DENSITIES, PAPER_SUCCESS.get(str(label), ()), strict=False))
