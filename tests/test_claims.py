@@ -91,6 +91,15 @@ def test_welch_interval_by_hand() -> None:
     ) == pytest.approx(hi)
 
 
+def test_mean_interval_by_hand() -> None:
+    # Seeds 0.6 / 0.8 / 1.0: mean 0.8, s = 0.2, se = 0.2 / √3 = 0.11547, t₀.₉₇₅(2) = 4.3027,
+    # half-width 0.49683 (the Welch case above with all the variance on this side).
+    lo, hi = inference.mean_interval(np.array([0.6, 0.8, 1.0]))
+    assert (lo, hi) == pytest.approx((0.8 - 0.49683, 0.8 + 0.49683), abs=1e-5)
+    assert inference.mean_interval(np.full(4, 0.5)) == (0.5, 0.5)
+    assert all(math.isnan(v) for v in inference.mean_interval(np.array([0.7])))
+
+
 def test_permutation_test_by_hand() -> None:
     # 3 vs 3 seeds, completely separated: of the 20 splits only the observed one and its
     # mirror are as extreme, p = 2/20 — the smallest 3 vs 3 seeds can ever give.

@@ -78,6 +78,16 @@ def welch_interval(
     return diff - half, diff + half
 
 
+def mean_interval(scores_S: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided t interval of one row's mean over training seeds at ``level``; (NaN, NaN)
+    below 2 seeds (descriptive: the report's per-row intervals)."""
+    x = np.asarray(scores_S, dtype=np.float64).reshape(-1)
+    if x.size < 2:
+        return float("nan"), float("nan")
+    half = float(scipy_stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return float(x.mean()) - half, float(x.mean()) + half
+
+
 def upper_bound(scores_a_S: np.ndarray, scores_b_S: np.ndarray, alpha: float) -> float:
     """One-sided Welch upper confidence bound of mean(a) − mean(b) at level 1 − ``alpha``.
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from priqn.analysis import inference
 from priqn.analysis.sequential import (
     ComparisonLook,
     Replay,
@@ -31,15 +32,6 @@ from priqn.runs import RunFolder
 
 PAPER_TRAINING_DECISIONS = 2_000_000
 """The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
-
-
-def _t_half_width(x: np.ndarray) -> float:
-    """Half the width of the 95 % t interval of the mean of ``x`` (NaN below 2 values)."""
-    from scipy import stats
-
-    if x.size < 2:
-        return float("nan")
-    return float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
 
 
 def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
@@ -61,15 +53,15 @@ def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
         paper = dict(zip(PAPER_DENSITIES, PAPER_SUCCESS.get(str(label), ()), strict=False))
         for density, column in success_SD.items():
             x = column.dropna().to_numpy(float)
-            half = _t_half_width(x)
+            lo, hi = inference.mean_interval(x)
             rows.append(
                 {
                     "policy": policy,
                     "density": float(density),
                     "seeds": x.size,
                     "mean": x.mean(),
-                    "lo": x.mean() - half,
-                    "hi": x.mean() + half,
+                    "lo": lo,
+                    "hi": hi,
                     "paper": paper.get(float(density), np.nan),
                 }
             )
@@ -114,8 +106,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
             means[policy] = float(x.mean())
             ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
         if len(x) >= 2:
-            half = _t_half_width(x)
-            ax.plot([x.mean() - half, x.mean() + half], [i + 0.32] * 2, color="black", lw=0.9)
+            ax.plot(inference.mean_interval(x), [i + 0.32] * 2, color="black", lw=0.9)
     diamonds = sorted(
         (means[c.b] + c.paper_difference, policies.index(c.a), c.b)
         for c in seq.comparisons
