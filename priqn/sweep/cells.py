@@ -216,11 +216,9 @@ def validate(exp: Experiment) -> None:
 # --------------------------------------------------------------------------- time left
 
 
-def cell_minutes(cell: Cell) -> float | None:
+def cell_minutes(cell: Cell) -> float:
     """Wall minutes a complete cell took: training plus each of its evaluations (the
-    ``wall_s`` their ``meta.json`` files record); None if it is not complete."""
-    if not cell.is_complete():
-        return None
+    ``wall_s`` their ``meta.json`` files record)."""
     folder = RunFolder(cell.run_dir)
     seconds = float(folder.meta().get("wall_s") or 0.0)
     for name in ("", *cell.controls):
@@ -255,16 +253,17 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     import heapq
     import statistics
 
+    grid = expand(exp)
+    state = {c.name: c.state() for c in grid}  # read once per cell
     done: dict[str, list[float]] = {}
-    for c in expand(exp):
-        minutes = cell_minutes(c)
-        if minutes is not None:
-            done.setdefault(c.policy, []).append(minutes)
+    for c in grid:
+        if state[c.name] == Status.COMPLETE:
+            done.setdefault(c.policy, []).append(cell_minutes(c))
     per_cell = {p: statistics.median(m) for p, m in sorted(done.items())}
     untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
     if untimed:
         return TimeLeft(None, per_cell, untimed)
-    running = [c for c in cells if c.state() == Status.RUNNING]
+    running = [c for c in cells if state[c.name] == Status.RUNNING]
     queue = [per_cell[c.policy] * (1 - training_fraction_done(c)) for c in running]
     queue += [per_cell[c.policy] for c in cells if c not in running]
     free_at = [0.0] * max(1, slots)  # minutes from now at which each slot is free
