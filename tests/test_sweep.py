@@ -645,13 +645,16 @@ def test_time_left_times_the_cells_left_by_their_rows_complete_cells(tmp_path: P
         running / "meta.json", {"status": "running", "pid": 1, "host": socket.gethostname()}
     )
     (running / "metrics.csv").write_text("phase,step\ntrain,500\ntrain,750\n")
-    left = [cells[n] for n in ("fake/b__seed1", "fake/a__seed3", "fake/b__seed2")]
+    # a's seed 3 is trained and its evaluation missing: only a's median evaluation is left.
+    atomic_write_json(cells["fake/a__seed3"].run_dir / "meta.json", {"status": "complete"})
+    left = [cells[n] for n in ("fake/a__seed3", "fake/b__seed1", "fake/b__seed2")]
     est = time_left(exp, left, slots=2)
     assert est.minutes_per_cell == {"a": pytest.approx(20.0), "b": pytest.approx(30.0)}
-    # b1 has 30 * 1/4 = 7.5 min left and a3 20 min; b2 (30 min) takes the slot free at
-    # 7.5 min and ends at 37.5 min.
-    assert est.hours == pytest.approx(37.5 / 60)
-    assert time_left(exp, left, slots=1).hours == pytest.approx((7.5 + 20 + 30) / 60)
+    # b1 (running, so it holds a slot first) has a quarter of b's 29 training minutes left
+    # plus its 1-min evaluation: 8.25 min; a3 has 1 min; b2 (30 min) takes the slot a3
+    # frees at 1 min and ends at 31 min.
+    assert est.hours == pytest.approx(31 / 60)
+    assert time_left(exp, left, slots=1).hours == pytest.approx((8.25 + 1 + 30) / 60)
     # A row without a complete cell cannot be timed.
     exp_c = load_experiment(write_experiment(tmp_path, ["a", "c"], [0, 1, 2, 3]))
     c_cells = [c for c in expand(exp_c) if c.policy == "c"]

@@ -219,8 +219,14 @@ def validate(exp: Experiment) -> None:
 def cell_minutes(cell: Cell) -> float:
     """Wall minutes a complete cell took: training plus each of its evaluations (the
     ``wall_s`` their ``meta.json`` files record)."""
+    seconds = float(RunFolder(cell.run_dir).meta().get("wall_s") or 0.0)
+    return seconds / 60.0 + evaluation_minutes(cell)
+
+
+def evaluation_minutes(cell: Cell) -> float:
+    """Wall minutes a complete cell's evaluations took (their ``meta.json`` ``wall_s``)."""
     folder = RunFolder(cell.run_dir)
-    seconds = float(folder.meta().get("wall_s") or 0.0)
+    seconds = 0.0
     for name in ("", *cell.controls):
         seconds += float(read_json(folder.evaluation_dir(name) / folder.META).get("wall_s") or 0.0)
     return seconds / 60.0
@@ -248,24 +254,34 @@ class TimeLeft:
 def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     """How long ``cells`` (the ones still to run, in the order the sweep starts them) will
     take at ``slots`` cells at a time, timed by this experiment's complete cells: each
-    row's median, less what a running cell's ``metrics.csv`` has already logged (as a share
-    of the whole cell). An estimate from the cells' own history, for planning only."""
+    row's median; a running cell less the share of its training its ``metrics.csv`` has
+    logged, a trained one only its row's median evaluation. An estimate from the cells'
+    own history, for planning only."""
     import heapq
     import statistics
 
     grid = expand(exp)
     state = {c.name: c.state() for c in grid}  # read once per cell
-    done: dict[str, list[float]] = {}
+    done: dict[str, list[tuple[float, float]]] = {}  # policy -> (whole, evaluation) minutes
     for c in grid:
         if state[c.name] == Status.COMPLETE:
-            done.setdefault(c.policy, []).append(cell_minutes(c))
-    per_cell = {p: statistics.median(m) for p, m in sorted(done.items())}
+            done.setdefault(c.policy, []).append((cell_minutes(c), evaluation_minutes(c)))
+    per_cell = {p: statistics.median(w for w, _ in m) for p, m in sorted(done.items())}
+    per_eval = {p: statistics.median(e for _, e in m) for p, m in done.items()}
     untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
     if untimed:
         return TimeLeft(None, per_cell, untimed)
-    running = [c for c in cells if state[c.name] == Status.RUNNING]
-    queue = [per_cell[c.policy] * (1 - training_fraction_done(c)) for c in running]
-    queue += [per_cell[c.policy] for c in cells if c not in running]
+
+    def minutes_left(c: Cell) -> float:
+        whole, evaluation = per_cell[c.policy], per_eval[c.policy]
+        if state[c.name] == Status.RUNNING:  # training: the share not yet logged, then evaluation
+            return (whole - evaluation) * (1 - training_fraction_done(c)) + evaluation
+        if state[c.name] == Status.TRAINED:  # trained, an evaluation missing
+            return evaluation
+        return whole
+
+    running_first = sorted(cells, key=lambda c: state[c.name] != Status.RUNNING)  # stable
+    queue = [minutes_left(c) for c in running_first]
     free_at = [0.0] * max(1, slots)  # minutes from now at which each slot is free
     for minutes in queue:
         heapq.heappush(free_at, heapq.heappop(free_at) + minutes)
