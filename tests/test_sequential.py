@@ -294,6 +294,7 @@ def test_sweep_trains_only_what_each_look_needs_then_reports(
     report = (tmp_path / "reports" / "seq" / "report.md").read_text()
     assert "| good > bad | primary | +50.0 |" in report and "**a better**" not in report
     assert "**reproduced**" in report and "**no difference found at 8 seeds**" in report
+    assert "\n## Verdicts\n" in report and "Verdicts so far" not in report  # finished
     # The report regenerates byte for byte from the same cells.
     first = {p.name: p.read_bytes() for p in (tmp_path / "reports" / "seq").rglob("*.*")}
     assert {"headline.png", "looks.png", "looks.pdf"} <= set(first)

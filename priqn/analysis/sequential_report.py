@@ -293,7 +293,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         f"- **Budget**: {e.steps} decisions per cell ({e.preset} preset); every verdict holds "
         "at this budget only.",
         "",
-        "## Verdicts so far",
+        "## Verdicts" if result.finished else "## Verdicts so far",
         "",
         "| comparison | family | paper | estimate [95% CI], points | seeds | AdaStop | verdict |",
         "|:--|:--|--:|:--|:--|:--|:--|",
