@@ -173,6 +173,20 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     assert good_bad.get_title() == "good > bad: reproduced"
     # The paper's +50 is drawn on its comparison only.
     assert [ln.get_ydata()[0] for ln in good_bad.lines[:2]] == [0, 50.0]
+    # At the last look good vs same is "equal" (no difference found): not a difference,
+    # so its dot stays black, inside the band drawn for that look.
+    r2 = sequential.replay(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
+    assert r2.finished and r2.decisions["good vs same"] == "equal"
+    good_same = sequential_report.looks_figure(exp, r2).axes[1]
+    dots = [ln for ln in good_same.lines if ln.get_marker() == "o"]
+    assert [d.get_xdata()[0] for d in dots] == [1, 2]
+    assert [d.get_color() for d in dots] == ["black", "black"]
+    bands = [
+        c
+        for c in good_same.collections
+        if type(c).__name__ in ("PolyCollection", "FillBetweenPolyCollection")
+    ]
+    assert len(bands) == 2  # a band at each look
 
 
 def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(

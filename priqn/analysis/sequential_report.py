@@ -158,7 +158,8 @@ def looks_figure(exp: Any, result: Replay) -> Any:
     """The monitoring chart: one panel per comparison, its estimate at each look taken (dot,
     Welch 95 % interval) inside the band AdaStop would not decide at that look (grey, ±the
     look's ``needed``), with 0 and the paper's difference marked. A dot outside its band is
-    a decision; the looks still to come are empty slots. None before the first look."""
+    a difference found (orange); AdaStop's "equal" at the last look stays black; the looks
+    still to come are empty slots. None before the first look."""
     from priqn.analysis.figures import plt
 
     if not result.looks:
@@ -190,7 +191,13 @@ def looks_figure(exp: Any, result: Replay) -> Any:
                     )
                 else:  # too few splits to reject anything: the whole column
                     ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
-            decided = row.decided_at is not None and row.decided_at <= look.k
+            # A difference found (orange); "equal" at the last look is AdaStop giving up,
+            # not a difference: it stays black, inside its band.
+            decided = (
+                row.decided_at is not None
+                and row.decided_at <= look.k
+                and row.decision not in ("equal", "continue")
+            )
             ax.errorbar(
                 look.k,
                 100 * row.diff,
@@ -212,7 +219,7 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         ax.set_ylabel("difference, points", fontsize=8)
     handles = [
         plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
-        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="decided"),
+        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="difference found"),
         plt.Rectangle((0, 0), 1, 1, color="0.88", label="not decided at that look"),
         plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
     ]
