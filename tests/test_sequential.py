@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.collections import PolyCollection
 
 from priqn.analysis import sequential, sequential_report
 from priqn.errors import PriqnError
@@ -181,11 +182,7 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     dots = [ln for ln in good_same.lines if ln.get_marker() == "o"]
     assert [d.get_xdata()[0] for d in dots] == [1, 2]
     assert [d.get_color() for d in dots] == ["black", "black"]
-    bands = [
-        c
-        for c in good_same.collections
-        if type(c).__name__ in ("PolyCollection", "FillBetweenPolyCollection")
-    ]
+    bands = [c for c in good_same.collections if isinstance(c, PolyCollection)]
     assert len(bands) == 2  # a band at each look
 
 

@@ -216,11 +216,9 @@ def validate(exp: Experiment) -> None:
 # --------------------------------------------------------------------------- time left
 
 
-def cell_minutes(cell: Cell) -> float:
-    """Wall minutes a complete cell took: training plus each of its evaluations (the
-    ``wall_s`` their ``meta.json`` files record)."""
-    seconds = float(RunFolder(cell.run_dir).meta().get("wall_s") or 0.0)
-    return seconds / 60.0 + evaluation_minutes(cell)
+def training_minutes(cell: Cell) -> float:
+    """Wall minutes a complete cell's training took (its ``meta.json`` ``wall_s``)."""
+    return float(RunFolder(cell.run_dir).meta().get("wall_s") or 0.0) / 60.0
 
 
 def evaluation_minutes(cell: Cell) -> float:
@@ -265,7 +263,8 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     done: dict[str, list[tuple[float, float]]] = {}  # policy -> (whole, evaluation) minutes
     for c in grid:
         if state[c.name] == Status.COMPLETE:
-            done.setdefault(c.policy, []).append((cell_minutes(c), evaluation_minutes(c)))
+            evaluation = evaluation_minutes(c)
+            done.setdefault(c.policy, []).append((training_minutes(c) + evaluation, evaluation))
     per_cell = {p: statistics.median(w for w, _ in m) for p, m in sorted(done.items())}
     per_eval = {p: statistics.median(e for _, e in m) for p, m in done.items()}
     untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
