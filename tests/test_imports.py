@@ -229,7 +229,7 @@ def test_torch_free_modules_stay_torch_free() -> None:
         assert not heavy, f"importing {mod} imports torch through {heavy}"
 
 
-SWEEP_LAYERS = ("cells", "process", "backends", "scheduler", "cli")
+SWEEP_LAYERS = ("cells", "commit", "process", "backends", "scheduler", "cli")
 """priqn.sweep's modules in import order: each may import only those before it."""
 
 

@@ -370,6 +370,33 @@ def test_cells_at_an_unlisted_commit_are_refused(tmp_path: Path, fake_cell: str)
         sequential.collect_scores(exp)
 
 
+def test_commit_leaves_cells_at_an_unlisted_commit_uncommitted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from priqn.sweep import commit_complete_cells
+
+    for who in ("AUTHOR", "COMMITTER"):
+        monkeypatch.setenv(f"GIT_{who}_NAME", "t")
+        monkeypatch.setenv(f"GIT_{who}_EMAIL", "t@example.org")
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    exp = load_experiment(design(tmp_path, commits='["0123456789abcdef"]'))
+    for seed, sha in ((0, "0123456789abcdef"), (1, "fedcba9876")):
+        run = tmp_path / "runs" / "seq" / f"good__seed{seed}"
+        (run / "eval").mkdir(parents=True)
+        (run / "meta.json").write_text(json.dumps({"status": "complete", "git_sha": sha}))
+        (run / "eval" / "meta.json").write_text(json.dumps({"status": "complete"}))
+    done = commit_complete_cells(exp)
+    assert [c.name for c in done.cells] == ["seq/good__seed0"]
+    assert [c.name for c in done.refused] == ["seq/good__seed1"]
+    status = subprocess.run(
+        ["git", "-C", str(tmp_path), "status", "--porcelain", "--", "runs"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert status == "?? runs/seq/good__seed1/\n"
+
+
 def test_scores_use_contiguous_seeds_only() -> None:
     frame = scores_frame({"good": [0.9, 0.8, 0.7]}).drop(index=1)  # seed 1 missing
     got = sequential.scores_by_policy(frame, ["good", "bad"])

@@ -34,6 +34,7 @@ from priqn.sweep import (
     run_sweep,
 )
 from priqn.sweep.cells import time_left
+from priqn.sweep.commit import commit_complete_cells
 from priqn.sweep.scheduler import SweepFolder
 
 FAKE_CELLS = '''
@@ -1104,3 +1105,66 @@ def test_bench_sweep_times_real_cells_one_then_two_at_a_time(tmp_path: Path) -> 
     assert f"recommended: jobs={data['recommended_jobs']}" in proc.stdout
     assert proc.stderr.count(" done in ") == 4  # a line per finished cell
     assert list(scratch.iterdir()) == []  # the temporary runs folder is gone
+
+
+def test_commit_commits_only_complete_cells_and_only_their_folders(tmp_path: Path) -> None:
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@example.org",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@example.org",
+    }
+
+    def git(*args: str) -> str:
+        out = subprocess.run(
+            ["git", "-C", str(tmp_path), *args], capture_output=True, text=True, env=env
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout
+
+    exp_path = write_experiment(tmp_path, ["a"], [0, 1, 2], steps="1000")
+    cells = {c.name: c for c in expand(load_experiment(exp_path))}
+    git("init", "-q")
+    (tmp_path / ".gitignore").write_text("checkpoints/\n")
+    (tmp_path / "notes.txt").write_text("work in progress\n")
+    git("add", "notes.txt")  # staged work of the user's, which --commit must leave alone
+    # Seed 0 complete (with a checkpoint .gitignore keeps out), seed 1 trained but not
+    # evaluated, seed 2 not started.
+    done = cells["fake/a__seed0"].run_dir
+    atomic_write_json(done / "meta.json", {"status": "complete", "git_sha": "0123456789abcdef"})
+    atomic_write_json(done / "eval" / "meta.json", {"status": "complete"})
+    (done / "checkpoints").mkdir()
+    (done / "checkpoints" / "latest.pt").write_bytes(b"big")
+    atomic_write_json(cells["fake/a__seed1"].run_dir / "meta.json", {"status": "complete"})
+
+    run = subprocess.run(
+        _sweep_cli(exp_path, "--commit"), capture_output=True, text=True, env=env, timeout=60
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("priqn sweep fake: committed 1 cell(s) as ")
+    assert run.stdout.rstrip().endswith(": a__seed0")
+    assert git("log", "--format=%s").splitlines() == [
+        "fake: 1 cell(s) complete: a__seed0 (1000 decisions each; code 0123456789ab; "
+        "priqn sweep --commit)"
+    ]
+    assert git("show", "--name-only", "--format=", "HEAD").split() == [
+        "runs/fake/a__seed0/eval/meta.json",
+        "runs/fake/a__seed0/meta.json",
+    ]
+    assert git("diff", "--cached", "--name-only").split() == ["notes.txt"]  # still staged
+    again = subprocess.run(
+        _sweep_cli(exp_path, "--commit"), capture_output=True, text=True, env=env, timeout=60
+    )
+    assert again.stdout == "priqn sweep fake: no complete cell to commit\n"
+    # A changed file in a committed complete cell is committed again.
+    (done / "eval" / "episodes.csv").write_text("x\n1\n")
+    done = commit_complete_cells(load_experiment(exp_path))
+    assert done.sha is not None and [c.name for c in done.cells] == ["fake/a__seed0"]
+
+
+def test_commit_outside_a_git_work_tree_is_one_line(tmp_path: Path) -> None:
+    exp_path = write_experiment(tmp_path, ["a"], [0])
+    (tmp_path / "runs").mkdir()
+    with pytest.raises(PriqnError, match=r"^--commit: .*/runs/fake is not inside a git work tree"):
+        commit_complete_cells(load_experiment(exp_path))

@@ -17,7 +17,10 @@ folders, so a re-run skips finished cells and resumes interrupted ones.
 The package's modules import one way, each only from those before it (the experiment
 file itself is :mod:`priqn.experiment`, below the package, so the analysis can read it):
 
-    cells → process → backends → scheduler → cli       (child: cells, process)
+    cells → commit → process → backends → scheduler → cli       (child: cells, process)
+
+:func:`commit_complete_cells` (``priqn sweep NAME --commit``) commits a grid's complete
+cells to git as they land, and only them.
 
 The names below are the package's public API; anything else is imported from its module.
 """
@@ -27,6 +30,7 @@ from __future__ import annotations
 from priqn.experiment import Experiment, ResourceSpec, load_experiment, resolve_experiment_path
 from priqn.sweep.cells import Cell, build_train_config, cell_state, expand, is_complete
 from priqn.sweep.cli import configure_parser, run
+from priqn.sweep.commit import commit_complete_cells
 from priqn.sweep.process import ERROR_MARK, cell_error, describe_failure
 from priqn.sweep.scheduler import SweepResult, default_jobs, run_sweep
 
@@ -38,6 +42,7 @@ __all__ = [
     "SweepResult",
     "build_train_config",
     "cell_error",
+    "commit_complete_cells",
     "cell_state",
     "configure_parser",
     "default_jobs",

@@ -64,6 +64,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--list", action="store_true", help="list the cells and their state; run nothing"
     )
     parser.add_argument(
+        "--commit",
+        action="store_true",
+        help="commit every complete cell git reports as new or changed, in one commit of "
+        "only their folders (what .gitignore lets through); run nothing",
+    )
+    parser.add_argument(
         "--forecast",
         type=int,
         default=None,
@@ -108,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.forecast is not None:
         return _forecast(exp, args.forecast)
+    if args.commit:
+        return _commit(exp)
     if exp.sequential is not None:
         _check_code_commit(exp, code_dir)
     if args.cell_fn == DEFAULT_CELL_FN:
@@ -148,6 +156,27 @@ def _summarise(exp: Any, result: Any) -> int:
     if result.failed:
         print(f"  logs: {SweepFolder(exp.runs_dir).logs_dir}")
     return 1 if result.failed else 0
+
+
+def _commit(exp: Any) -> int:
+    """``--commit``: commit the complete, uncommitted cells (:mod:`priqn.sweep.commit`)."""
+    from priqn.sweep.commit import commit_complete_cells
+
+    done = commit_complete_cells(exp)
+    name = exp.experiment.name
+    if done.sha is None:
+        print(f"priqn sweep {name}: no complete cell to commit")
+    else:
+        cells = ", ".join(c.run_dir.name for c in done.cells)
+        print(f"priqn sweep {name}: committed {len(done.cells)} cell(s) as {done.sha}: {cells}")
+    if done.refused:
+        cells = ", ".join(c.run_dir.name for c in done.refused)
+        print(
+            f"priqn sweep {name}: warning: not committed, trained at a commit "
+            f"[sequential].code_commits does not list: {cells}",
+            file=sys.stderr,
+        )
+    return 0
 
 
 def _forecast(exp: Any, sims: int) -> int:
