@@ -49,16 +49,17 @@ def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
         ) from e
     if not runs.is_dir():
         return root, []
-    status = _git(root, "status", "--porcelain", "-z", "--untracked-files=all", "--", str(runs))
+    status = _git(
+        root, "status", "--porcelain", "-z", "--untracked-files=all", "--", str(runs.resolve())
+    )
     # -z: "XY PATH\0" entries (a rename adds its old path as one more entry), paths
     # relative to the work tree's root.
     changed = {root / entry[3:] for entry in status.split("\0") if len(entry) > 3}
     cells = []
     for cell in expand(exp):
         folder = cell.run_dir.resolve()
-        if cell.state() == Status.COMPLETE and any(
-            p == folder or folder in p.parents for p in changed
-        ):
+        touched = any(p == folder or folder in p.parents for p in changed)
+        if touched and cell.state() == Status.COMPLETE:
             cells.append(cell)
     return root, cells
 
