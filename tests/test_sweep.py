@@ -1165,6 +1165,11 @@ def test_commit_commits_only_complete_cells_and_only_their_folders(tmp_path: Pat
 
 def test_commit_outside_a_git_work_tree_is_one_line(tmp_path: Path) -> None:
     exp_path = write_experiment(tmp_path, ["a"], [0])
-    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "fake").mkdir(parents=True)
     with pytest.raises(PriqnError, match=r"^--commit: .*/runs/fake is not inside a git work tree"):
+        commit_complete_cells(load_experiment(exp_path))
+    # Inside one, but a folder git ignores (the scratch runs/): refused, not "nothing to do".
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    (tmp_path / ".gitignore").write_text("/runs/\n")
+    with pytest.raises(PriqnError, match=r"^--commit: .*/runs/fake is ignored by git"):
         commit_complete_cells(load_experiment(exp_path))

@@ -36,6 +36,19 @@ def _git(root: Path, *args: str) -> str:
     return out.stdout
 
 
+def _ignored(root: Path, path: Path) -> bool:
+    """Whether git ignores ``path`` (``git check-ignore``: 0 ignored, 1 not)."""
+    out = subprocess.run(
+        ["git", "-C", str(root), "check-ignore", "-q", "--", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    if out.returncode > 1:
+        raise PriqnError(f"--commit: git check-ignore failed in {root}: {out.stderr.strip()}")
+    return out.returncode == 0
+
+
 def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
     """The git work tree holding ``exp.runs_dir`` and the complete cells in it that git
     reports as new or changed (ignored files do not count), in grid order."""
@@ -47,6 +60,11 @@ def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
         raise PriqnError(
             f"--commit: {runs} is not inside a git work tree (expected a checkout to commit to)"
         ) from e
+    if _ignored(root, runs.resolve()):
+        raise PriqnError(
+            f"--commit: {runs} is ignored by git (.gitignore); keep a grid you commit in a "
+            "folder git tracks, e.g. --runs-dir results"
+        )
     if not runs.is_dir():
         return root, []
     status = _git(
