@@ -324,7 +324,8 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         "",
         "Intervals are Welch t 95 % over training seeds, descriptive (not adjusted for the "
         "looks); the decisions are AdaStop's, which control each family's error over all "
-        "looks. *paper's effect ruled out* needs a comparison left undecided at the last look "
+        "looks, so an interval can exclude 0 where AdaStop finds no difference: the verdict "
+        "is AdaStop's. *paper's effect ruled out* needs a comparison left undecided at the last look "
         "and a one-sided Welch bound at α / m below the paper's difference.",
         "",
         "![per-seed success](figures/headline.png) ([pdf](figures/headline.pdf))",
