@@ -191,13 +191,9 @@ def looks_figure(exp: Any, result: Replay) -> Any:
                     )
                 else:  # too few splits to reject anything: the whole column
                     ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
-            # A difference found (orange); "equal" at the last look is AdaStop giving up,
-            # not a difference: it stays black, inside its band.
-            decided = (
-                row.decided_at is not None
-                and row.decided_at <= look.k
-                and row.decision not in ("equal", "continue")
-            )
+            # Orange once AdaStop has found a difference (its decision after this look);
+            # "equal" at the last look is no difference found: black, inside its band.
+            decided = row.decision in ("larger", "smaller")
             ax.errorbar(
                 look.k,
                 100 * row.diff,
@@ -325,8 +321,8 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         "Intervals are Welch t 95 % over training seeds, descriptive (not adjusted for the "
         "looks); the decisions are AdaStop's, which control each family's error over all "
         "looks, so an interval can exclude 0 where AdaStop finds no difference: the verdict "
-        "is AdaStop's. *paper's effect ruled out* needs a comparison left undecided at the last look "
-        "and a one-sided Welch bound at α / m below the paper's difference.",
+        "is AdaStop's. *paper's effect ruled out* needs a comparison left undecided at the "
+        "last look and a one-sided Welch bound at α / m below the paper's difference.",
         "",
         "![per-seed success](figures/headline.png) ([pdf](figures/headline.pdf))",
         "",
