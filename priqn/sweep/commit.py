@@ -22,31 +22,24 @@ from priqn.runs import RunFolder, Status
 from priqn.sweep.cells import Cell, expand
 
 
-def _git(root: Path, *args: str) -> str:
-    """Run ``git -C root ARGS``; its stdout, or a one-line PriqnError with git's complaint."""
+def _git(root: Path, *args: str, ok: tuple[int, ...] = (0,)) -> subprocess.CompletedProcess:
+    """Run ``git -C root ARGS``; a one-line PriqnError with git's complaint when it is
+    missing or exits with a status outside ``ok``."""
     try:
         out = subprocess.run(
             ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60
         )
     except FileNotFoundError as e:
         raise PriqnError("--commit: git is not installed (expected `git` on PATH)") from e
-    if out.returncode != 0:
+    if out.returncode not in ok:
         why = (out.stderr.strip().splitlines() or ["no message"])[-1]
         raise PriqnError(f"--commit: git {args[0]} failed in {root}: {why}")
-    return out.stdout
+    return out
 
 
 def _ignored(root: Path, path: Path) -> bool:
     """Whether git ignores ``path`` (``git check-ignore``: 0 ignored, 1 not)."""
-    out = subprocess.run(
-        ["git", "-C", str(root), "check-ignore", "-q", "--", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    if out.returncode > 1:
-        raise PriqnError(f"--commit: git check-ignore failed in {root}: {out.stderr.strip()}")
-    return out.returncode == 0
+    return _git(root, "check-ignore", "-q", "--", str(path), ok=(0, 1)).returncode == 0
 
 
 def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
@@ -55,7 +48,7 @@ def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
     runs = Path(exp.runs_dir).absolute()
     probe = next(p for p in (runs, *runs.parents) if p.is_dir())  # runs may not exist yet
     try:
-        root = Path(_git(probe, "rev-parse", "--show-toplevel").strip())
+        root = Path(_git(probe, "rev-parse", "--show-toplevel").stdout.strip())
     except PriqnError as e:
         raise PriqnError(
             f"--commit: {runs} is not inside a git work tree (expected a checkout to commit to)"
@@ -69,7 +62,7 @@ def uncommitted_complete_cells(exp: Experiment) -> tuple[Path, list[Cell]]:
         return root, []
     status = _git(
         root, "status", "--porcelain", "-z", "--untracked-files=all", "--", str(runs.resolve())
-    )
+    ).stdout
     # -z: "XY PATH\0" entries (a rename adds its old path as one more entry), paths
     # relative to the work tree's root.
     changed = {root / entry[3:] for entry in status.split("\0") if len(entry) > 3}
@@ -119,4 +112,5 @@ def commit_complete_cells(exp: Experiment) -> Committed:
     paths = [str(c.run_dir.resolve().relative_to(root)) for c in cells]
     _git(root, "add", "--", *paths)
     _git(root, "commit", "--quiet", "-m", commit_message(exp, cells), "--", *paths)
-    return Committed(_git(root, "rev-parse", "--short=12", "HEAD").strip(), cells, refused)
+    sha = _git(root, "rev-parse", "--short=12", "HEAD").stdout.strip()
+    return Committed(sha, cells, refused)
