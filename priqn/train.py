@@ -450,7 +450,13 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | 
             f"({', '.join(state.objectives)}) but {run.CONFIG} lists ({', '.join(t.objectives)}); "
             "restore the run's config.toml or start a new run"
         )
-    t.learner.load_state_dict(state.learner)
+    if not t.learner.load_state_dict(state.learner):
+        written_on = "cuda" if device.type == "cpu" else "cpu"
+        print(
+            f"priqn train: {run.path.name}: the checkpoint was written on {written_on}, this "
+            f"session runs on {device.type}: the τ samples restart from a seed "
+            "derived from the checkpoint's (CPU and CUDA runs cannot continue bit for bit)"
+        )
     t.rng_replay.bit_generator.state = state.rng_replay
     t.rng_act.bit_generator.state = state.rng_act
     t.step, t.episodes, t.wall_before = state.step, state.episodes, state.wall_s

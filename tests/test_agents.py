@@ -374,6 +374,28 @@ def test_learner_state_roundtrip_continues_identically():
     assert OBJECTIVES[0] == "safety"
 
 
+def test_a_tau_generator_state_from_the_other_device_type_reseeds_deterministically():
+    """A CUDA generator's state (Philox: 16 bytes) cannot continue a CPU generator (5056):
+    the learner seeds its τ stream from those bytes, the same way every time, and says so."""
+    agent = make_agent("ma-iqn")
+    cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
+    batch = random_batch(np.random.default_rng(0), 4, discount=0.9)
+    a = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=3)
+    a.update(batch)
+    state = dict(a.state_dict(), tau_generator=torch.arange(16, dtype=torch.uint8))
+    losses = []
+    for tau_seed in (0, 1):
+        b = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=tau_seed)
+        assert b.load_state_dict(state) is False and b.updates == 1
+        losses.append(b.update(batch)["loss"])
+    assert losses[0] == losses[1]
+    other = dict(state, tau_generator=torch.arange(1, 17, dtype=torch.uint8))
+    c = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=0)
+    c.load_state_dict(other)
+    assert c.update(batch)["loss"] != losses[0]
+    assert Learner(small_net(5), agent, cfg, torch.device("cpu"), 0).load_state_dict(a.state_dict())
+
+
 def test_parameter_counts_in_the_docs():
     """docs/implementation-details.md states every agent's parameter count: keep it true."""
     from pathlib import Path

@@ -8,6 +8,7 @@ each head learns and which next action each head bootstraps from. Everything els
 from __future__ import annotations
 
 import copy
+import hashlib
 from collections.abc import Mapping
 from typing import Any
 
@@ -144,10 +145,25 @@ class Learner:
             "agent": self.agent.state_dict(),
         }
 
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+    def load_state_dict(self, state: Mapping[str, Any]) -> bool:
+        """Restore :meth:`state_dict`. Returns False when the τ stream could not go on.
+
+        A generator's state is a CPU byte tensor whatever its device (a checkpoint loaded
+        with ``map_location="cuda"`` moves it: it goes back to the CPU here). CPU and CUDA
+        generators keep different states (Mersenne Twister, 5056 bytes; Philox, 16), so a
+        state from the other device type cannot continue: the generator is then seeded
+        from that state's bytes (deterministic) and this returns False. Such a resume
+        cannot be bit-identical anyway: the two devices' float arithmetic differs.
+        """
         self.online.load_state_dict(state["online"])
         self.target.load_state_dict(state["target"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.updates = int(state["updates"])
-        self.tau_generator.set_state(state["tau_generator"])
         self.agent.load_state_dict(state.get("agent", {}))
+        tau_state = state["tau_generator"].cpu()
+        if tau_state.numel() == self.tau_generator.get_state().numel():
+            self.tau_generator.set_state(tau_state)
+            return True
+        digest = hashlib.sha256(tau_state.numpy().tobytes()).digest()
+        self.tau_generator.manual_seed(int.from_bytes(digest[:8], "little") >> 1)
+        return False
