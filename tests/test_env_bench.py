@@ -77,3 +77,13 @@ def test_vs_highway_without_highway_env_is_one_line(monkeypatch) -> None:
     )
     with pytest.raises(PriqnError, match=r"--vs highway: HighwayEnv is not installed; pip install"):
         bench_env._versus_highway({}, [], argparse.Namespace(decisions=10, seed=0))
+
+
+def test_bench_train_bf16_times_each_agent_twice_in_one_command() -> None:
+    from priqn.bench.train import updates_per_second
+
+    rows = updates_per_second("default", ["iqn"], 4, 0.05, "cpu", rounds=1, bf16=True)
+    assert [(r["agent"], r["bf16"]) for r in rows] == [("iqn", False), ("iqn", True)]
+    assert all(r["updates_per_s"] > 0 and r["obs_px"] == 64 for r in rows)
+    plain = updates_per_second("default", ["iqn"], 4, 0.05, "cpu", rounds=1)
+    assert [r["bf16"] for r in plain] == [False]

@@ -47,6 +47,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help="env decisions of the end-to-end loop (0 skips part 2)",
     )
     parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
+    parser.add_argument(
+        "--bf16",
+        action="store_true",
+        help="also time every agent with learner.autocast_bf16 on (part 1)",
+    )
 
 
 def _obs_space(cfg: Any) -> Any:
@@ -79,13 +84,16 @@ def _synthetic_batch(space: Any, batch: int, rng: np.random.Generator) -> dict[s
     }
 
 
-def _make_learner(preset: str, agent_name: str, batch_size: int, device: str) -> tuple[Any, Any]:
+def _make_learner(
+    preset: str, agent_name: str, batch_size: int, device: str, bf16: bool = False
+) -> tuple[Any, Any]:
     from priqn.agents.learner import Learner
     from priqn.agents.registry import make_agent
     from priqn.train_config import build_network, resolve_config, select_device
 
     cfg = resolve_config(preset=preset, agent=agent_name)
-    cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, batch_size=batch_size))
+    learner_cfg = dataclasses.replace(cfg.learner, batch_size=batch_size, autocast_bf16=bf16)
+    cfg = dataclasses.replace(cfg, learner=learner_cfg)
     space, num_actions = _obs_space(cfg)
     dev = select_device(device)
     net = build_network(cfg, space, num_actions, seed=0)
@@ -123,30 +131,39 @@ def _time_updates(learner: Any, batches: list[Any], seconds: float) -> float:
 
 
 def updates_per_second(
-    preset: str, agents: list[str], batch_size: int, seconds: float, device: str, rounds: int = 3
+    preset: str,
+    agents: list[str],
+    batch_size: int,
+    seconds: float,
+    device: str,
+    rounds: int = 3,
+    bf16: bool = False,
 ) -> list[dict[str, Any]]:
     """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
 
-    The agents take turns for ``rounds`` rounds of ``seconds / rounds`` each and the best
-    round counts, so load from other processes hits all agents alike.
+    The cases take turns for ``rounds`` rounds of ``seconds / rounds`` each and the best
+    round counts, so load from other processes hits all cases alike. ``bf16`` adds each
+    agent once more with ``learner.autocast_bf16`` on, right after its float32 case.
     """
-    made = {a: _make_learner(preset, a, batch_size, device) for a in agents}
-    best = dict.fromkeys(agents, 0.0)
+    cases = [(a, b) for a in agents for b in ((False, True) if bf16 else (False,))]
+    made = {c: _make_learner(preset, c[0], batch_size, device, bf16=c[1]) for c in cases}
+    best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
-        for a in agents:
-            learner, (_, batches) = made[a]
-            best[a] = max(best[a], _time_updates(learner, batches, seconds / rounds))
+        for c in cases:
+            learner, (_, batches) = made[c]
+            best[c] = max(best[c], _time_updates(learner, batches, seconds / rounds))
     out = []
-    for a in agents:
-        learner, (cfg, _) = made[a]
+    for c in cases:
+        learner, (cfg, _) = made[c]
         out.append(
             {
                 "preset": preset,
-                "agent": a,
+                "agent": c[0],
+                "bf16": c[1],
                 "obs_px": cfg.env.obs_size_px,
                 "device": str(learner.device),
-                "updates_per_s": best[a],
-                "ms_per_update": 1000.0 / best[a],
+                "updates_per_s": best[c],
+                "ms_per_update": 1000.0 / best[c],
             }
         )
     return out
@@ -243,9 +260,12 @@ def run(args: argparse.Namespace) -> int:
         f"{'preset':<8} {'px':>4} {'agent':<13} {'updates/s':>10} {'ms/update':>10} {'x ' + agents[0]:>10}"
     )
     for preset in presets:
-        results = updates_per_second(preset, agents, args.batch_size, args.seconds, args.device)
+        results = updates_per_second(
+            preset, agents, args.batch_size, args.seconds, args.device, bf16=args.bf16
+        )
         base = results[0]["ms_per_update"]
-        for name, r in zip(agents, results, strict=True):
+        for r in results:
+            name = f"{r['agent']} bf16" if r["bf16"] else r["agent"]
             print(
                 f"{preset:<8} {r['obs_px']:>4} {name:<13} {r['updates_per_s']:>10.1f} "
                 f"{r['ms_per_update']:>10.2f} {r['ms_per_update'] / base:>10.2f}",
