@@ -126,6 +126,9 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
             fontsize=6,
             color="tab:red",
         )
+    # The legend names the row the diamonds stand for (each comparison's first row).
+    rows_with_diamonds = sorted({policies[row] for _, row, _ in diamonds})
+    diamond_rows = rows_with_diamonds[0] if len(rows_with_diamonds) == 1 else "each row"
     counts = scores.groupby("policy")["seed"].nunique()
     ax.set_yticks(
         range(len(policies)), [f"{p} ({int(counts.get(p, 0))} seeds)" for p in policies], fontsize=8
@@ -147,7 +150,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
             marker="D",
             mfc="none",
             mec="tab:red",
-            label="where a would be at the paper's difference",
+            label=f"where {diamond_rows} would sit at the paper's difference",
         ),
     ]
     legend_above(ax, handles, f"{exp.experiment.name}: per-seed success of each row", ncol=2)
