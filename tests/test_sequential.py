@@ -186,7 +186,6 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     assert len(bands) == 2  # a band at each look
 
 
-
 def test_per_seed_figure_marks_where_the_first_row_would_sit_at_the_papers_difference(
     tmp_path: Path,
 ) -> None:
@@ -198,6 +197,7 @@ def test_per_seed_figure_marks_where_the_first_row_would_sit_at_the_papers_diffe
     assert diamond.get_xdata()[0] == pytest.approx(0.1 + 0.5)
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "where good would sit at the paper's difference" in labels
+
 
 def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
     tmp_path: Path,
