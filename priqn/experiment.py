@@ -189,6 +189,15 @@ class SequentialSpec:
     """Git commits a cell may have trained at (its ``meta.json`` ``git_sha``); the report
     refuses any other. Empty: not checked."""
 
+    def code_problem(self, git_sha: str) -> str | None:
+        """Why a cell trained at ``git_sha`` (its ``meta.json`` ``git_sha``) cannot count:
+        ``"unlisted"`` (a commit ``code_commits`` lists none of), ``"dirty"`` (a checkout
+        with uncommitted changes), or None when it counts. The report refuses such a cell
+        and ``priqn sweep --commit`` leaves it uncommitted."""
+        if self.code_commits and git_sha.removesuffix("-dirty") not in self.code_commits:
+            return "unlisted"
+        return "dirty" if git_sha.endswith("-dirty") else None
+
     @property
     def seeds_per_look(self) -> int:
         """AdaStop's n: seeds added per row at each interim."""

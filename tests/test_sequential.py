@@ -393,21 +393,33 @@ def test_commit_leaves_cells_at_an_unlisted_commit_uncommitted(
         monkeypatch.setenv(f"GIT_{who}_EMAIL", "t@example.org")
     subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
     exp = load_experiment(design(tmp_path, commits='["0123456789abcdef"]'))
-    for seed, sha in ((0, "0123456789abcdef"), (1, "fedcba9876")):
+    for seed, sha in ((0, "0123456789abcdef"), (1, "fedcba9876"), (2, "0123456789abcdef-dirty")):
         run = tmp_path / "runs" / "seq" / f"good__seed{seed}"
         (run / "eval").mkdir(parents=True)
         (run / "meta.json").write_text(json.dumps({"status": "complete", "git_sha": sha}))
         (run / "eval" / "meta.json").write_text(json.dumps({"status": "complete"}))
     done = commit_complete_cells(exp)
     assert [c.name for c in done.cells] == ["seq/good__seed0"]
-    assert [c.name for c in done.refused] == ["seq/good__seed1"]
+    assert [c.name for c in done.refused] == ["seq/good__seed1", "seq/good__seed2"]
     status = subprocess.run(
         ["git", "-C", str(tmp_path), "status", "--porcelain", "--", "runs"],
         capture_output=True,
         text=True,
         check=True,
     ).stdout
-    assert status == "?? runs/seq/good__seed1/\n"
+    assert status == "?? runs/seq/good__seed1/\n?? runs/seq/good__seed2/\n"
+
+
+def test_one_rule_says_which_code_a_sequential_cell_may_have_trained_at(tmp_path: Path) -> None:
+    listed = load_experiment(design(tmp_path, commits='["0123456789abcdef"]')).sequential
+    assert listed.code_problem("0123456789abcdef") is None
+    assert listed.code_problem("fedcba9876") == "unlisted"
+    assert listed.code_problem("fedcba9876-dirty") == "unlisted"
+    assert listed.code_problem("0123456789abcdef-dirty") == "dirty"
+    (tmp_path / "any").mkdir()
+    anything = load_experiment(design(tmp_path / "any")).sequential  # no code_commits
+    assert anything.code_problem("fedcba9876") is None
+    assert anything.code_problem("fedcba9876-dirty") == "dirty"
 
 
 def test_scores_use_contiguous_seeds_only() -> None:

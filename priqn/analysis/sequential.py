@@ -115,13 +115,14 @@ def collect_scores(exp: Any) -> pd.DataFrame:
             score = _cell_score(run_dir, pol.name, seed)
             if score is None:
                 continue
-            if seq.code_commits and score.git_sha.removesuffix("-dirty") not in seq.code_commits:
+            problem = seq.code_problem(score.git_sha)
+            if problem == "unlisted":
                 raise PriqnError(
                     f"{run_dir}: trained at commit {score.git_sha[:12]}, which "
                     f"{exp.path} [sequential].code_commits does not list; a sequential "
                     "experiment never mixes code versions (retrain it at the frozen commit)"
                 )
-            if score.git_sha.endswith("-dirty"):
+            if problem == "dirty":
                 raise PriqnError(
                     f"{run_dir}: trained from a checkout with uncommitted changes "
                     f"({score.git_sha}); retrain it from the frozen commit"

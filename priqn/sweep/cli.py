@@ -173,7 +173,7 @@ def _commit(exp: Any) -> int:
         cells = ", ".join(c.run_dir.name for c in done.refused)
         print(
             f"priqn sweep {name}: warning: not committed, trained at a commit "
-            f"[sequential].code_commits does not list: {cells}",
+            f"[sequential].code_commits does not list or with uncommitted changes: {cells}",
             file=sys.stderr,
         )
     return 0

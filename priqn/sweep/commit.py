@@ -7,7 +7,8 @@ checkpoints or replay buffers). This finds the experiment's complete cells that 
 reports as new or changed, stages exactly their folders and commits only those paths
 (``git commit -- PATHS``), so other staged or unstaged work in the checkout stays out.
 A running, trained-but-unevaluated or failed cell is never committed, nor is a cell of a
-sequential design trained at a commit its ``code_commits`` does not list.
+sequential design trained at a commit its ``code_commits`` does not list or from a
+checkout with uncommitted changes.
 """
 
 from __future__ import annotations
@@ -95,16 +96,19 @@ class Committed:
     cells: list[Cell]
     """The cells it holds."""
     refused: list[Cell]
-    """Complete cells left uncommitted: trained at a commit the sequential design's
-    ``code_commits`` does not list (its report would refuse them too)."""
+    """Complete cells left uncommitted: trained at code the sequential design refuses
+    (:meth:`~priqn.experiment.SequentialSpec.code_problem`; its report refuses them too)."""
 
 
 def commit_complete_cells(exp: Experiment) -> Committed:
     """Stage and commit every complete, uncommitted cell of ``exp`` in one commit."""
     root, found = uncommitted_complete_cells(exp)
-    listed = exp.sequential.code_commits if exp.sequential is not None else ()
+    seq = exp.sequential
     refused = [
-        c for c in found if listed and RunFolder(c.run_dir).meta().get("git_sha") not in listed
+        c
+        for c in found
+        if seq is not None
+        and seq.code_problem(str(RunFolder(c.run_dir).meta().get("git_sha") or "")) is not None
     ]
     cells = [c for c in found if c not in refused]
     if not cells:
