@@ -46,10 +46,10 @@ import numpy as np
 from priqn.config import apply_overrides, config_differences, from_dict, load_toml, to_dict
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
-from priqn.io import atomic_write_json, atomic_write_text, read_json
+from priqn.io import atomic_write_json, atomic_write_text, read_json, sha256_file
 from priqn.labels import CONFIG_COLUMNS
 from priqn.objectives import OBJECTIVES, names_in_columns, return_columns, subset_columns
-from priqn.runs import RunFolder, Status
+from priqn.runs import SNAPSHOT_PREFIX, RunFolder, Status
 
 LABEL_KEYS: tuple[str, ...] = (*CONFIG_COLUMNS, "train_seed", "label")
 """Keys of ``Policy.labels`` copied into every episode row."""
@@ -130,6 +130,9 @@ class EvalConfig:
     junction: str = ""
     """With ``nets``: the id of the junction to drive through ('' = each net's junction with
     the most approaches)."""
+    snapshot: int = 0
+    """Evaluate the policy the run kept at this many decisions (``checkpoint.keep_at``)
+    instead of its final one, into ``eval-at<N>/`` beside ``eval/`` (0: the final policy)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.nets, str):  # one path (--set nets=my_nets/)
@@ -153,6 +156,10 @@ class EvalConfig:
             raise ValueError(f"episodes_per_cell: must be >= 1, got {self.episodes_per_cell}")
         if self.num_workers < 1:
             raise ValueError(f"num_workers: must be >= 1, got {self.num_workers}")
+        if self.snapshot < 0:
+            raise ValueError(
+                f"snapshot: expected 0 (the final policy) or a budget, got {self.snapshot}"
+            )
         if self.max_episode_steps < 0:
             raise ValueError(f"max_episode_steps: must be >= 0, got {self.max_episode_steps}")
         bad = [c for c in self.commands if c not in ("left", "straight", "right")]
@@ -255,7 +262,8 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
 
     With ``cfg.nets``: ``nets-<first 8 hex digits of nets_hash>`` (:func:`nets_hash`), then
     the control's name if any (``nets-1a2b3c4d-near-greedy``): an evaluation on other nets
-    never shares a folder with the hold-out one.
+    never shares a folder with the hold-out one. With ``cfg.snapshot`` N: ``at<N>`` first
+    (``at60000``, ``at60000-near-greedy``).
     """
     if cfg.nets and not nets_hash:
         raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
@@ -266,14 +274,23 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
             if cfg.acting_eps == EvalConfig.acting_eps
             else f"{cfg.acting}-eps{cfg.acting_eps:g}"
         )
-    if not cfg.nets:
-        return control
-    return "-".join(p for p in (f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}", control) if p)
+    snapshot = RunFolder.snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
+    nets = f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}" if cfg.nets else ""
+    return "-".join(p for p in (snapshot, nets, control) if p)
 
 
 def is_nets_evaluation(name: str) -> bool:
     """Whether ``eval-<name>/`` is an evaluation on other nets (not part of Table II)."""
-    return name.startswith(NETS_PREFIX)
+    return snapshot_budget(name)[1].startswith(NETS_PREFIX)
+
+
+def snapshot_budget(name: str) -> tuple[int, str]:
+    """``(N, rest)`` of an evaluation name ``at<N>[-rest]`` (a kept snapshot's); ``(0, name)``
+    for the final policy's."""
+    match = re.fullmatch(rf"{SNAPSHOT_PREFIX}(\d+)(?:-(.*))?", name)
+    if match is None:
+        return 0, name
+    return int(match[1]), match[2] or ""
 
 
 def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
@@ -311,8 +328,6 @@ def evaluation_nets(cfg: EvalConfig, commands: Sequence[str]) -> dict[str, Any]:
     intersection or without a route for the evaluated ``commands`` (``cfg.commands``, else
     at least one of the run's ``commands``) is a one-line :class:`PriqnError` naming it.
     """
-    import hashlib
-
     from priqn.env.scenes import own_net_files
     from priqn.sim.roadmap import RoadMap
     from priqn.sim.session import check_net
@@ -335,7 +350,7 @@ def evaluation_nets(cfg: EvalConfig, commands: Sequence[str]) -> dict[str, Any]:
             {
                 "id": ref,
                 "path": str(path),
-                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+                "files": {path.name: sha256_file(path)},
                 "junction": roadmap.junction_id,
             }
         )
@@ -656,7 +671,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     from priqn.env.vector import make_vector_env
 
-    policy = run.load_policy(device=cfg.device)
+    policy = run.load_policy(device=cfg.device, snapshot=cfg.snapshot)
     if cfg.acting == "near-greedy":
         policy = policy.near_greedy(cfg.acting_eps)
     env_cfg = _evaluation_env(policy.env_config, cfg, nets)
@@ -911,6 +926,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--junction", help="with --nets: the junction id to drive through (default: the busiest)"
     )
     parser.add_argument(
+        "--snapshot",
+        type=int,
+        metavar="N",
+        help="evaluate the policy the run kept at N decisions (checkpoint.keep_at) instead of "
+        "its final one, into eval-at<N>/ beside eval/",
+    )
+    parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
     )
     parser.add_argument("--force", action="store_true", help="discard earlier evaluations")
@@ -948,6 +970,12 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         sets.append(f"acting={args.acting!r}")
     if args.family is not None:
         sets.append(f"family={args.family!r}")
+    if args.snapshot is not None:
+        if args.snapshot <= 0:
+            raise PriqnError(
+                f"--snapshot {args.snapshot}: expected a budget > 0 (checkpoint.keep_at)"
+            )
+        sets.append(f"snapshot={args.snapshot}")
     if args.acting_eps is not None:
         if not args.acting_eps >= 0:
             raise PriqnError(
@@ -982,6 +1010,8 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
 
 def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
+    if args.reference and cfg.snapshot:
+        raise PriqnError("--snapshot: only for trained runs, not with --reference")
     if args.reference:
         out = args.out or str(Path(DEFAULT_REFERENCE_DIR) / args.reference)
         env, env_of = reference_env_config(args.runs)

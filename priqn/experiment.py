@@ -30,6 +30,7 @@ from priqn.agent_config import (
 )
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
+from priqn.runs import RunFolder
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -128,13 +129,37 @@ class PolicySpec:
     cost: float = 1.0
     """Relative wall time of one cell of this row (scheduling only: ``order = "seed"`` and
     ``"cost"`` start the costliest cells first), e.g. 2.5 for Ensemble-IQN on 2 cores."""
+    seeds: tuple[int, ...] | None = None
+    """This row's training seeds instead of ``[experiment].seeds`` (rows may differ)."""
+    steps: int | None = None
+    """This row's training budget in decisions instead of ``[experiment].steps``."""
+    keep_at: tuple[int, ...] = ()
+    """Budgets at which this row's cells also keep their policy and evaluate it, into
+    ``eval-at<N>/`` (``checkpoint.keep_at``); one long run then answers several budgets."""
+    group: str | None = None
+    """The policy this row trains when several rows train it to different budgets (``iqn``
+    at 60k and at 240k): a ``[[question]]`` comparison names the group, and its seeds at a
+    budget come from every row of the group that reaches that budget. Rows of one group
+    may differ only in seeds, steps, keep_at, cost and reuse, and their ε schedules must
+    match in absolute decisions (checked). Unset: the row's own name."""
+    reuse: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    """Cells of this row an earlier grid trained, read from there and never trained here:
+    ``{"results/headline" = [3, 4, ...]}`` (folder relative to the working directory ->
+    seeds; the cell is ``<folder>/<row name>__seed<k>``)."""
+
+    @property
+    def group_name(self) -> str:
+        """:attr:`group`, or the row's own name."""
+        return self.group or self.name
 
 
 SEQUENTIAL_METHODS: tuple[str, ...] = ("adastop",)
 """Values of ``[sequential].method``."""
-ENDPOINTS: tuple[str, ...] = ("success",)
+ENDPOINTS: tuple[str, ...] = ("success", "violation")
 """Values of ``[sequential].endpoint``: ``success`` = one training seed's hold-out success
-rate, averaged over the evaluation densities (each density weighted equally)."""
+rate, averaged over the evaluation densities (each density weighted equally);
+``violation`` = its safety-violation rate (an episode ending in a collision or off the
+road), averaged the same way (lower is better)."""
 
 
 @dataclass(frozen=True)
@@ -188,6 +213,16 @@ class SequentialSpec:
     code_commits: tuple[str, ...] = ()
     """Git commits a cell may have trained at (its ``meta.json`` ``git_sha``); the report
     refuses any other. Empty: not checked."""
+    name: str = ""
+    """``[[question]]`` only: the question's name (``budget``), unique in the file."""
+    question: str = ""
+    """``[[question]]`` only: the question in words, as the report prints it."""
+    budget: int | None = None
+    """``[[question]]`` only: the training budget (decisions) the endpoint is read at: a
+    cell trained to it (``eval/``) or a longer cell's snapshot kept at it (``eval-at<N>/``)."""
+    seeds: tuple[int, ...] = ()
+    """``[[question]]`` only: the training seeds in look order (look k uses the first
+    ``interims[k-1]``); every group a comparison names must have each of them at ``budget``."""
 
     def code_problem(self, git_sha: str) -> str | None:
         """Why a cell trained at ``git_sha`` (its ``meta.json`` ``git_sha``) cannot count:
@@ -240,6 +275,41 @@ class Experiment:
     """Per-cell resource needs."""
     sequential: SequentialSpec | None = None
     """The pre-registered sequential design (``[sequential]``), if the grid has one."""
+    questions: tuple[SequentialSpec, ...] = ()
+    """Several pre-registered sequential designs over one grid (``[[question]]``), each
+    with its own endpoint, budget, seeds and looks, its comparisons naming row groups."""
+
+    def row_seeds(self, policy: PolicySpec) -> tuple[int, ...]:
+        """The seeds ``policy``'s row trains here (its own, else ``[experiment].seeds``)."""
+        return policy.seeds if policy.seeds is not None else self.experiment.seeds
+
+    def row_steps(self, policy: PolicySpec) -> int | None:
+        """``policy``'s training budget (its own, else ``[experiment].steps``; None: the preset's)."""
+        return policy.steps if policy.steps is not None else self.experiment.steps
+
+    def group(self, name: str) -> list[PolicySpec]:
+        """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""
+        return [pol for pol in self.policies if pol.group_name == name]
+
+    def cell_at(self, group: str, seed: int, budget: int) -> tuple[PolicySpec, Path, str] | None:
+        """Where ``group``'s seed ``seed`` is evaluated at ``budget``: ``(row, run folder,
+        evaluation name)`` (``""`` for ``eval/``, ``at<N>`` for a kept snapshot), or None
+        when no row of the group has that seed at that budget. A row trained to exactly
+        ``budget`` comes before a longer one's snapshot."""
+        found = []
+        for pol in self.group(group):
+            if seed in self.row_seeds(pol):
+                run = self.cell_dir(pol.name, seed)
+            else:
+                runs = [r for r, seeds in pol.reuse.items() if seed in seeds]
+                if not runs:
+                    continue
+                run = Path(runs[0]) / cell_dir_name(pol.name, seed)
+            if self.row_steps(pol) == budget:
+                found.insert(0, (pol, run, ""))
+            elif budget in pol.keep_at:
+                found.append((pol, run, RunFolder.snapshot_evaluation(budget)))
+        return found[0] if found else None
 
     @property
     def runs_dir(self) -> Path:
@@ -291,7 +361,7 @@ def load_experiment(
     """
     p = resolve_experiment_path(path)
     data = load_toml(p)
-    sections = {"experiment", "policy", "evaluate", "resources", "sequential"}
+    sections = {"experiment", "policy", "evaluate", "resources", "sequential", "question"}
     unknown = sorted(set(data) - sections)
     if unknown:
         raise PriqnError(
@@ -352,7 +422,9 @@ def load_experiment(
         if pol.eps is not None and pol.eps < 0:
             raise PriqnError(f"{where}.eps: expected a threshold >= 0, got {pol.eps}")
         _check_overrides(pol.set, f"{where}.set")
+        _check_row(pol, exp, where)
         policies.append(pol)
+    _check_groups(policies, p)
 
     evaluate = data.get("evaluate", {})
     if not isinstance(evaluate, dict):
@@ -372,7 +444,93 @@ def load_experiment(
         sequential = _load_sequential(data["sequential"], exp, policies, p)
     # Absolute, so Ray workers (whose working directory differs) write to the same place.
     exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
-    return Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
+    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
+    if "question" in data:
+        if sequential is not None:
+            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
+        out = dataclasses.replace(out, questions=_load_questions(data["question"], out))
+    return out
+
+
+def _check_row(pol: PolicySpec, exp: ExperimentSpec, where: str) -> None:
+    """A row's own seeds, budget, kept snapshots and reused cells make sense."""
+    seeds = pol.seeds if pol.seeds is not None else exp.seeds
+    if not seeds or len(set(seeds)) != len(seeds) or any(k < 0 for k in seeds):
+        raise PriqnError(f"{where}.seeds: expected distinct seeds >= 0, got {list(seeds)}")
+    steps = pol.steps if pol.steps is not None else exp.steps
+    if pol.steps is not None and pol.steps <= 0:
+        raise PriqnError(f"{where}.steps: expected a positive integer, got {pol.steps}")
+    keep = list(pol.keep_at)
+    if keep != sorted(set(keep)) or any(b <= 0 or (steps and b >= steps) for b in keep):
+        raise PriqnError(
+            f"{where}.keep_at: expected ascending budgets below the row's steps ({steps}), got {keep}"
+        )
+    for folder, reused in pol.reuse.items():
+        both = sorted(set(reused) & set(seeds))
+        if both:
+            raise PriqnError(
+                f"{where}.reuse: seed {both[0]} is both trained here and reused from {folder}"
+            )
+
+
+_GROUP_FREE = ("name", "seeds", "steps", "keep_at", "cost", "reuse", "group")
+"""PolicySpec fields in which rows of one group may differ."""
+
+
+def _check_groups(policies: Sequence[PolicySpec], p: Path) -> None:
+    """Rows of one group train the same policy: equal in every field but :data:`_GROUP_FREE`
+    (the ε schedules are compared in absolute decisions by :func:`priqn.sweep.cells.validate`)."""
+    first: dict[str, PolicySpec] = {}
+    for pol in policies:
+        ref = first.setdefault(pol.group_name, pol)
+        for f in dataclasses.fields(PolicySpec):
+            if f.name not in _GROUP_FREE and getattr(pol, f.name) != getattr(ref, f.name):
+                raise PriqnError(
+                    f"{p} [[policy]] {pol.name}.{f.name}: rows of group {pol.group_name!r} train one "
+                    f"policy, but {ref.name!r} has {getattr(ref, f.name)!r}"
+                )
+    group_of_row = {pol.name: pol.group_name for pol in policies}
+    for pol in policies:
+        if group_of_row.get(pol.group_name, pol.group_name) != pol.group_name:
+            raise PriqnError(
+                f"{p} [[policy]] {pol.name}.group: {pol.group!r} is a row of group "
+                f"{group_of_row[pol.group_name]!r}; a group name names no other group's row"
+            )
+
+
+def _load_questions(raw: Any, exp: Experiment) -> tuple[SequentialSpec, ...]:
+    """Parse and check the ``[[question]]`` tables: each a sequential design (as
+    ``[sequential]``) with its own name, budget, seeds and looks, over row groups."""
+    p = exp.path
+    if not isinstance(raw, list) or not raw:
+        raise PriqnError(f"{p}: expected one or more [[question]] tables")
+    groups = {pol.group_name for pol in exp.policies}
+    out: list[SequentialSpec] = []
+    for i, rq in enumerate(raw, start=1):
+        where = f"{p} [[question]] {rq.get('name', f'#{i}') if isinstance(rq, dict) else f'#{i}'}"
+        seq = _parse_design(rq, where, "question.comparison", groups)
+        _check_name(seq.name, f"{where}.name")
+        if seq.name in {q.name for q in out}:
+            raise PriqnError(f"{where}.name: duplicate question name {seq.name!r}")
+        if seq.budget is None or seq.budget <= 0:
+            raise PriqnError(
+                f"{where}.budget: expected the training budget in decisions, e.g. 60000"
+            )
+        if len(set(seq.seeds)) != len(seq.seeds) or len(seq.seeds) != seq.interims[-1]:
+            raise PriqnError(
+                f"{where}.seeds: expected {seq.interims[-1]} distinct seeds (the last look), "
+                f"got {list(seq.seeds)}"
+            )
+        for c in seq.comparisons:
+            for group in (c.a, c.b):
+                missing = [k for k in seq.seeds if exp.cell_at(group, k, seq.budget) is None]
+                if missing:
+                    raise PriqnError(
+                        f"{where}: group {group!r} has no row with seed {missing[0]} at "
+                        f"{seq.budget} decisions (a row's seeds or reuse, at its steps or keep_at)"
+                    )
+        out.append(seq)
+    return tuple(out)
 
 
 def _load_sequential(
@@ -380,18 +538,40 @@ def _load_sequential(
 ) -> SequentialSpec:
     """Parse and check ``[sequential]`` and its ``[[sequential.comparison]]`` tables."""
     where = f"{p} [sequential]"
+    seq = _parse_design(raw, where, "sequential.comparison", {pol.name for pol in policies})
+    for key in ("name", "question", "budget", "seeds"):
+        if getattr(seq, key) != getattr(
+            SequentialSpec(
+                (),
+            ),
+            key,
+        ):
+            raise PriqnError(f"{where}.{key}: only in a [[question]] table")
+    order = list(seq.prior_seeds) + list(exp.seeds)
+    if order != list(range(seq.interims[-1])):
+        raise PriqnError(
+            f"{where}: prior_seeds + [experiment].seeds must be 0, 1, ..., {seq.interims[-1] - 1} "
+            f"(one seed per row per slot of the last look), got {order}"
+        )
+    if seq.prior_seeds and not seq.prior_runs:
+        raise PriqnError(
+            f"{where}.prior_runs: required with prior_seeds (the earlier grid's folder)"
+        )
+    return seq
+
+
+def _parse_design(raw: Any, where: str, table: str, names: set[str]) -> SequentialSpec:
+    """One sequential design and its comparisons (``a`` / ``b`` among ``names``), with the
+    checks every design shares (method, endpoint, looks, alpha, permutations)."""
     if not isinstance(raw, dict):
         raise PriqnError(f"{where}: expected a table")
     raw = dict(raw)
     raw_comparisons = raw.pop("comparison", None)
     if not isinstance(raw_comparisons, list) or not raw_comparisons:
-        raise PriqnError(
-            f"{where}: expected one or more [[sequential.comparison]] tables (name, family, a, b)"
-        )
-    names = {pol.name for pol in policies}
+        raise PriqnError(f"{where}: expected one or more [[{table}]] tables (name, family, a, b)")
     comparisons = []
     for i, rc in enumerate(raw_comparisons, start=1):
-        cw = f"{p} [[sequential.comparison]] #{i}"
+        cw = f"{where} [[{table}]] #{i}"
         c = from_dict(ComparisonSpec, rc, where=cw)
         for side in ("a", "b"):
             if getattr(c, side) not in names:
@@ -422,16 +602,6 @@ def _load_sequential(
         raise PriqnError(f"{where}: expected 0 < alpha < 1 and 0 <= beta < 1")
     if seq.permutations < 100:
         raise PriqnError(f"{where}.permutations: expected at least 100, got {seq.permutations}")
-    order = list(seq.prior_seeds) + list(exp.seeds)
-    if order != list(range(seq.interims[-1])):
-        raise PriqnError(
-            f"{where}: prior_seeds + [experiment].seeds must be 0, 1, ..., {seq.interims[-1] - 1} "
-            f"(one seed per row per slot of the last look), got {order}"
-        )
-    if seq.prior_seeds and not seq.prior_runs:
-        raise PriqnError(
-            f"{where}.prior_runs: required with prior_seeds (the earlier grid's folder)"
-        )
     return seq
 
 
@@ -460,6 +630,8 @@ def policy_overrides(policy: PolicySpec) -> list[str]:
         value = getattr(policy, opt)
         if value is not None:
             out.append(f"{_TRAIN_KEYS[opt]}={_toml_value(value)}")
+    if policy.keep_at:
+        out.append(f"checkpoint.keep_at={list(policy.keep_at)!r}")
     return out + list(policy.set)
 
 

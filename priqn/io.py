@@ -89,6 +89,13 @@ def read_json(path: str | os.PathLike) -> Any:
         raise PriqnError(f"{path}: cannot read JSON ({exc})") from exc
 
 
+def sha256_file(path: str | os.PathLike) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 CHECKSUM_SUFFIX = ".sha256"
 """Sidecar of a torch file: the SHA-256 of its bytes (torch.load does not verify them)."""
 
@@ -111,7 +118,6 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
 def torch_load(path: str | os.PathLike, what: str, remedy: str, map_location: Any = "cpu") -> Any:
     """``torch.load`` whose failure on a damaged file (truncated, bit-flipped, empty) is a
     one-line :class:`PriqnError` naming the file, what it is and what to do."""
-    import hashlib
     import pickle
     import zipfile
 
@@ -121,7 +127,7 @@ def torch_load(path: str | os.PathLike, what: str, remedy: str, map_location: An
     if sidecar.is_file():
         try:
             want = sidecar.read_text(encoding="utf-8").strip()
-            have = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+            have = sha256_file(path)
         except OSError as exc:
             raise PriqnError(
                 f"{path}: cannot read {what} ({exc.strerror or exc}); {remedy}"

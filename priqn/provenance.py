@@ -11,7 +11,6 @@ before the run folder is touched.
 
 from __future__ import annotations
 
-import hashlib
 import platform
 import subprocess
 from collections.abc import Sequence
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.io import sha256_file
 from priqn.runs import Provenance
 
 
@@ -103,7 +103,7 @@ def own_nets_manifest(nets: Sequence[str], junction: str) -> dict[str, Any]:
             {
                 "id": ref,
                 "path": str(path.resolve()),
-                "files": {path.name: hashlib.sha256(path.read_bytes()).hexdigest()},
+                "files": {path.name: sha256_file(path)},
                 "junction": RoadMap.load(path, junction=junction).junction_id,
             }
             for ref, path in own_net_files(nets).items()

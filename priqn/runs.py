@@ -47,6 +47,7 @@ from priqn.io import (
     atomic_write_text,
     read_json,
     remove_stale_temp_files,
+    sha256_file,
 )
 from priqn.metrics import METRIC_COLUMNS
 
@@ -94,6 +95,10 @@ class Provenance:
     """nets.json: the manifest of the run's own nets (``env.nets``); None without them."""
 
 
+SNAPSHOT_PREFIX = "at"
+"""Evaluations of a kept snapshot are ``eval-at<N>[-<control>]/`` (:meth:`RunFolder.snapshot_evaluation`)."""
+
+
 class RunFolder:
     """One run folder: its paths, config, meta and status, metrics, checkpoints, policy."""
 
@@ -105,6 +110,7 @@ class RunFolder:
     CHECKPOINTS = "checkpoints"
     LATEST = "latest.pt"
     POLICY = "policy.pt"
+    SNAPSHOTS = "snapshots"
     EVAL = "eval"
     EVAL_EPISODES = "episodes.csv"
     EVAL_CELLS = "cells"
@@ -161,6 +167,11 @@ class RunFolder:
     def policy_path(self) -> Path:
         return self.path / self.POLICY
 
+    def snapshot_path(self, budget: int) -> Path:
+        """``snapshots/policy-at<budget>.pt``: the policy kept at ``budget`` decisions
+        (``checkpoint.keep_at``; a ``policy.pt`` of that budget)."""
+        return self.path / self.SNAPSHOTS / f"policy-at{budget}.pt"
+
     @property
     def nets_manifest_path(self) -> Path:
         """nets.json: the run's own nets (``env.nets``) with their SHA-256."""
@@ -170,6 +181,12 @@ class RunFolder:
     def eval_dir(self) -> Path:
         """The run's own evaluation (``eval/``); controls live beside it (:meth:`evaluation_dir`)."""
         return self.path / self.EVAL
+
+    @staticmethod
+    def snapshot_evaluation(budget: int) -> str:
+        """The evaluation name of the policy kept at ``budget`` decisions: ``at<budget>``
+        (its folder ``eval-at<budget>/``)."""
+        return f"{SNAPSHOT_PREFIX}{budget}"
 
     def evaluation_dir(self, name: str = "") -> Path:
         """``eval/`` for ``name`` "", else ``eval-<name>/`` (e.g. ``eval-near-greedy``)."""
@@ -421,11 +438,19 @@ class RunFolder:
         """policy.pt: the final online weights and the agent's learned state (a few MB)."""
         checkpoint.save(state, self.policy_path)
 
-    def load_policy(self, device: str = "cpu") -> Any:
+    def save_snapshot(self, state: PolicyState) -> str:
+        """``snapshots/policy-at<step>.pt`` (same format as policy.pt); returns its SHA-256,
+        which meta.json keeps (``snapshots``) so a snapshot not committed stays checkable."""
+        path = self.snapshot_path(state.step)
+        checkpoint.save(state, path)
+        return sha256_file(path)
+
+    def load_policy(self, device: str = "cpu", snapshot: int = 0) -> Any:
         """Greedy :class:`priqn.agents.policy.Policy` of this run.
 
         From the latest checkpoint when present (a run in progress, or resumable); else
-        from policy.pt, which is all a committed result folder keeps.
+        from policy.pt, which is all a committed result folder keeps. ``snapshot`` N > 0:
+        the policy kept at N decisions (``snapshots/policy-at<N>.pt``) instead.
         """
         from priqn.agents.policy import Policy
         from priqn.agents.registry import make_agent
@@ -438,16 +463,18 @@ class RunFolder:
 
         cfg = self.config()
         latest, final = self.latest_checkpoint, self.policy_path
-        if not latest.is_file() and not final.is_file():
+        dev = select_device(device)
+        remedy = "restore it from git or re-train the run (priqn train --force)"
+        if snapshot:
+            state = self._load_snapshot(snapshot, cfg.checkpoint.keep_at, dev)
+        elif latest.is_file():
+            state = checkpoint.load(latest, dev, remedy).policy_state()
+        elif final.is_file():
+            state = checkpoint.load_policy_state(final, dev, remedy)
+        else:
             raise PriqnError(
                 f"{self.path}: no {self.rel(latest)} or {self.rel(final)} to load a policy from"
             )
-        dev = select_device(device)
-        remedy = "restore it from git or re-train the run (priqn train --force)"
-        if latest.is_file():
-            state = checkpoint.load(latest, dev, remedy).policy_state()
-        else:
-            state = checkpoint.load_policy_state(final, dev, remedy)
         names = cfg.objective_names
         if tuple(state.objectives) != names:
             raise PriqnError(
@@ -463,6 +490,27 @@ class RunFolder:
         agent.load_state_dict(state.agent)  # the running scale, if any
         labels = policy_labels(cfg, agent)
         return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
+
+    def _load_snapshot(self, budget: int, keep_at: tuple[int, ...], device: Any) -> PolicyState:
+        """The :class:`PolicyState` kept at ``budget``, checked against meta.json's SHA-256."""
+        path = self.snapshot_path(budget)
+        if budget not in keep_at:
+            kept = ", ".join(map(str, keep_at)) or "none"
+            raise PriqnError(
+                f"{self.path}: no snapshot at {budget} decisions (checkpoint.keep_at of this run: {kept})"
+            )
+        if not path.is_file():
+            raise PriqnError(
+                f"{self.path}: {self.rel(path)} is missing (snapshots are not committed with a "
+                "result folder; meta.json keeps their SHA-256): re-train the run to get it back"
+            )
+        recorded = (self.meta().get("snapshots") or {}).get(str(budget), {}).get("sha256")
+        if recorded and recorded != sha256_file(path):
+            raise PriqnError(
+                f"{path}: not the snapshot this run kept (its SHA-256 differs from meta.json's)"
+            )
+        remedy = "re-train the run to get it back (priqn train --force)"
+        return checkpoint.load_policy_state(path, device, remedy)
 
     def remove_stale_temp_files(self) -> int:
         """Temp files a killed write left behind (only while this process is the writer)."""

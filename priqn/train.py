@@ -2,10 +2,10 @@
 
 Read :func:`_train_loop` top to bottom, CleanRL style: act (ε-greedy over the agent's
 acting rule) → step the env workers → learn while they simulate → collect the step and
-store it → log → evaluate on the hold-out nets → checkpoint, each a named call of
-:class:`Trainer`. Before the loop, :class:`Trainer` builds the network, learner, policy
-and replay buffer, :func:`_resume` restores a checkpoint and :class:`HoldoutEvaluation`
-starts its env worker. The config is :mod:`priqn.train_config`; every file of the run
+store it → log → evaluate on the hold-out nets → keep a snapshot at a listed budget →
+checkpoint, each a named call of :class:`Trainer`. Before the loop, :class:`Trainer`
+builds the network, learner, policy and replay buffer, :func:`_resume` restores a
+checkpoint and :class:`HoldoutEvaluation` starts its env worker. The config is :mod:`priqn.train_config`; every file of the run
 folder goes through :class:`priqn.runs.RunFolder`, in :mod:`priqn.checkpoint`'s format
 for the torch files; :mod:`priqn.provenance` gathers what meta.json records about the
 run's origin; tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
@@ -52,9 +52,9 @@ from priqn.train_config import (
 
 
 def linear_epsilon(cfg: ExplorationConfig, step: int, total_steps: int) -> float:
-    """ε at env decision ``step``: linear from eps_start to eps_end over decay_fraction."""
-    decay = max(1.0, cfg.decay_fraction * total_steps)
-    frac = min(1.0, step / decay)
+    """ε at env decision ``step``: linear from eps_start to eps_end over
+    :meth:`~priqn.train_config.ExplorationConfig.decay_decisions`, then flat."""
+    frac = min(1.0, step / cfg.decay_decisions(total_steps))
     return cfg.eps_start + frac * (cfg.eps_end - cfg.eps_start)
 
 
@@ -231,8 +231,10 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
             t.log(logger, ended, infos)  # 5. log
             if evaluation is not None and t.step >= t.next_eval:
                 t.evaluate(evaluation, logger)  # 6. evaluate greedily on the hold-out nets
+            if t.step in cfg.checkpoint.keep_at:
+                t.keep_snapshot(run)  # 7. keep the policy at a listed budget
             if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
-                t.checkpoint(run, logger, obs)  # 7. checkpoint
+                t.checkpoint(run, logger, obs)  # 8. checkpoint
     _finish(run, t)
 
 
@@ -241,7 +243,8 @@ class Trainer:
 
     Built before the loop: the network, learner, greedy policy and replay buffer, then
     the replay and exploration generators. :func:`_train_loop` calls :meth:`act`,
-    :meth:`issue`, :meth:`collect`, :meth:`learn`, :meth:`log`, :meth:`evaluate` and :meth:`checkpoint`
+    :meth:`issue`, :meth:`collect`, :meth:`learn`, :meth:`log`, :meth:`evaluate`,
+    :meth:`keep_snapshot` and :meth:`checkpoint`
     for every env step; ``step`` counts env decisions (all workers together).
     """
 
@@ -398,6 +401,28 @@ class Trainer:
                 r.update(step=self.step, wall_s=round(self.wall, 2), updates=self.learner.updates)
             logger.evaluation(rows, self.step)
 
+    def policy_state(self) -> PolicyState:
+        """The greedy policy now: online weights and the agent's learned state (policy.pt)."""
+        return PolicyState(
+            online=self.learner.online.state_dict(),
+            agent=self.learner.agent.state_dict(),
+            obs_shapes=self.obs_shapes,
+            num_actions=self.num_actions,
+            step=self.step,
+            objectives=list(self.objectives),
+        )
+
+    def keep_snapshot(self, run: RunFolder) -> None:
+        """snapshots/policy-at<step>.pt (checkpoint.keep_at), its SHA-256 in meta.json."""
+        with self.clock("checkpoint"):
+            sha = run.save_snapshot(self.policy_state())
+            snapshots = dict(run.meta().get("snapshots") or {})
+            snapshots[str(self.step)] = {
+                "file": run.rel(run.snapshot_path(self.step)),
+                "sha256": sha,
+            }
+            run.update_meta(snapshots=snapshots)
+
     def checkpoint(self, run: RunFolder, logger: TrainLogger, obs: Mapping[str, Any]) -> None:
         """checkpoints/latest.pt (+ the replay buffer), metrics and meta.json's progress."""
         with self.clock("checkpoint"):
@@ -478,16 +503,7 @@ def _finish(run: RunFolder, t: Trainer) -> None:
     """policy.pt and meta.json's final record (status complete) of a finished session."""
     # The final policy alone (online weights + the agent's learned state, a few MB):
     # what a committed result folder keeps instead of checkpoints and replay.
-    run.save_policy(
-        PolicyState(
-            online=t.learner.online.state_dict(),
-            agent=t.learner.agent.state_dict(),
-            obs_shapes=t.obs_shapes,
-            num_actions=t.num_actions,
-            step=t.step,
-            objectives=list(t.objectives),
-        )
-    )
+    run.save_policy(t.policy_state())
     time_s = t.clock.totals()
     if t.learner.agent.subsets is not None:  # inside "act" and "update"
         time_s["algorithm1"] = round(t.learner.agent.subsets.seconds, 4)

@@ -58,12 +58,27 @@ class ExplorationConfig:
     eps_end: float = 0.05
     """ε after the decay."""
     decay_fraction: float = 0.3
-    """Fraction of total_steps over which ε decays linearly."""
+    """Fraction of total_steps over which ε decays linearly (when decay_steps is 0)."""
+    decay_steps: int = 0
+    """Env decisions over which ε decays linearly, fixed in absolute decisions (0: use
+    decay_fraction of total_steps). Set, the schedule does not depend on the budget: with
+    the same seed, the first 60k decisions of a 240k run are those of a 60k run whose
+    decay_fraction × 60k equals it (docs/implementation-details.md, "Budgets")."""
 
     def __post_init__(self) -> None:
         for name in ("eps_start", "eps_end", "decay_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name}: expected a number in [0, 1]")
+        if self.decay_steps < 0:
+            raise ValueError(
+                f"decay_steps: expected 0 or a positive number of decisions, got {self.decay_steps}"
+            )
+
+    def decay_decisions(self, total_steps: int) -> float:
+        """Decisions over which ε decays in a run of ``total_steps`` (at least 1)."""
+        if self.decay_steps > 0:
+            return max(1.0, float(self.decay_steps))
+        return max(1.0, self.decay_fraction * total_steps)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +99,12 @@ class CheckpointConfig:
 
     interval_steps: int = 10_000
     """Env decisions between checkpoints (one more is written at the end)."""
+    keep_at: tuple[int, ...] = ()
+    """Budgets (env decisions, ascending, each below total_steps and a multiple of num_envs)
+    at which the policy is also kept as ``snapshots/policy-at<N>.pt`` (its SHA-256 in
+    meta.json ``snapshots``): one run then answers several budgets, each snapshot
+    evaluated with ``priqn evaluate --snapshot N`` into ``eval-at<N>/``. The final policy
+    is ``policy.pt``. Keeping a snapshot changes no training."""
     save_replay: bool = True
     """Save the replay buffer with each checkpoint. A resume then restores the networks,
     Adam, the replay buffer, the τ / replay / exploration generators and the step count;
@@ -141,6 +162,14 @@ class TrainConfig:
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
+        keep = self.checkpoint.keep_at
+        if list(keep) != sorted(set(keep)) or any(
+            not 0 < b < self.total_steps or b % self.num_envs for b in keep
+        ):
+            raise ValueError(
+                f"checkpoint.keep_at: expected ascending budgets below total_steps "
+                f"({self.total_steps}), each a multiple of num_envs ({self.num_envs}), got {list(keep)}"
+            )
         n = len(self.env.objectives)
         self.agent.check_lengths(tuple(self.env.objectives))
         self.learner.gammas(n)  # one γ or one per objective

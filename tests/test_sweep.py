@@ -1173,3 +1173,117 @@ def test_commit_outside_a_git_work_tree_is_one_line(tmp_path: Path) -> None:
     (tmp_path / ".gitignore").write_text("/runs/\n")
     with pytest.raises(PriqnError, match=r"^--commit: .*/runs/fake is ignored by git"):
         commit_complete_cells(load_experiment(exp_path))
+
+
+BUDGETS_GRID = """
+[experiment]
+name = "budgets"
+net = "tjunction"
+steps = 200
+set = ["env.obs_size_px=32", "env.max_episode_steps=25", "network.latent_dim=64",
+       "network.hidden_dim=64", "replay.capacity=4000", "replay.learning_starts=64",
+       "evaluation.interval_steps=0", "exploration.decay_steps=60"]
+[evaluate]
+densities = [0.5]
+eval_runs = 1
+episodes_per_cell = 1
+num_workers = 1
+[[policy]]
+name = "iqn-400"
+group = "iqn"
+agent = "iqn"
+seeds = [1]
+steps = 400
+keep_at = [200]
+[[policy]]
+name = "iqn"
+agent = "iqn"
+seeds = [2]
+"""
+
+
+def test_a_long_rows_cell_keeps_and_evaluates_its_snapshots(tmp_path: Path) -> None:
+    """A row with keep_at trains once and is complete only with eval-at<N>/ beside eval/;
+    the kept policy is evaluated, its SHA-256 in meta.json; a group answers both budgets."""
+    from priqn.sweep.child import train_and_evaluate
+
+    path = tmp_path / "budgets.toml"
+    path.write_text(BUDGETS_GRID)
+    exp = load_experiment(path, runs_dir=tmp_path / "runs")
+    cells = {c.policy: c for c in expand(exp)}
+    assert [c.name for c in expand(exp)] == ["budgets/iqn-400__seed1", "budgets/iqn__seed2"]
+    long = cells["iqn-400"]
+    assert long.steps == 400 and long.snapshots == (200,)
+    assert long.evaluations == ("", "at200")
+    assert exp.cell_at("iqn", 1, 200)[1:] == (long.run_dir, "at200")
+    assert exp.cell_at("iqn", 2, 200)[1:] == (cells["iqn"].run_dir, "")
+    assert exp.cell_at("iqn", 2, 400) is None
+    train_and_evaluate(long)
+    assert long.is_complete()
+    meta = json.loads((long.run_dir / "meta.json").read_text())
+    assert meta["steps_done"] == 400 and set(meta["snapshots"]) == {"200"}
+    kept = json.loads((long.run_dir / "eval-at200" / "meta.json").read_text())
+    assert kept["status"] == "complete" and kept["eval_config"]["snapshot"] == 200
+    (long.run_dir / "eval-at200" / "meta.json").unlink()
+    assert long.state() == "trained"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("seeds = [2]\n", 'seeds = [2]\ngroup = "iqn-400"\n', "'iqn' is a row of group 'iqn-400'"),
+        (
+            'name = "iqn"\nagent = "iqn"',
+            'name = "iqn"\nagent = "pr-iqn"',
+            "rows of group 'iqn' train one policy",
+        ),
+        (
+            "keep_at = [200]",
+            "keep_at = [400]",
+            r"keep_at: expected ascending budgets below the row.s steps \(400\)",
+        ),
+        (
+            "seeds = [2]\n",
+            'seeds = [2]\nreuse = {"old" = [2]}\n',
+            "seed 2 is both trained here and reused from old",
+        ),
+    ],
+)
+def test_row_group_mistakes_are_one_line(tmp_path: Path, old: str, new: str, message: str) -> None:
+    path = tmp_path / "budgets.toml"
+    assert old in BUDGETS_GRID
+    path.write_text(BUDGETS_GRID.replace(old, new, 1))
+    with pytest.raises(PriqnError, match=message):
+        load_experiment(path, runs_dir=tmp_path)
+
+
+def test_a_group_whose_decay_differs_in_decisions_is_refused(tmp_path: Path) -> None:
+    """Without an absolute ε decay the long row's first 200 decisions are not the short
+    row's: the sweep refuses before any work."""
+    from priqn.sweep.cells import validate
+
+    path = tmp_path / "budgets.toml"
+    path.write_text(BUDGETS_GRID.replace('"exploration.decay_steps=60"', '"log_interval_steps=50"'))
+    with pytest.raises(
+        PriqnError, match=r"ε decay decisions\) is 60.0 here and 120.0 in 'iqn-400'"
+    ):
+        validate(load_experiment(path, runs_dir=tmp_path))
+
+
+def test_explain_design_reaches_every_seed_at_every_budget(tmp_path: Path) -> None:
+    """explain.toml (issue 33): four questions over two groups trained to 60k and 240k;
+    every question's seeds exist at its budget, and the 240k cells keep 60k and 120k."""
+    exp = load_experiment(experiments_dir() / "explain.toml", runs_dir=tmp_path)
+    assert [q.name for q in exp.questions] == ["budget", "safety-60k", "safety-240k", "weights"]
+    assert {q.endpoint for q in exp.questions} == {"success", "violation"}
+    cells = expand(exp)
+    long = [c for c in cells if c.steps == 240000]
+    assert len(long) == 20 and all(c.snapshots == (60000, 120000) for c in long)
+    assert len(cells) == 80  # 20 halving + 2 x 10 long + 2 x 20 short
+    safety = exp.questions[1]
+    sources = [exp.cell_at("iqn", k, 60000)[2] for k in safety.seeds]
+    assert sources == ["at60000"] * 10 + [""] * 20
+    assert (
+        str(exp.cell_at("pr-iqn-qd-tp-eps0.2", 4, 60000)[1])
+        == "results/headline/pr-iqn-qd-tp-eps0.2__seed4"
+    )

@@ -256,6 +256,44 @@ def test_same_seed_same_training(tmp_path):
         assert torch.equal(v, sb["learner"]["online"][k]), k
 
 
+def test_long_run_prefix_is_the_short_run(tmp_path):
+    """Budgets within one run (issue 33): with ε decay fixed in decisions, the first 200
+    decisions of a 400-decision run are a 200-decision run's, bit for bit -- its metrics
+    (in-training evaluation included) and the snapshot it keeps at 200 equal the short
+    run's metrics and policy.pt."""
+    import torch
+
+    common = ["--agent", "pr-iqn", "--num-envs", "2", "--runs-dir", str(tmp_path), "--device", "cpu",
+              "--set", "evaluation.interval_steps=100", "--set", "evaluation.episodes=1", *TINY]  # fmt: skip
+    short = cli(
+        *common, "--steps", "200", "--name", "short", "--set", "exploration.decay_fraction=0.3"
+    )
+    assert short.returncode == 0, short.stderr
+    long = cli(*common, "--steps", "400", "--name", "long", "--set", "exploration.decay_steps=60",
+               "--set", "checkpoint.keep_at=[200]")  # fmt: skip
+    assert long.returncode == 0, long.stderr
+
+    def rows(name: str) -> list[dict[str, str]]:
+        kept = [r for r in read_metrics(tmp_path / name) if int(r["step"]) <= 200]
+        return [{k: v for k, v in r.items() if k != "wall_s"} for r in kept]
+
+    assert rows("short") and rows("short") == rows("long")
+    assert any(r["kind"] == "eval" for r in rows("long"))
+    assert any(int(r["step"]) > 200 for r in read_metrics(tmp_path / "long"))
+    final = torch.load(tmp_path / "short/policy.pt", weights_only=True)
+    kept = torch.load(tmp_path / "long/snapshots/policy-at200.pt", weights_only=True)
+    assert kept["step"] == final["step"] == 200
+    for k, v in final["online"].items():
+        assert torch.equal(v, kept["online"][k]), k
+    meta = json.loads((tmp_path / "long/meta.json").read_text())
+    assert meta["snapshots"]["200"]["file"] == "snapshots/policy-at200.pt"
+    assert len(meta["snapshots"]["200"]["sha256"]) == 64
+    # The same run without the fixed decay differs after the first decision's ε: the test can fail.
+    other = cli(*common, "--steps", "400", "--name", "other", "--set", "checkpoint.keep_at=[200]")
+    assert other.returncode == 0, other.stderr
+    assert rows("other") != rows("short")
+
+
 def success_rate(env_cfg, act, episodes: int, seed: int) -> float:
     """Fraction of ``episodes`` that end in success at density 0.5 (one worker process)."""
     from priqn.env.vector import make_vector_env

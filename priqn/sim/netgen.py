@@ -33,7 +33,7 @@ import numpy as np
 
 from priqn.config import to_dict
 from priqn.errors import PriqnError
-from priqn.io import atomic_write_bytes, atomic_write_json
+from priqn.io import atomic_write_bytes, atomic_write_json, sha256_file
 from priqn.sim import sumo
 from priqn.sim.scenario import NOMINAL_SPACING_DEG, ScenarioFamily
 
@@ -226,11 +226,6 @@ def manifest_dict(family: ScenarioFamily, nets: list[dict[str, Any]]) -> dict[st
 def sha256_bytes(data: bytes) -> str:
     """Hex SHA-256 of ``data``."""
     return hashlib.sha256(data).hexdigest()
-
-
-def sha256_file(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    return sha256_bytes(Path(path).read_bytes())
 
 
 def verify_family_files(family_dir: Path, manifest: dict[str, Any]) -> list[str]:

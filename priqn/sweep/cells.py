@@ -52,6 +52,14 @@ class Cell:
     controls: tuple[str, ...] = ()
     """Control evaluations beside ``eval/``, by name (``near-greedy``, ``near-greedy-eps0.005``:
     ``priqn.evaluate.control_config``); empty for Pr-IQN rows."""
+    snapshots: tuple[int, ...] = ()
+    """Budgets whose kept policy is evaluated too, into ``eval-at<N>/`` (``checkpoint.keep_at``)."""
+
+    @property
+    def evaluations(self) -> tuple[str, ...]:
+        """Every evaluation the cell needs by name: ``""`` (``eval/``), each control, each
+        kept snapshot (``at<N>``)."""
+        return ("", *self.controls, *map(RunFolder.snapshot_evaluation, self.snapshots))
 
     @property
     def name(self) -> str:
@@ -65,7 +73,7 @@ class Cell:
 
     def state(self) -> Status:
         """The cell's state, read from its run folder (:func:`cell_state`)."""
-        return cell_state(self.run_dir, self.controls)
+        return cell_state(self.run_dir, self.evaluations[1:])
 
     def is_complete(self) -> bool:
         """Trained and every evaluation (its own and each control) complete."""
@@ -83,6 +91,7 @@ class Cell:
         kw["run_dir"] = Path(kw["run_dir"])
         kw["overrides"] = tuple(kw["overrides"])
         kw["controls"] = tuple(kw.get("controls", ()))
+        kw["snapshots"] = tuple(kw.get("snapshots", ()))
         return cls(**kw)
 
 
@@ -93,12 +102,14 @@ def expand(exp: Experiment) -> list[Cell]:
     (``"cost"``: longest-processing-time first, so parallel slots end together). Ties
     keep file order (stable sorts)."""
     e = exp.experiment
-    pairs = [(pol, seed) for pol in exp.policies for seed in e.seeds]
-    by_cost = sorted(exp.policies, key=lambda pol: -pol.cost)
-    if e.order == "seed":
-        pairs = [(pol, seed) for seed in e.seeds for pol in by_cost]
-    elif e.order == "cost":
-        pairs = [(pol, seed) for seed in e.seeds for pol in exp.policies]
+    pairs = [(pol, seed) for pol in exp.policies for seed in exp.row_seeds(pol)]
+    if e.order in ("seed", "cost"):  # seed by seed; within a seed in file order
+        seeds = sorted({seed for _, seed in pairs}, key=_first_index([s for _, s in pairs]))
+        rows = (
+            sorted(exp.policies, key=lambda pol: -pol.cost) if e.order == "seed" else exp.policies
+        )
+        pairs = [(pol, seed) for seed in seeds for pol in rows if seed in exp.row_seeds(pol)]
+    if e.order == "cost":
         pairs.sort(key=lambda ps: -ps[0].cost)
     return [
         Cell(
@@ -109,14 +120,21 @@ def expand(exp: Experiment) -> list[Cell]:
             agent=pol.agent,
             net=e.net,
             preset=e.preset,
-            steps=e.steps,
+            steps=exp.row_steps(pol),
             overrides=tuple(e.set) + tuple(policy_overrides(pol)),
             evaluate=dict(exp.evaluate),
             source=str(exp.path),
             controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
+            snapshots=pol.keep_at,
         )
         for pol, seed in pairs
     ]
+
+
+def _first_index(items: list[int]) -> Any:
+    """Sort key: the position of an item's first occurrence in ``items``."""
+    first = {x: i for i, x in reversed(list(enumerate(items)))}
+    return first.__getitem__
 
 
 def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> Status:
@@ -124,7 +142,8 @@ def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> Status:
     (its trainer died) | ``failed`` | ``new``.
 
     Read from the run folder only: ``meta.json``, ``eval/meta.json`` and, for each of
-    ``controls``, ``eval-<control>/meta.json`` statuses. ``running`` may also be a run
+    ``controls`` (controls and kept snapshots: :attr:`Cell.evaluations`),
+    ``eval-<name>/meta.json`` statuses. ``running`` may also be a run
     whose sweep was killed; the next sweep resumes it.
     """
     folder = RunFolder(run_dir)
@@ -200,15 +219,46 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
     return out
 
 
+BUDGET_KEYS: tuple[str, ...] = (
+    "seed",
+    "total_steps",
+    "checkpoint.keep_at",
+    "exploration.decay_fraction",
+    "exploration.decay_steps",
+)
+"""TrainConfig keys in which rows of one group may differ (the ε decay only as long as it
+spans the same absolute decisions)."""
+
+
 def validate(exp: Experiment) -> None:
-    """Build every cell's TrainConfig and the EvalConfig now, so a typo fails before any work."""
+    """Build every cell's TrainConfig and the EvalConfig now, so a typo fails before any
+    work; rows of one group must train the same policy (:data:`BUDGET_KEYS` aside), so the
+    first N decisions of a longer row are those of a row trained to N."""
     cells = expand(exp)
-    seen: set[tuple[str, ...]] = set()
+    configs: dict[str, Any] = {}
     for c in cells:
-        key = (c.policy,)
-        if key not in seen:
-            seen.add(key)
-            build_train_config(c)
+        if c.policy not in configs:
+            configs[c.policy] = build_train_config(c)
+    for pol in exp.policies:
+        ref = exp.group(pol.group_name)[0]
+        if ref.name == pol.name or pol.name not in configs or ref.name not in configs:
+            continue
+        mine, theirs = configs[pol.name], configs[ref.name]
+        diff = config_differences(to_dict(theirs), to_dict(mine), ignore=BUDGET_KEYS)
+        decay = [x.exploration.decay_decisions(x.total_steps) for x in (theirs, mine)]
+        if decay[0] != decay[1]:
+            diff.insert(0, ("exploration (ε decay decisions)", decay[0], decay[1]))
+        if diff:
+            key, a, b = diff[0]
+            raise PriqnError(
+                f"{exp.path} [[policy]] {pol.name}: rows of group {pol.group_name!r} must train "
+                f"one policy, but {key} is {b!r} here and {a!r} in {ref.name!r}"
+                + (
+                    " (fix the decay in decisions: exploration.decay_steps)"
+                    if "decay" in key
+                    else ""
+                )
+            )
     if cells:
         build_eval_config(cells[0])
 
@@ -225,7 +275,7 @@ def evaluation_minutes(cell: Cell) -> float:
     """Wall minutes a complete cell's evaluations took (their ``meta.json`` ``wall_s``)."""
     folder = RunFolder(cell.run_dir)
     seconds = 0.0
-    for name in ("", *cell.controls):
+    for name in cell.evaluations:
         seconds += float(read_json(folder.evaluation_dir(name) / folder.META).get("wall_s") or 0.0)
     return seconds / 60.0
 

@@ -7,6 +7,7 @@ cell's one-line error. It imports the cells, never the scheduler.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib
 import json
 import os
@@ -23,7 +24,8 @@ from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 
 def train_and_evaluate(cell: Cell) -> None:
     """Run one cell to completion: train (resuming an interrupted run), then evaluate
-    (its own acting, then each control evaluation of a baseline cell)."""
+    (its own acting, then each control evaluation of a baseline cell, then each policy
+    kept at a budget of ``checkpoint.keep_at``, into ``eval-at<N>/``)."""
     from priqn.evaluate import control_config, evaluate_run
     from priqn.train import train
 
@@ -39,6 +41,8 @@ def train_and_evaluate(cell: Cell) -> None:
     eval_cfg = build_eval_config(cell)
     for name in ("", *cell.controls):  # each returns at once if already complete
         evaluate_run(cell.run_dir, control_config(eval_cfg, name))
+    for budget in RunFolder(cell.run_dir).config().checkpoint.keep_at:  # each kept snapshot
+        evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, snapshot=budget))
 
 
 def _cell_main(spec_json: str) -> int:

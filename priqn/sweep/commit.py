@@ -82,7 +82,8 @@ def commit_message(exp: Experiment, cells: list[Cell]) -> str:
     names = ", ".join(c.run_dir.name for c in cells)
     return (
         f"{exp.experiment.name}: {len(cells)} cell(s) complete: {names} "
-        f"({exp.experiment.steps} decisions each; code {', '.join(shas)}; "
+        f"({'/'.join(str(s) for s in sorted({c.steps or 0 for c in cells}))} decisions each; "
+        f"code {', '.join(shas)}; "
         "priqn sweep --commit)"
     )
 
