@@ -1,0 +1,265 @@
+"""Docs that cannot drift: every ``priqn …`` command in README.md and docs/*.md parses.
+
+Each command line is parsed by the real argument parser, built the way ``priqn``
+builds it (:data:`priqn.cli.COMMANDS`, each module's ``configure_parser``), and never
+run: an unknown verb, an unknown option or a missing required one fails the test.
+
+Where commands are collected:
+
+- fenced code blocks (any language but ``python`` / ``toml`` / ``text``...): every shell
+  segment (split at ``&&``, ``||``, ``;``, ``|``) whose program is ``priqn`` (also
+  ``.venv/bin/priqn``), after joining ``\\`` continuations and dropping ``# comments``;
+- inline code spans that start with ``priqn``. Synopses are expanded: ``[--opt X]``
+  is parsed with the option, ``a|b`` (``a\\|b`` in a table) as each alternative, and a
+  ``...`` / ``…`` token is dropped.
+
+``priqn VERB`` or ``priqn VERB SUB`` alone names a command (checked as a name: the verb
+and sub-command exist); an ALL-CAPS placeholder given to a typed option
+(``--snapshot N``) is accepted as a placeholder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import io
+import itertools
+import re
+import shlex
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from priqn import cli
+
+ROOT = Path(__file__).resolve().parent.parent
+NOT_SHELL = {"python", "py", "toml", "text", "json", "bibtex", "csv", "yaml", "diff"}
+SEPARATORS = {"&&", "||", ";", "|", "(", ")", "$(", "&"}
+
+
+def doc_files() -> list[Path]:
+    """README.md and every docs/*.md."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+# --------------------------------------------------------------------- collecting
+
+
+def _shell_segments(line: str) -> Iterator[list[str]]:
+    """The simple commands of one shell line (tokens, comments dropped)."""
+    lexer = shlex.shlex(line, posix=True, punctuation_chars="&;|()")
+    lexer.whitespace_split = True
+    lexer.commenters = "#"
+    segment: list[str] = []
+    for token in lexer:
+        if token in SEPARATORS or set(token) <= set("&;|()"):
+            yield segment
+            segment = []
+        else:
+            segment.append(token)
+    yield segment
+
+
+def _priqn_argv(tokens: list[str]) -> list[str] | None:
+    """The arguments after ``priqn`` if this simple command runs priqn, else None."""
+    while tokens and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*=.*", tokens[0]):
+        tokens = tokens[1:]  # VAR=value before the program
+    if not tokens or Path(tokens[0]).name != "priqn":
+        return None
+    argv = tokens[1:]
+    for i, token in enumerate(argv):  # a redirection ends the arguments
+        if token in {">", ">>", "2>", "2>&1", "<"} or token.startswith((">", "2>")):
+            return argv[:i]
+    return argv
+
+
+def code_block_commands(text: str) -> Iterator[tuple[int, list[str]]]:
+    """``(line number, argv)`` of each priqn command in the fenced code blocks."""
+    lang: str | None = None
+    pending, start = "", 0
+    for number, line in enumerate(text.splitlines(), 1):
+        fence = re.match(r"^\s*(```|~~~)\s*([\w+-]*)", line)
+        if fence:
+            lang = None if lang is not None else fence.group(2).lower()
+            continue
+        if lang is None or lang in NOT_SHELL:
+            continue
+        stripped = re.sub(r"^\s*\$\s+", "", line)
+        if not pending:
+            start = number
+        if stripped.rstrip().endswith("\\"):
+            pending += stripped.rstrip()[:-1] + " "
+            continue
+        full, pending = pending + stripped, ""
+        for segment in _shell_segments(full):
+            argv = _priqn_argv(segment)
+            if argv is not None:
+                yield start, [w for w in map(_unbracket, argv) if w not in {"", "..."}]
+
+
+def _unbracket(token: str) -> str:
+    """``[--opt`` -> ``--opt``, ``X]`` -> ``X``; brackets inside a value are kept."""
+    if token.startswith("["):
+        token = token[1:]
+    while token.endswith("]") and token.count("]") > token.count("["):
+        token = token[:-1]
+    return token
+
+
+def _synopsis_tokens(text: str) -> list[str]:
+    """Shell words of a synopsis, optional ``[...]`` groups opened, ``...`` dropped."""
+    lexer = shlex.shlex(text, posix=False)
+    lexer.whitespace_split = True
+    words = []
+    for raw in lexer:
+        word = raw if raw[:1] in {"'", '"'} else _unbracket(raw)
+        if word and word not in {"...", "…", "[", "]"}:
+            words.extend(shlex.split(word) or [""])
+    return words
+
+
+def _expand_synopsis(span: str) -> list[list[str]]:
+    """Every concrete argv a synopsis such as ``priqn a [--x X] b|c`` stands for."""
+    tokens = _synopsis_tokens(span.replace("\\|", "|"))
+    choices = [t.split("|") if re.fullmatch(r"[\w.-]+(\|[\w.-]+)+", t) else [t] for t in tokens]
+    return [list(combo) for combo in itertools.product(*choices)]
+
+
+def inline_commands(text: str) -> Iterator[tuple[int, list[str]]]:
+    """``(line number, argv)`` of each inline ``priqn …`` span outside code blocks.
+
+    A span may wrap over lines. ``priqn VERB: message`` (priqn's error format) is output,
+    not a command, and a bare ``priqn`` names the program.
+    """
+    lines, in_block = [], False
+    for line in text.splitlines():
+        if re.match(r"^\s*(```|~~~)", line):
+            in_block = not in_block
+            line = ""
+        lines.append("" if in_block else line)
+    prose = "\n".join(lines)
+    for match in re.finditer(r"`([^`]+)`", prose):
+        number = prose.count("\n", 0, match.start()) + 1
+        span = re.sub(r"^(\.venv/bin/)?priqn\b", "priqn", " ".join(match.group(1).split()))
+        if not span.startswith("priqn ") or re.match(r"priqn [\w-]+:", span):
+            continue
+        for tokens in _expand_synopsis(span):
+            yield number, tokens[1:]
+
+
+def all_commands() -> list[tuple[str, list[str]]]:
+    """``("file:line", argv)`` of every priqn command in README.md and docs/*.md."""
+    out: list[tuple[str, list[str]]] = []
+    for path in doc_files():
+        text = path.read_text(encoding="utf-8")
+        rel = path.relative_to(ROOT).as_posix()
+        for number, argv in itertools.chain(code_block_commands(text), inline_commands(text)):
+            out.append((f"{rel}:{number}", argv))
+    return out
+
+
+# ----------------------------------------------------------------------- parsing
+
+
+PLACEHOLDER = re.compile(r"invalid \w+ value: '([A-Z][A-Z0-9_]*)'")
+"""A typed option given a placeholder (``--snapshot N``): parsed again with a number."""
+
+
+def _parser(argv: list[str]) -> tuple[argparse.ArgumentParser, list[str]]:
+    """The parser ``priqn`` would use for ``argv``, and the arguments it gets."""
+    if not argv or argv[0].startswith("-"):
+        return cli._top_parser(), argv
+    module_name, text = cli.COMMANDS[argv[0]]
+    parser = argparse.ArgumentParser(prog=f"priqn {argv[0]}", description=text)
+    importlib.import_module(module_name).configure_parser(parser)
+    return parser, argv[1:]
+
+
+def parse_error(argv: list[str]) -> str | None:
+    """Why ``priqn argv`` would not parse (argparse's message), or None if it parses.
+
+    ``priqn VERB`` and ``priqn VERB SUB`` (plain words, no options) name a command: a
+    missing required argument is fine there, an unknown verb or sub-command is not.
+    """
+    if argv and not argv[0].startswith("-") and argv[0] not in cli.COMMANDS:
+        return f"unknown command {argv[0]!r} (priqn.cli.COMMANDS: {', '.join(cli.COMMANDS)})"
+    parser, rest = _parser(argv)
+    naming = len(argv) <= 2 and all(re.fullmatch(r"[a-z][a-z0-9_-]*", a) for a in argv)
+    for _ in range(len(rest) + 1):
+        err, out = io.StringIO(), io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+                parser.parse_args(rest)
+            return None
+        except SystemExit as exc:  # argparse errors exit 2; --help / --version exit 0
+            if exc.code in (0, None):
+                return None
+        message = err.getvalue().strip().splitlines()[-1]
+        placeholder = PLACEHOLDER.search(message)
+        if placeholder and placeholder.group(1) in rest:
+            rest = [("1" if a == placeholder.group(1) else a) for a in rest]
+            continue
+        if naming and "the following arguments are required" in message:
+            return None
+        return message
+    return "placeholders did not resolve"
+
+
+def check(commands: list[tuple[str, list[str]]]) -> list[str]:
+    """One line per command that does not parse."""
+    bad = []
+    for where, argv in commands:
+        error = parse_error(argv)
+        if error:
+            bad.append(f"{where}: priqn {shlex.join(argv)}\n    {error}")
+    return bad
+
+
+# ------------------------------------------------------------------------- tests
+
+
+def test_the_docs_have_commands() -> None:
+    """The collector finds commands in blocks and inline spans (else the test is empty)."""
+    commands = all_commands()
+    assert len(commands) > 50
+    assert any(argv[:1] == ["sweep"] for _, argv in commands)
+    assert any(where.startswith("README.md") for where, _ in commands)
+
+
+def test_every_documented_command_parses() -> None:
+    bad = check(all_commands())
+    assert not bad, "commands in the docs that priqn's parser refuses:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize(
+    "markdown",
+    [
+        "See `priqn inspect results/table2_cpu/iqn__seed0 --net holdout/fourway_00\n"
+        "--density 0.5`.\n",  # --out is required (a span over two lines)
+        "```bash\npriqn inspect runs/x --net holdout/fourway_00\n```\n",  # --out is required
+        "```bash\n.venv/bin/priqn frobnicate now\n```\n",  # unknown verb
+        "Run `priqn sweep smoke --no-such-flag`.\n",  # unknown option
+        "Run `priqn bench env|preorder|nope`.\n",  # one alternative is no sub-command
+        "```bash\ncd x && priqn train \\\n  --agent\n```\n",  # --agent needs a value
+    ],
+)
+def test_a_bad_command_fails(markdown: str) -> None:
+    text = markdown
+    commands = [("x", argv) for _, argv in code_block_commands(text)]
+    commands += [("x", argv) for _, argv in inline_commands(text)]
+    assert commands, "the bad command was not collected"
+    assert check(commands), f"accepted: {commands}"
+
+
+def test_good_commands_pass() -> None:
+    text = (
+        "```bash\n.venv/bin/pip install -e . && .venv/bin/priqn sweep smoke  # comment\n```\n"
+        "Then `priqn report runs/ --out reports/x/ [--seed 0]` and `priqn inspect`.\n"
+        "`priqn --version`, `priqn evaluate RUN --snapshot N`, `priqn bench env|preorder`\n"
+    )
+    commands = [("x", argv) for _, argv in code_block_commands(text)]
+    commands += [("x", argv) for _, argv in inline_commands(text)]
+    assert len(commands) == 7
+    assert not check(commands)
