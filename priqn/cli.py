@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "priqn.inspector",
         "why a policy acted: per-objective quantiles and optimal subsets",
     ),
+    "play": ("priqn.play", "watch a trained policy drive in sumo-gui; record it"),
     "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
 }
 

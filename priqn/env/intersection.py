@@ -327,23 +327,30 @@ class _Decision:
 class IntersectionEnv(gymnasium.Env):
     """Gymnasium env ``priqn/Intersection-v0`` (see module docstring and docs/environment.md)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 2}
 
     def __init__(
         self,
         config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
         seed: int | None = None,
+        *,
+        gui: Any = None,
         **overrides: Any,
     ) -> None:
         """``config``: an :class:`EnvConfig`, a dict of its fields (nested ``reward``
         too), or None; keyword ``overrides`` replace fields on top, e.g.
         ``gymnasium.make("priqn/Intersection-v0", family="fourway", obs_size_px=64)``.
         ``seed`` fixes the first ``reset()`` without a seed (the vector env passes one per
-        worker); without it a fresh env draws fresh entropy, as gymnasium's envs do."""
+        worker); without it a fresh env draws fresh entropy, as gymnasium's envs do.
+        ``render_mode="human"`` runs the episode in SUMO's own GUI through TraCI instead of
+        libsumo (:mod:`priqn.sim.gui`; the same episode, docs/play.md); ``gui`` is then a
+        :class:`priqn.sim.gui.GuiOptions` or a dict of its fields (delay, window, zoom)."""
         self.config = cfg = make_config(config, overrides)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise PriqnError(f"render_mode: expected 'rgb_array' or None, got {render_mode!r}")
+            raise PriqnError(
+                f"render_mode: expected 'rgb_array', 'human' or None, got {render_mode!r}"
+            )
         self.render_mode = render_mode
         self._default_seed = None if seed is None else int(seed)
         self._seeded = False
@@ -400,7 +407,12 @@ class IntersectionEnv(gymnasium.Env):
             nets=cfg.nets,
             junction=cfg.junction,
         )
-        self._session = SumoSession(cfg.sim_step_s, cfg.lateral_resolution_m)
+        self._session: Any = SumoSession(cfg.sim_step_s, cfg.lateral_resolution_m)
+        self.gui: Any = None
+        """``render_mode="human"``: the :class:`priqn.sim.gui.GuiView` of sumo-gui (else None)."""
+        if render_mode == "human":
+            self.gui = _gui_view(cfg, gui)
+            self._session = self.gui.session
         self._episode: _Episode | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
 
@@ -460,6 +472,8 @@ class IntersectionEnv(gymnasium.Env):
             )
             raw = reads.read_actors(self._session.sim, EGO_ID)
             actors = reads.decode_actors([raw], EGO_ID).at(0)
+            if self.gui is not None:
+                self.gui.on_reset()
         except _sumo_errors() as exc:
             raise PriqnError(f"{net}: SUMO failed while setting up the episode: {exc}") from exc
 
@@ -490,6 +504,8 @@ class IntersectionEnv(gymnasium.Env):
         else:
             plan = self._plan(ep, action)
             with self._sumo_failure(ep):
+                if self.gui is not None:
+                    self._show_plan(plan, action)
                 sim = self._simulate(plan)
         m = self._measure(ep, plan, sim)
         with self._sumo_failure(ep):
@@ -511,6 +527,12 @@ class IntersectionEnv(gymnasium.Env):
     def close(self) -> None:
         self._session.close()
         self._episode = None
+
+    def _show_plan(self, plan: _Plan, action: int) -> None:
+        """``render_mode="human"``: draw the decision's plan and chosen action in sumo-gui."""
+        v_f, d_f = self._table[action]
+        xy = np.stack([plan.traj.x, plan.traj.y], axis=1)
+        self.gui.show_plan(xy, f"a={action}: v_f {v_f:.1f} m/s, d_f {d_f:+.2f} m")
 
     # ------------------------------------------------------------------ validation
 
@@ -865,7 +887,28 @@ def _net_entries(nets: Any) -> tuple[str, ...]:
     return tuple(os.fspath(n) for n in nets)
 
 
+def _gui_view(cfg: EnvConfig, options: Any) -> Any:
+    """The sumo-gui session and its view for ``render_mode="human"``."""
+    from priqn.config import from_dict
+    from priqn.sim.gui import GuiOptions, GuiSession, GuiView
+
+    if isinstance(options, Mapping):
+        options = from_dict(GuiOptions, dict(options), "gui options")
+    elif options is not None and not isinstance(options, GuiOptions):
+        raise PriqnError(
+            f"gui: expected GuiOptions, a dict of its fields or None, got {type(options).__name__}"
+        )
+    session = GuiSession(cfg.sim_step_s, cfg.lateral_resolution_m, options)
+    return GuiView(session, EGO_ID)
+
+
 def _sumo_errors() -> tuple[type[BaseException], ...]:
     import libsumo
+    import traci.exceptions  # render_mode="human" runs SUMO through TraCI
 
-    return (libsumo.TraCIException, libsumo.FatalTraCIError)
+    return (
+        libsumo.TraCIException,
+        libsumo.FatalTraCIError,
+        traci.exceptions.TraCIException,
+        traci.exceptions.FatalTraCIError,
+    )

@@ -1,0 +1,341 @@
+"""``priqn play``: watch a trained policy drive, in SUMO's own GUI (``sumo-gui``).
+
+Plays a run's greedy policy on the evaluation scenes ``priqn evaluate`` and ``priqn
+inspect`` use (``--net``, ``--density``, ``--command``, ``--seed``, ``--eval-run``,
+``--episodes`` mean what they mean for ``priqn inspect``), with the environment in
+``render_mode="human"``: the episode runs in sumo-gui through TraCI, with the same
+options, seeds and decisions as libsumo's, so it ends the same way with the same
+per-objective returns (``tests/test_play.py``). The ego is magenta and followed by the
+view; each decision's plan (the Frenet trajectory to the chosen target speed ``v_f`` and
+offset ``d_f``) is drawn as a blue line with an orange target point; a label below the
+ego names the action and, for Pr-IQN, the size of each preorder level's optimal subset
+|S_r| (also in the ego's parameter dialog, ``priqn.subset.<objective>``).
+
+``--record DIR`` saves one sumo-gui screenshot per decision (``DIR/frames/NNNN.png``),
+assembles them into ``DIR/play.gif`` (imageio) and writes ``DIR/episodes.csv``;
+``--record FILE.gif`` / ``FILE.mp4`` writes just that animation. Without a display,
+``--record`` starts a virtual one (``Xvfb``) and stops it again; without ``--record`` it
+says how to get one (``xvfb-run -a priqn play ...``). See docs/play.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.errors import PriqnError
+from priqn.inspector import InspectConfig, inspection_scenes
+from priqn.runs import RunFolder
+
+ANIMATIONS = (".gif", ".mp4")
+"""File endings ``--record`` assembles an animation into (anything else is a folder)."""
+FRAME_MS = 250
+"""Time each decision's frame shows in a recorded animation [ms] (2 decisions/s = real time)."""
+SCREENSHOT_WAIT_S = 20.0
+"""How long to wait for sumo-gui to write the last screenshot of an episode [s]."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Record:
+    """Where ``--record`` puts the pictures."""
+
+    frames_dir: Path
+    """Folder of the per-decision screenshots ``NNNN.png``."""
+    animation: Path
+    """The assembled ``.gif`` or ``.mp4``."""
+    table: Path | None
+    """``episodes.csv`` (recording into a folder only)."""
+
+    @classmethod
+    def of(cls, target: str, scratch: Path) -> Record:
+        """``--record DIR`` → frames, play.gif, episodes.csv in DIR; ``FILE.gif|.mp4`` → that file."""
+        path = Path(target)
+        if path.suffix.lower() in ANIMATIONS:
+            return cls(scratch / "frames", path, None)
+        if path.suffix and not path.is_dir():
+            raise PriqnError(
+                f"--record {target}: expected a folder, or a file ending in "
+                f"{' or '.join(ANIMATIONS)}"
+            )
+        return cls(path / "frames", path / "play.gif", path / "episodes.csv")
+
+
+@dataclasses.dataclass
+class EpisodeResult:
+    """How one played episode ended."""
+
+    episode: int
+    net: str
+    density: float
+    command: str
+    reset_seed: int
+    steps: int
+    """Decisions taken."""
+    outcome: str
+    """success, collision, off_road or timeout."""
+    returns: np.ndarray
+    """Undiscounted per-objective return (``float32 [N]``, the env's order)."""
+
+
+def load_policy(run_dir: Path) -> Any:
+    """The run's greedy policy on the CPU; a file that fails to load is one line."""
+    run = RunFolder(run_dir)
+    if not run.is_run():
+        raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
+    try:
+        return run.load_policy(device="cpu")
+    except PriqnError:
+        raise
+    except Exception as exc:  # a foreign or damaged file the loaders did not catch
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise PriqnError(f"{run_dir}: the policy failed to load ({first})") from exc
+
+
+def subset_text(policy: Any) -> tuple[str, dict[str, str]]:
+    """|S_r| of each preorder level and of the leaf at the last acting call (Pr-IQN), as a
+    label and as ego parameters; ('', {}) for agents without a preorder."""
+    subsets = policy.agent.subsets
+    if subsets is None or policy.near_greedy_eps is not None:
+        return "", {}
+    per_objective = subsets.last.per_objective[0].cpu().numpy()
+    leaf = subsets.last.leaf[0].cpu().numpy()
+    names = subsets.preorder.objectives
+    sizes = {name: int(per_objective[n].sum()) for n, name in enumerate(names)}
+    sizes["leaf"] = int(leaf.sum())
+    text = "|S| " + " ".join(f"{name} {size}" for name, size in sizes.items())
+    return text, {f"priqn.subset.{name}": str(size) for name, size in sizes.items()}
+
+
+def _outcome(info: dict[str, Any]) -> str:
+    for key in ("success", "collision", "off_road", "timeout"):
+        if info.get(key):
+            return key
+    return "running"
+
+
+def _wait_for(path: Path, timeout_s: float) -> None:
+    """Wait until sumo-gui has written ``path`` (it saves screenshots in its own thread)."""
+    deadline = time.monotonic() + timeout_s
+    while not (path.is_file() and path.stat().st_size > 0):
+        if time.monotonic() > deadline:
+            raise PriqnError(f"{path}: sumo-gui did not write the screenshot")
+        time.sleep(0.05)
+
+
+def play_episodes(
+    policy: Any, env: Any, scenes: list[Any], frames_dir: Path | None = None
+) -> list[EpisodeResult]:
+    """Play each scene greedily exactly as ``priqn evaluate`` does (same reset and acting
+    seeds, same acting call). With sumo-gui (``env.gui``) each decision's subset sizes are
+    shown, and with ``frames_dir`` one screenshot per decision is saved (plus the end)."""
+    from tqdm import tqdm
+
+    view, results, frame = getattr(env, "gui", None), [], 0
+    for episode, scene in enumerate(tqdm(scenes, desc="play", unit="episode", disable=None)):
+        rng = np.random.default_rng(scene.act_seed)
+        obs, info = env.reset(seed=scene.reset_seed, options=scene.reset_options())
+        done, steps = False, 0
+        while not done:
+            if view is not None and frames_dir is not None:
+                # written after the next SUMO step: the state as this decision's plan starts
+                view.screenshot(frames_dir / f"{frame:04d}.png")
+                frame += 1
+            batch = {k: np.asarray(v)[None] for k, v in obs.items()}
+            action = int(policy.act(batch, rng)[0])  # the same acting call as evaluate
+            if view is not None:
+                view.note, view.params = subset_text(policy)
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            done = bool(terminated or truncated)
+        if view is not None and frames_dir is not None:  # the end of the episode
+            view.screenshot(frames_dir / f"{frame:04d}.png")
+            view.session.sim.simulationStep()  # the episode is over: this only draws
+            _wait_for(frames_dir / f"{frame:04d}.png", SCREENSHOT_WAIT_S)
+            frame += 1
+        results.append(
+            EpisodeResult(
+                episode=episode,
+                net=scene.net,
+                density=float(scene.density),
+                command=str(info["command"]),
+                reset_seed=int(scene.reset_seed),
+                steps=steps,
+                outcome=_outcome(info),
+                returns=np.asarray(info["returns"], np.float32).copy(),
+            )
+        )
+    return results
+
+
+def assemble(frames_dir: Path, out: Path, frame_ms: int = FRAME_MS) -> Path:
+    """The screenshots of ``frames_dir`` (``NNNN.png``, in order) as a GIF or MP4 (imageio)."""
+    try:
+        import imageio.v3 as iio
+    except ImportError:
+        raise PriqnError(
+            f"{out}: assembling frames needs imageio; install the gui extra: pip install -e '.[gui]'"
+        ) from None
+    frames = [iio.imread(p)[..., :3] for p in sorted(frames_dir.glob("*.png"))]
+    if not frames:
+        raise PriqnError(f"{frames_dir}: no frames were recorded")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
+    if out.suffix.lower() == ".mp4":
+        try:
+            iio.imwrite(tmp, frames, fps=1000.0 / frame_ms, codec="libx264", macro_block_size=8)
+        except Exception as exc:  # no ffmpeg plugin (imageio-ffmpeg) or codec
+            tmp.unlink(missing_ok=True)
+            raise PriqnError(
+                f"{out}: cannot write MP4 ({type(exc).__name__}: {exc}); install the gui "
+                "extra (pip install -e '.[gui]', imageio-ffmpeg) or record a .gif"
+            ) from None
+    else:
+        iio.imwrite(tmp, frames, extension=".gif", duration=frame_ms, loop=0)
+    tmp.replace(out)
+    return out
+
+
+def _check_imageio(record: str | None) -> None:
+    try:
+        import imageio  # noqa: F401
+    except ImportError:
+        raise PriqnError(
+            f"--record {record}: assembling the frames needs imageio; install the gui extra: "
+            "pip install -e '.[gui]'"
+        ) from None
+
+
+@contextlib.contextmanager
+def _display(record: bool) -> Iterator[None]:
+    """Use the display there is; without one, a virtual one when recording, else one line."""
+    from priqn.sim.gui import display_available, virtual_display
+
+    if display_available():
+        yield
+    elif record:
+        with virtual_display():
+            yield
+    else:
+        raise PriqnError(
+            "no display for sumo-gui (DISPLAY is not set): run 'xvfb-run -a priqn play ...' "
+            "(Debian/Ubuntu: apt-get install -y xvfb), or add --record DIR to record headless"
+        )
+
+
+def play_run(
+    run_dir: str | Path,
+    cfg: InspectConfig,
+    *,
+    record: str | None = None,
+    delay_ms: float | None = None,
+    render_mode: str | None = "human",
+) -> list[EpisodeResult]:
+    """Play ``run_dir``'s policy on the configured scenes in sumo-gui (``render_mode=None``:
+    the same episodes through libsumo, for comparison); returns how each episode ended."""
+    from priqn.env.intersection import IntersectionEnv
+
+    run_dir = Path(run_dir)
+    policy = load_policy(run_dir)
+    scenes, eval_cfg = inspection_scenes(run_dir, cfg)
+    env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=(), junction="")
+    if eval_cfg.max_episode_steps:
+        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
+    with tempfile.TemporaryDirectory(prefix="priqn-play-") as scratch:
+        rec = None if record is None else Record.of(record, Path(scratch))
+        if rec is not None:
+            _check_imageio(record)  # before a long episode, not after it
+            rec.frames_dir.mkdir(parents=True, exist_ok=True)
+            for old in rec.frames_dir.glob("*.png"):
+                old.unlink()
+        gui = None
+        if render_mode == "human":
+            gui = {"delay_ms": float(delay_ms if delay_ms is not None else (0 if rec else 100))}
+        with _display(rec is not None) if render_mode == "human" else contextlib.nullcontext():
+            env = IntersectionEnv(env_cfg, render_mode=render_mode, gui=gui)
+            try:
+                results = play_episodes(
+                    policy, env, scenes, None if rec is None or gui is None else rec.frames_dir
+                )
+            finally:
+                env.close()
+        if rec is not None and gui is not None:
+            assemble(rec.frames_dir, rec.animation)
+            if rec.table is not None:
+                _write_table(results, policy.agent.objectives, rec.table)
+    return results
+
+
+def _write_table(results: list[EpisodeResult], objectives: Any, path: Path) -> None:
+    import pandas as pd
+
+    from priqn.io import atomic_write_text
+
+    rows = []
+    for r in results:
+        row = {k: v for k, v in dataclasses.asdict(r).items() if k != "returns"}
+        row.update({f"return_{o}": float(r.returns[i]) for i, o in enumerate(objectives)})
+        rows.append(row)
+    atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="a run folder made by 'priqn train' (committed cells too)")
+    parser.add_argument("--net", default="", help="net '<family>/<net_id>' (default: first)")
+    parser.add_argument(
+        "--density", type=float, default=0.0, help="traffic density in (0, 1] (default: first)"
+    )
+    parser.add_argument("--command", default="", choices=["", "left", "straight", "right"])
+    parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
+    parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
+    parser.add_argument("--episodes", type=int, default=1, help="episodes to play")
+    parser.add_argument(
+        "--delay",
+        type=float,
+        metavar="MS",
+        help="sumo-gui's pause after each 0.1 s simulation step [ms] (default: 100; "
+        "0 when recording without a display)",
+    )
+    parser.add_argument(
+        "--record",
+        metavar="DIR|FILE.gif|FILE.mp4",
+        help="save a screenshot per decision: DIR gets frames/, play.gif and episodes.csv; "
+        "a .gif or .mp4 file gets the animation (works without a display: starts Xvfb)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.episodes < 1:
+        raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
+    if args.density and not 0.0 < args.density <= 1.0:
+        raise PriqnError(
+            f"--density {args.density:g}: expected a traffic density in (0, 1] "
+            "(active actors / maximum actors), e.g. 0.5"
+        )
+    if args.delay is not None and not args.delay >= 0:
+        raise PriqnError(f"--delay {args.delay:g}: expected a pause >= 0 ms")
+    cfg = InspectConfig(
+        net=args.net,
+        density=args.density,
+        command=args.command,
+        seed=args.seed,
+        eval_run=args.eval_run,
+        episodes=args.episodes,
+    )
+    results = play_run(args.run, cfg, record=args.record, delay_ms=args.delay)
+    for r in results:
+        returns = ", ".join(f"{x:.3f}" for x in r.returns)
+        print(
+            f"priqn play: episode {r.episode} on {r.net} (density {r.density:g}, {r.command}): "
+            f"{r.outcome} after {r.steps} decisions; returns [{returns}]"
+        )
+    if args.record:
+        print(f"priqn play: recorded into {args.record}")
+    return 0
