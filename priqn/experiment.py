@@ -279,6 +279,23 @@ class Experiment:
     """Several pre-registered sequential designs over one grid (``[[question]]``), each
     with its own endpoint, budget, seeds and looks, its comparisons naming row groups."""
 
+    @property
+    def designs(self) -> tuple[SequentialSpec, ...]:
+        """Every pre-registered design: ``[sequential]`` or the ``[[question]]`` tables."""
+        return (self.sequential,) if self.sequential is not None else self.questions
+
+    @property
+    def code_commits(self) -> tuple[str, ...]:
+        """Every commit a design lets a cell train at (empty: not checked)."""
+        return tuple(dict.fromkeys(c for d in self.designs for c in d.code_commits))
+
+    def code_problem(self, git_sha: str) -> str | None:
+        """:meth:`SequentialSpec.code_problem` over :attr:`code_commits` (``"unlisted"``,
+        ``"dirty"`` or None); None for a grid without a design."""
+        if not self.designs:
+            return None
+        return SequentialSpec((), code_commits=self.code_commits).code_problem(git_sha)
+
     def row_seeds(self, policy: PolicySpec) -> tuple[int, ...]:
         """The seeds ``policy``'s row trains here (its own, else ``[experiment].seeds``)."""
         return policy.seeds if policy.seeds is not None else self.experiment.seeds
@@ -286,6 +303,22 @@ class Experiment:
     def row_steps(self, policy: PolicySpec) -> int | None:
         """``policy``'s training budget (its own, else ``[experiment].steps``; None: the preset's)."""
         return policy.steps if policy.steps is not None else self.experiment.steps
+
+    def row_config(self, policy: PolicySpec, seed: int) -> Any:
+        """The :class:`~priqn.train_config.TrainConfig` ``policy``'s row trains with ``seed``
+        (what ``priqn train`` builds from the preset, the flags and the overrides)."""
+        from priqn.train_config import resolve_config
+
+        e = self.experiment
+        return resolve_config(
+            preset=e.preset,
+            agent=policy.agent,
+            seed=seed,
+            net=e.net,
+            steps=self.row_steps(policy),
+            overrides=[*e.set, *policy_overrides(policy)],
+            where=f"{self.path} ({policy.name})",
+        )
 
     def group(self, name: str) -> list[PolicySpec]:
         """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""
@@ -603,6 +636,37 @@ def _parse_design(raw: Any, where: str, table: str, names: set[str]) -> Sequenti
     if seq.permutations < 100:
         raise PriqnError(f"{where}.permutations: expected at least 100, got {seq.permutations}")
     return seq
+
+
+BUDGET_KEYS: tuple[str, ...] = (
+    "seed",
+    "total_steps",
+    "device",
+    "checkpoint.keep_at",
+    "exploration.decay_fraction",
+    "exploration.decay_steps",
+)
+"""TrainConfig keys in which two runs of one policy may differ (the ε decay only as long
+as it spans the same absolute decisions)."""
+
+
+def policy_difference(a: Any, b: Any) -> str | None:
+    """Why two resolved TrainConfigs do not train the same policy (the first difference,
+    as ``key is B, not A``), or None: equal but for :data:`BUDGET_KEYS`, with ε decaying
+    over the same decisions, so the first N decisions of the longer are the shorter's."""
+    from priqn.config import config_differences, to_dict
+
+    decay = [x.exploration.decay_decisions(x.total_steps) for x in (a, b)]
+    if decay[0] != decay[1]:
+        return (
+            f"ε decays over {decay[1]:g} decisions, not {decay[0]:g} "
+            "(fix the decay in decisions: exploration.decay_steps)"
+        )
+    diff = config_differences(to_dict(a), to_dict(b), ignore=BUDGET_KEYS)
+    if diff:
+        key, old, new = diff[0]
+        return f"{key} is {new!r}, not {old!r}"
+    return None
 
 
 def _preorder_agents() -> str:

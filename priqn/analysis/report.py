@@ -608,10 +608,12 @@ def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
             exp = load_experiment(folder.name, runs_dir=folder.parent)
         except PriqnError:
             return None
-        return exp if exp.sequential is not None else None
+        return exp if exp.designs else None
     exp = load_experiment(name, runs_dir=folder.parent)
-    if exp.sequential is None:
-        raise PriqnError(f"--experiment {name}: {exp.path} has no [sequential] design")
+    if not exp.designs:
+        raise PriqnError(
+            f"--experiment {name}: {exp.path} has no [sequential] or [[question]] design"
+        )
     if exp.runs_dir.resolve() != folder.resolve():
         raise PriqnError(
             f"--experiment {name}: its cells live in {exp.runs_dir.name}/, not {folder.name}/"
@@ -627,10 +629,11 @@ def run(args: argparse.Namespace) -> int:
     if exp is not None:
         if args.reference:
             raise PriqnError("--reference: not for a sequential experiment's report")
-        from priqn.analysis import sequential_report
+        from priqn.analysis import questions_report, sequential_report
 
+        writer = sequential_report if exp.sequential is not None else questions_report
         command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(sequential_report.write_report(exp, out, command))
+        print(writer.write_report(exp, out, command))
         return 0
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "

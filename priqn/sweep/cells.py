@@ -16,7 +16,7 @@ from typing import Any
 from priqn.agent_config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
-from priqn.experiment import Experiment, cell_dir_name, policy_overrides
+from priqn.experiment import Experiment, cell_dir_name, policy_difference, policy_overrides
 from priqn.io import read_json
 from priqn.runs import RunFolder, Status
 
@@ -219,21 +219,11 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
     return out
 
 
-BUDGET_KEYS: tuple[str, ...] = (
-    "seed",
-    "total_steps",
-    "checkpoint.keep_at",
-    "exploration.decay_fraction",
-    "exploration.decay_steps",
-)
-"""TrainConfig keys in which rows of one group may differ (the ε decay only as long as it
-spans the same absolute decisions)."""
-
-
 def validate(exp: Experiment) -> None:
     """Build every cell's TrainConfig and the EvalConfig now, so a typo fails before any
-    work; rows of one group must train the same policy (:data:`BUDGET_KEYS` aside), so the
-    first N decisions of a longer row are those of a row trained to N."""
+    work; rows of one group must train the same policy
+    (:func:`priqn.experiment.policy_difference`), so the first N decisions of a longer
+    row are those of a row trained to N."""
     cells = expand(exp)
     configs: dict[str, Any] = {}
     for c in cells:
@@ -243,21 +233,11 @@ def validate(exp: Experiment) -> None:
         ref = exp.group(pol.group_name)[0]
         if ref.name == pol.name or pol.name not in configs or ref.name not in configs:
             continue
-        mine, theirs = configs[pol.name], configs[ref.name]
-        diff = config_differences(to_dict(theirs), to_dict(mine), ignore=BUDGET_KEYS)
-        decay = [x.exploration.decay_decisions(x.total_steps) for x in (theirs, mine)]
-        if decay[0] != decay[1]:
-            diff.insert(0, ("exploration (ε decay decisions)", decay[0], decay[1]))
-        if diff:
-            key, a, b = diff[0]
+        problem = policy_difference(configs[ref.name], configs[pol.name])
+        if problem:
             raise PriqnError(
                 f"{exp.path} [[policy]] {pol.name}: rows of group {pol.group_name!r} must train "
-                f"one policy, but {key} is {b!r} here and {a!r} in {ref.name!r}"
-                + (
-                    " (fix the decay in decisions: exploration.decay_steps)"
-                    if "decay" in key
-                    else ""
-                )
+                f"one policy, but {problem} (here vs {ref.name!r})"
             )
     if cells:
         build_eval_config(cells[0])

@@ -11,6 +11,7 @@ from typing import Any
 
 from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, load_experiment
+from priqn.paths import EXPERIMENTS, shipped
 from priqn.runs import Status
 from priqn.sweep.cells import expand, stale_cells, time_left, validate
 from priqn.sweep.process import DEFAULT_CELL_FN
@@ -23,7 +24,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     """``priqn sweep EXPERIMENT [--jobs N | --ray [ADDRESS]] ...``."""
     parser.add_argument(
         "experiment",
-        help="experiment file, or a name: ./experiments/NAME.toml, else shipped (table2, smoke)",
+        help="experiment file, or a name: ./experiments/NAME.toml, else shipped ("
+        + ", ".join(sorted(p.stem for p in shipped(EXPERIMENTS).glob("*.toml")))
+        + ")",
     )
     parser.add_argument(
         "--jobs",
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         return _forecast(exp, args.forecast)
     if args.commit:
         return _commit(exp)
-    if exp.sequential is not None:
+    if exp.designs:
         _check_code_commit(exp, code_dir)
     if args.cell_fn == DEFAULT_CELL_FN:
         validate(exp)
@@ -138,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         "cell_fn": args.cell_fn,
         "code_dir": code_dir,
     }
-    if exp.sequential is not None and not args.only:
+    if exp.designs and not args.only:
         return _run_sequential(exp, report=not args.no_report, **kw)
     result = run_sweep(exp, only=args.only, report=not args.no_report, **kw)
     return _summarise(exp, result)
@@ -214,12 +217,9 @@ def _list(exp: Any, jobs: int | None) -> None:
     """``--list``: every cell and its state (stdout); for a sequential design, which cells
     the next look needs; the tally and the time left (:func:`time_left`) on stderr."""
     needed: set[str] = set()
-    if exp.sequential is not None:
-        from priqn.analysis import sequential
-
-        scores = sequential.collect_scores(exp)
-        plan = sequential.replay(exp, scores)
-        needed = {cell_dir_name(p, s) for p, s in sequential.next_cells(exp, plan, scores)}
+    if exp.designs:
+        next_cells, where = _design_plan(exp)
+        needed = {cell_dir_name(p, s) for p, s in next_cells}
     cells = expand(exp)
     states = [c.state() for c in cells]
     for c, state in zip(cells, states, strict=True):
@@ -228,10 +228,7 @@ def _list(exp: Any, jobs: int | None) -> None:
     counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
     # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
     print(f"{exp.experiment.name}: {len(cells)} cells: {counts}", file=sys.stderr)
-    if exp.sequential is not None:
-        where = (
-            "finished" if plan.finished else f"look {plan.next_look} needs {len(needed)} cell(s)"
-        )
+    if exp.designs:
         print(f"{exp.experiment.name}: sequential design: {where}", file=sys.stderr)
         left = [c for c in cells if c.run_dir.name in needed]
     else:
@@ -256,34 +253,51 @@ def _time_left_line(exp: Any, left: list[Any], slots: int) -> str:
     )
 
 
+def _design_plan(exp: Any) -> tuple[list[tuple[str, int]], str]:
+    """``((row, seed) cells the next looks need, where the design stands in one line)``
+    of a ``[sequential]`` design or of every open ``[[question]]``."""
+    from priqn.analysis import questions, sequential
+
+    if exp.sequential is None:
+        cells = questions.next_cells(exp)
+        states = []
+        for q in exp.questions:
+            _, plan = questions.replay(exp, q)
+            states.append(
+                f"{q.name} finished after {len(plan.looks)} look(s)"
+                if plan.finished
+                else f"{q.name} at look {plan.next_look}"
+            )
+        return cells, f"{'; '.join(states)}; {len(cells)} cell(s) needed"
+    scores = sequential.collect_scores(exp)
+    plan = sequential.replay(exp, scores)
+    cells = sequential.next_cells(exp, plan, scores)
+    if plan.finished or not cells:
+        state = "finished" if plan.finished else f"waiting for look {plan.next_look}"
+        words = "; ".join(f"{k}: {v}" for k, v in plan.decisions.items())
+        return cells, f"{state} after {len(plan.looks)} look(s): {words}"
+    rows = ", ".join(plan.open_rows)
+    return cells, f"look {plan.next_look} needs {len(cells)} cell(s) of {rows}"
+
+
 def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
-    """A pre-registered sequential design: train the cells the next look needs, take the
-    look, and go on until every comparison is decided or the last look is taken."""
-    from priqn.analysis import sequential, sequential_report
+    """Pre-registered sequential designs: train the cells the next looks need, take the
+    looks, and go on until every comparison is decided or the last look is taken."""
+    from priqn.analysis import questions_report, sequential_report
 
     while True:
-        scores = sequential.collect_scores(exp)
-        plan = sequential.replay(exp, scores)
-        cells = sequential.next_cells(exp, plan, scores)
+        cells, where = _design_plan(exp)
         if not cells:
-            state = "finished" if plan.finished else f"waiting for look {plan.next_look}"
-            print(
-                f"priqn sweep {exp.experiment.name}: sequential design {state} after "
-                f"{len(plan.looks)} look(s): "
-                + "; ".join(f"{k}: {v}" for k, v in plan.decisions.items())
-            )
+            print(f"priqn sweep {exp.experiment.name}: sequential design {where}")
             break
-        print(
-            f"priqn sweep {exp.experiment.name}: look {plan.next_look} needs {len(cells)} "
-            f"cell(s) of {', '.join(plan.open_rows)}",
-            file=sys.stderr,
-        )
+        print(f"priqn sweep {exp.experiment.name}: {where}", file=sys.stderr)
         only = [f"{exp.experiment.name}/{cell_dir_name(p, s)}" for p, s in cells]
         result = run_sweep(exp, only=only, report=False, **kw)
         if result.failed or result.interrupted:
             return _summarise(exp, result)
     if report:
-        path = sequential_report.write_report(exp, exp.report_dir)
+        writer = sequential_report if exp.sequential is not None else questions_report
+        path = writer.write_report(exp, exp.report_dir)
         print(f"priqn sweep: report in {path}", file=sys.stderr)
     return 0
 
@@ -302,7 +316,7 @@ def _check_code_commit(exp: Any, code_dir: Path | None) -> None:
     """A sequential design lists the commits its cells may train at: refuse any other."""
     from priqn.provenance import git_sha
 
-    listed = exp.sequential.code_commits
+    listed = exp.code_commits
     if not listed:
         return
     sha = git_sha(code_dir)

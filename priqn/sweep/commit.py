@@ -98,18 +98,16 @@ class Committed:
     """The cells it holds."""
     refused: list[Cell]
     """Complete cells left uncommitted: trained at code the sequential design refuses
-    (:meth:`~priqn.experiment.SequentialSpec.code_problem`; its report refuses them too)."""
+    (:meth:`~priqn.experiment.Experiment.code_problem`; its report refuses them too)."""
 
 
 def commit_complete_cells(exp: Experiment) -> Committed:
     """Stage and commit every complete, uncommitted cell of ``exp`` in one commit."""
     root, found = uncommitted_complete_cells(exp)
-    seq = exp.sequential
     refused = [
         c
         for c in found
-        if seq is not None
-        and seq.code_problem(str(RunFolder(c.run_dir).meta().get("git_sha") or "")) is not None
+        if exp.code_problem(str(RunFolder(c.run_dir).meta().get("git_sha") or "")) is not None
     ]
     cells = [c for c in found if c not in refused]
     if not cells:

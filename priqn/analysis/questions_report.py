@@ -1,0 +1,363 @@
+"""The report of an experiment with ``[[question]]`` designs (``priqn report results/explain``).
+
+Per question: its design, the looks taken, each comparison's estimate, Welch interval,
+minimum detectable difference and verdict words (:mod:`priqn.analysis.questions`); across
+questions, each group's endpoints at every budget its cells reach, and the change of a
+difference between budgets over the same seeds. Deterministic: the same committed cells
+give byte-identical files (tables, figure, ``report.md``, ``meta.json``).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from priqn.analysis import inference, questions
+from priqn.analysis.sequential import Replay, relative_path
+from priqn.experiment import Experiment, SequentialSpec
+from priqn.runs import RunFolder, Status
+
+ENDPOINT_TEXT = {
+    "success": "hold-out success rate",
+    "violation": "safety-violation rate (collision or off-road)",
+}
+"""How the report names each endpoint."""
+
+
+def budgets_of(exp: Experiment, group: str) -> list[int]:
+    """Every budget some row of ``group`` reaches (its steps and kept snapshots), ascending."""
+    found: set[int] = set()
+    for pol in exp.group(group):
+        steps = exp.row_steps(pol)
+        found.update([*pol.keep_at, *([steps] if steps else [])])
+    return sorted(found)
+
+
+def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
+    """Per (group, budget, training seed) of ``question``'s seeds: both endpoints where the
+    cell's evaluation at that budget is complete. Columns: group, budget, train_seed,
+    success, violation, episodes."""
+    rows = []
+    groups = [r.name for r in questions.view(question).policies]
+    for group in groups:
+        for budget in budgets_of(exp, group):
+            for seed in question.seeds:
+                where = exp.cell_at(group, seed, budget)
+                if where is None:
+                    continue
+                folder = RunFolder(where[1])
+                if folder.recorded_eval_status(where[2]) != Status.COMPLETE:
+                    continue
+                eval_dir = folder.evaluation_dir(where[2])
+                values = {
+                    e: float(questions.endpoint_by_density(eval_dir, e)[0].mean())
+                    for e in questions.ENDPOINT_FLAGS
+                }
+                n = questions.endpoint_by_density(eval_dir, "success")[1]
+                rows.append((group, budget, seed, values["success"], values["violation"], n))
+    columns = ["group", "budget", "train_seed", "success", "violation", "episodes"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def change_frame(frame: pd.DataFrame, a: str, b: str, endpoint: str) -> pd.DataFrame:
+    """How ``a − b`` on ``endpoint`` changes from the smallest budget to each larger one,
+    over the seeds complete at both budgets for both groups: per seed the change of each
+    group's score, then mean(Δa) − mean(Δb) with its Welch 95 % interval (descriptive)."""
+    rows = []
+    budgets = sorted(set(frame["budget"]))
+    if not budgets:
+        return pd.DataFrame(columns=["from", "to", "seeds", "change", "lo", "hi"])
+    base = budgets[0]
+    for budget in budgets[1:]:
+        deltas = []
+        for group in (a, b):
+            mine = frame[frame["group"] == group].pivot_table(
+                index="train_seed", columns="budget", values=endpoint
+            )
+            if base not in mine or budget not in mine:
+                deltas.append(np.array([]))
+                continue
+            deltas.append((mine[budget] - mine[base]).dropna().to_numpy(float))
+        n = min(d.size for d in deltas)
+        if n < 2:
+            continue
+        lo, hi = inference.welch_interval(deltas[0], deltas[1])
+        change = float(deltas[0].mean() - deltas[1].mean())
+        rows.append((base, budget, n, change, lo, hi))
+    return pd.DataFrame(rows, columns=["from", "to", "seeds", "change", "lo", "hi"])
+
+
+def _comparison_rows(
+    exp: Experiment, question: SequentialSpec, scores: pd.DataFrame, result: Replay
+) -> list[dict[str, Any]]:
+    """One dict per comparison: seeds, estimate, interval, MDD, decision, verdict."""
+    out = []
+    for c in question.comparisons:
+        a = scores[scores["policy"] == c.a]["score"].to_numpy(float)
+        b = scores[scores["policy"] == c.b]["score"].to_numpy(float)
+        last = (
+            next((x for x in result.looks[-1].comparisons if x.name == c.name), None)
+            if result.looks
+            else None
+        )
+        n_a, n_b = (last.n_a, last.n_b) if last else (a.size, b.size)
+        a, b = a[:n_a], b[:n_b]
+        enough = a.size >= 2 and b.size >= 2
+        lo, hi = inference.welch_interval(a, b) if enough else (math.nan, math.nan)
+        out.append(
+            {
+                "question": question.name,
+                "comparison": c.name,
+                "endpoint": question.endpoint,
+                "budget": question.budget,
+                "a": c.a,
+                "b": c.b,
+                "seeds_a": int(a.size),
+                "seeds_b": int(b.size),
+                "difference": float(a.mean() - b.mean()) if a.size and b.size else math.nan,
+                "lo": lo,
+                "hi": hi,
+                "mdd": inference.min_detectable_difference(a, b, question.alpha)
+                if enough
+                else math.inf,
+                "paper_difference": c.paper_difference,
+                "decision": result.decisions[c.name],
+                "looks": len(result.looks),
+                "verdict": questions.verdict(question, result, c),
+            }
+        )
+    return out
+
+
+def _pts(x: float) -> str:
+    return "–" if x is None or math.isnan(x) else f"{100 * x:+.1f}"
+
+
+def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
+    """One panel per question: each group's per-seed endpoint (dots), its mean (bar) and
+    95 % t interval (thin line), at the question's budget."""
+    from priqn.analysis.figures import plt
+
+    names = [q.name for q in exp.questions]
+    fig, axes = plt.subplots(len(names), 1, figsize=(7.5, 1.45 * len(names) + 0.6), squeeze=False)
+    for ax, q in zip(axes[:, 0], exp.questions, strict=True):
+        scores = scores_by_question[q.name]
+        groups = [r.name for r in questions.view(q).policies]
+        for i, group in enumerate(groups):
+            x = scores[scores["policy"] == group]["score"].to_numpy(float)
+            ax.plot(x, np.full(x.size, i), "o", color="tab:blue", ms=4, alpha=0.75)
+            if x.size:
+                ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
+            if x.size >= 2:
+                ax.plot(inference.mean_interval(x), [i + 0.32] * 2, color="black", lw=0.9)
+        counts = scores.groupby("policy")["seed"].nunique()
+        ax.set_yticks(
+            range(len(groups)),
+            [f"{g} ({int(counts.get(g, 0))} seeds)" for g in groups],
+            fontsize=7,
+        )
+        ax.set_ylim(len(groups) - 0.5, -0.6)
+        ax.set_xlim(0, 1)
+        ax.grid(axis="x", color="0.9")
+        ax.set_title(
+            f"{q.name}: {ENDPOINT_TEXT[q.endpoint]} at {q.budget // 1000}k decisions",
+            fontsize=8,
+            loc="left",
+        )
+    axes[-1, 0].set_xlabel(
+        "per training seed, mean over densities (dot: seed; bar: mean; thin: 95 % t interval)",
+        fontsize=7,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def report_markdown(
+    exp: Experiment,
+    comparisons: pd.DataFrame,
+    looks: pd.DataFrame,
+    budgets: pd.DataFrame,
+    changes: pd.DataFrame,
+    command: str,
+) -> str:
+    """``report.md`` of an experiment with questions."""
+    e = exp.experiment
+    lines = [
+        f"# {e.name}: pre-registered questions",
+        "",
+        f"Made by `{command}` from the cells' run folders and the design in `{exp.path.name}` "
+        "(committed before any of its own cells trained).",
+        "",
+        f"{e.description}",
+        "",
+        "## Verdicts",
+        "",
+        "| question | comparison | budget | seeds (a / b) | a − b [points] | Welch 95 % | MDD | paper | looks | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in comparisons.itertuples():
+        mdd = "∞" if math.isinf(r.mdd) else f"±{100 * r.mdd:.1f}"
+        paper = (
+            "–"
+            if r.paper_difference is None or pd.isna(r.paper_difference)
+            else _pts(r.paper_difference)
+        )
+        lines.append(
+            f"| {r.question} | {r.comparison} | {r.budget // 1000}k | {r.seeds_a} / {r.seeds_b} "
+            f"| {_pts(r.difference)} | [{_pts(r.lo)}, {_pts(r.hi)}] | {mdd} | {paper} "
+            f"| {r.looks} | **{r.verdict}** |"
+        )
+    lines += [
+        "",
+        "Points: percentage points of the endpoint (success rate, or violation rate where "
+        "the question's endpoint is violations: there a positive difference means a violates "
+        "more). Welch intervals are descriptive (not adjusted for the looks); the verdict is "
+        "the design's (AdaStop with a two-sided boundary, docs/statistics.md). MDD: the "
+        "smallest |difference| a fixed two-sided Welch test at the question's α would see "
+        "with 80 % power at the seeds reached and their spread.",
+        "",
+        "## Questions",
+        "",
+    ]
+    for q in exp.questions:
+        mine = looks[looks["question"] == q.name]
+        lines += [
+            f"### {q.name}",
+            "",
+            f"- **Question**: {q.question}",
+            f"- **Endpoint**: per training seed, {ENDPOINT_TEXT[q.endpoint]} on the hold-out "
+            f"episodes, averaged over the densities {exp.evaluate.get('densities')}.",
+            f"- **Budget**: {q.budget} decisions per cell ({e.preset} preset).",
+            f"- **Seeds** in look order: {list(q.seeds)}; looks at {list(q.interims)}; "
+            f"α = {q.alpha:g} (two-sided), β = {q.beta:g}, {q.permutations} permutations, "
+            f"seed {q.seed}; commits allowed: {', '.join(c[:12] for c in q.code_commits) or 'any'}.",
+            f"- **Looks taken**: {len(mine['look'].unique()) if len(mine) else 0}.",
+            "",
+        ]
+    if len(budgets):
+        lines += [
+            "## Every budget the cells reach (descriptive)",
+            "",
+            "Mean over the seeds complete at that budget (the budget question's seeds).",
+            "",
+            "| group | budget | seeds | success | violations |",
+            "|---|---|---|---|---|",
+        ]
+        summary = budgets.groupby(["group", "budget"]).agg(
+            seeds=("train_seed", "nunique"),
+            success=("success", "mean"),
+            violation=("violation", "mean"),
+        )
+        for (group, budget), r in summary.iterrows():
+            lines.append(
+                f"| {group} | {budget // 1000}k | {r.seeds} | {r.success:.3f} | {r.violation:.3f} |"
+            )
+        lines.append("")
+    if len(changes):
+        lines += [
+            "## Change of the difference with the budget (descriptive)",
+            "",
+            "Per seed, each group's change of the endpoint from the smaller budget; then the "
+            "difference of the mean changes (a − b) with its Welch 95 % interval.",
+            "",
+            "| comparison | endpoint | from | to | seeds | change [points] | Welch 95 % |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in changes.itertuples():
+            lines.append(
+                f"| {r.comparison} | {r.endpoint} | {r._3 // 1000}k | {r.to // 1000}k | {r.seeds} "
+                f"| {_pts(r.change)} | [{_pts(r.lo)}, {_pts(r.hi)}] |"
+            )
+        lines.append("")
+    lines += ["![per-seed endpoints](figures/questions.png)", ""]
+    return "\n".join(lines)
+
+
+def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
+    """Write the questions' report into ``out_dir``; returns ``report.md``."""
+    from priqn.analysis.figures import save_figure
+    from priqn.io import atomic_write_json, atomic_write_text
+
+    out = Path(out_dir)
+    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
+    scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
+    for q in exp.questions:
+        scores, result = questions.replay(exp, q)
+        scores_by_q[q.name] = scores
+        comparison_rows += _comparison_rows(exp, q, scores, result)
+        for look in result.looks:
+            for c in look.comparisons:
+                look_rows.append(
+                    {
+                        "question": q.name,
+                        "look": look.k,
+                        "comparison": c.name,
+                        "seeds_a": c.n_a,
+                        "seeds_b": c.n_b,
+                        "difference": c.diff,
+                        "decision": c.decision,
+                        "alpha_spent": look.level_spent.get(c.family),
+                        "needed": look.needed.get(c.family, math.nan),
+                    }  # fmt: skip
+                )
+        if any(len(budgets_of(exp, g)) > 1 for g in (r.name for r in questions.view(q).policies)):
+            frame = budget_frame(exp, q)
+            budget_frames.append(frame.assign(question=q.name))
+            for c in q.comparisons:
+                for endpoint in questions.ENDPOINT_FLAGS:
+                    ch = change_frame(frame, c.a, c.b, endpoint)
+                    change_frames.append(ch.assign(comparison=c.name, endpoint=endpoint))
+    comparisons = pd.DataFrame(comparison_rows)
+    looks = pd.DataFrame(
+        look_rows,
+        columns=[
+            "question",
+            "look",
+            "comparison",
+            "seeds_a",
+            "seeds_b",
+            "difference",
+            "decision",
+            "alpha_spent",
+            "needed",
+        ],
+    )
+    budgets = pd.concat(budget_frames, ignore_index=True) if budget_frames else pd.DataFrame()
+    budgets = (
+        budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets
+    )
+    changes = pd.concat(change_frames, ignore_index=True) if change_frames else pd.DataFrame()
+    if len(changes):
+        changes = changes[["comparison", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]]
+    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
+    all_scores = pd.concat(
+        [s.assign(question=name) for name, s in scores_by_q.items()], ignore_index=True
+    )
+    atomic_write_text(out / "tables" / "scores.csv", all_scores.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "comparisons.csv", comparisons.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "looks.csv", looks.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "budgets.csv", budgets.to_csv(**csv_kw))
+    atomic_write_text(out / "tables" / "budget_changes.csv", changes.to_csv(**csv_kw))
+    save_figure(figure(exp, scores_by_q), out / "figures", "questions")
+    report = out / "report.md"
+    atomic_write_text(report, report_markdown(exp, comparisons, looks, budgets, changes, command))
+    atomic_write_json(
+        out / "meta.json",
+        {
+            "command": command,
+            "experiment": exp.path.name,
+            "verdicts": {r["comparison"]: r["verdict"] for r in comparison_rows},
+            "looks": {
+                q: int(looks[looks["question"] == q]["look"].max() or 0)
+                if len(looks[looks["question"] == q])
+                else 0
+                for q in scores_by_q
+            },
+            "cells": {q: len(s) for q, s in scores_by_q.items()},
+        },
+    )
+    return report

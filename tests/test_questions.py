@@ -1,0 +1,187 @@
+"""Several pre-registered questions over one grid (``[[question]]``, priqn/analysis/questions.py):
+endpoints read at a budget from a cell or a longer cell's kept snapshot, AdaStop replayed per
+question, violation verdict words, the cells the next looks need, and the report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from priqn.analysis import questions, questions_report
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_json, atomic_write_text
+from priqn.sweep import load_experiment
+
+DESIGN = """
+[experiment]
+name = "qx"
+net = "tjunction"
+steps = 200
+set = ["exploration.decay_steps=60"]
+runs_dir = "{runs}"
+[[policy]]
+name = "a-long"
+group = "a"
+agent = "iqn"
+seeds = [0, 1, 2, 3]
+steps = 400
+keep_at = [200]
+[[policy]]
+name = "a"
+agent = "iqn"
+seeds = [4, 5, 6, 7]
+[[policy]]
+name = "b-long"
+group = "b"
+agent = "iqn"
+seeds = [0, 1, 2, 3]
+steps = 400
+keep_at = [200]
+[[policy]]
+name = "b"
+agent = "iqn"
+seeds = [4, 5, 6, 7]
+[[question]]
+name = "safety"
+question = "Does a violate more than b at 200?"
+endpoint = "violation"
+budget = 200
+seeds = [0, 1, 2, 3, 4, 5, 6, 7]
+interims = [4, 8]
+alpha = 0.1
+permutations = 200
+code_commits = {commits}
+[[question.comparison]]
+name = "a vs b"
+family = "safety"
+a = "a"
+b = "b"
+[[question]]
+name = "long"
+question = "Does a beat b at 400?"
+endpoint = "success"
+budget = 400
+seeds = [0, 1, 2, 3]
+interims = [2, 4]
+alpha = 0.1
+permutations = 200
+[[question.comparison]]
+name = "a > b"
+family = "long"
+a = "a"
+b = "b"
+paper_difference = 0.1
+"""
+
+
+def write_evaluation(eval_dir: Path, success: int, violations: int) -> None:
+    """10 episodes per density (0.5, 1.0): ``success`` succeed, then ``violations`` crash
+    (the first half) or leave the road, the rest time out."""
+    rows = []
+    for density in (0.5, 1.0):
+        for e in range(10):
+            bad = success <= e < success + violations
+            rows.append(
+                {
+                    "density": density,
+                    "success": e < success,
+                    "collision": bad and e % 2 == 0,
+                    "off_road": bad and e % 2 == 1,
+                    "timeout": e >= success + violations,
+                }  # fmt: skip
+            )
+    atomic_write_text(eval_dir / "episodes.csv", pd.DataFrame(rows).to_csv(index=False))
+    atomic_write_json(eval_dir / "meta.json", {"status": "complete"})
+
+
+def make_cell(run: Path, sha: str, at200: tuple[int, int], final: tuple[int, int] | None) -> None:
+    """A complete cell: ``eval-at200/`` from ``at200`` and, for a long one, ``eval/`` from
+    ``final`` (a short cell's ``eval/`` is its 200-decision evaluation)."""
+    atomic_write_json(run / "meta.json", {"status": "complete", "git_sha": sha})
+    if final is None:
+        write_evaluation(run / "eval", *at200)
+    else:
+        write_evaluation(run / "eval-at200", *at200)
+        write_evaluation(run / "eval", *final)
+
+
+def grid(tmp_path: Path, commits: str = "[]", sha: str = "abc", seeds=range(8)) -> object:
+    """a violates in 8 of 10 episodes at 200, b in 2; at 400 a succeeds 9 / 10, b 3 / 10."""
+    path = tmp_path / "qx.toml"
+    path.write_text(DESIGN.format(runs=(tmp_path / "runs").as_posix(), commits=commits))
+    exp = load_experiment(path)
+    for seed in seeds:
+        for group, at200, final in (("a", (1, 8), (9, 1)), ("b", (6, 2), (3, 1))):
+            row = f"{group}-long" if seed < 4 else group
+            make_cell(exp.cell_dir(row, seed), sha, at200, final if seed < 4 else None)
+    return exp
+
+
+def test_endpoints_are_read_at_the_budget_from_cells_and_snapshots(tmp_path: Path) -> None:
+    exp = grid(tmp_path)
+    safety, long = exp.questions
+    scores = questions.collect(exp, safety)
+    a = scores[scores["policy"] == "a"]
+    assert list(a["train_seed"]) == list(range(8)) and list(a["seed"]) == list(range(8))
+    assert list(a["evaluation"]) == ["at200"] * 4 + [""] * 4
+    assert a["score"].tolist() == pytest.approx([0.8] * 8)  # 8 of 10 violate, both densities
+    assert scores[scores["policy"] == "b"]["score"].tolist() == pytest.approx([0.2] * 8)
+    assert (scores["episodes"] == 20).all()
+    success = questions.collect(exp, long)
+    assert success[success["policy"] == "a"]["score"].tolist() == pytest.approx([0.9] * 4)
+
+
+def test_each_question_is_replayed_with_its_own_words(tmp_path: Path) -> None:
+    exp = grid(tmp_path)
+    safety, long = exp.questions
+    _, result = questions.replay(exp, safety)
+    assert result.decisions == {"a vs b": "larger"}
+    assert questions.verdict(safety, result, safety.comparisons[0]) == "a violates more"
+    _, result = questions.replay(exp, long)
+    assert result.decisions == {"a > b": "larger"}
+    assert questions.verdict(long, result, long.comparisons[0]) == "reproduced"
+    assert questions.next_cells(exp) == []
+
+
+def test_next_cells_are_the_grids_own_cells_the_next_looks_need(tmp_path: Path) -> None:
+    exp = grid(tmp_path, seeds=[0, 1])
+    assert questions.next_cells(exp) == [
+        ("a-long", 2), ("b-long", 2), ("a-long", 3), ("b-long", 3),
+    ]  # fmt: skip
+
+
+def test_a_cell_at_another_commit_is_refused_in_one_line(tmp_path: Path) -> None:
+    exp = grid(tmp_path, commits='["0123456789abcdef"]', sha="fedcba9876543210")
+    with pytest.raises(PriqnError, match=r"trained at commit fedcba987654, which .* does not list"):
+        questions.collect(exp, exp.questions[0])
+
+
+def test_a_seed_no_row_reaches_at_the_budget_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "qx.toml"
+    body = DESIGN.format(runs=tmp_path.as_posix(), commits="[]").replace(
+        "keep_at = [200]", "keep_at = [100]"
+    )
+    path.write_text(body)
+    with pytest.raises(PriqnError, match="group 'a' has no row with seed 0 at 200 decisions"):
+        load_experiment(path)
+
+
+def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_path: Path) -> None:
+    exp = grid(tmp_path)
+    first = questions_report.write_report(exp, tmp_path / "r1", command="cmd")
+    second = questions_report.write_report(exp, tmp_path / "r2", command="cmd")
+    for f in sorted((tmp_path / "r1").rglob("*")):
+        if f.is_file():
+            assert (
+                f.read_bytes() == (tmp_path / "r2" / f.relative_to(tmp_path / "r1")).read_bytes()
+            ), f
+    text = first.read_text()
+    assert "**a violates more**" in text and "**reproduced**" in text
+    changes = pd.read_csv(tmp_path / "r1" / "tables" / "budget_changes.csv")
+    success = changes[changes["endpoint"] == "success"].iloc[0]
+    # a: 0.1 -> 0.9 (+0.8), b: 0.6 -> 0.3 (-0.3): the difference grows by 1.1.
+    assert (success["from"], success["to"], success["seeds"]) == (200, 400, 4)
+    assert success["change"] == pytest.approx(1.1)
+    assert second.read_text() == text
