@@ -6,11 +6,16 @@ the environment module itself (and SUMO) is only imported when an env is made.
 
 from __future__ import annotations
 
+from importlib.metadata import PackageNotFoundError, version
+
 import gymnasium
 
 from priqn.objectives import OBJECTIVES
 
-__version__ = "0.1.0"
+try:  # the one place the version is typed is pyproject.toml
+    __version__ = version("priqn")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
 __all__ = ["OBJECTIVES", "__version__"]
 
 if "priqn/Intersection-v0" not in gymnasium.registry:

@@ -13,6 +13,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from priqn import __version__
 from priqn.errors import PriqnError
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -43,7 +44,7 @@ def _top_parser() -> argparse.ArgumentParser:
         + "\n\nRun 'priqn COMMAND --help' for a command's options.",
     )
     parser.add_argument("command", choices=sorted(COMMANDS), metavar="COMMAND")
-    parser.add_argument("--version", action="version", version="priqn 0.1.0")
+    parser.add_argument("--version", action="version", version=f"priqn {__version__}")
     return parser
 
 

@@ -40,6 +40,7 @@ from priqn.sim.scenario import family_net_refs
 from priqn.timing import SectionClock
 from priqn.train_config import (
     NETS,
+    PRESETS,
     ExplorationConfig,
     TrainConfig,
     build_network,
@@ -592,7 +593,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--agent", help="iqn | ensemble-iqn | ma-iqn | pr-iqn (default pr-iqn)")
     parser.add_argument("--seed", type=int, help="master seed (default 0)")
     parser.add_argument(
-        "--preset", default="default", help="default (CPU, 64 px) | paper (128 px, GPU)"
+        "--preset",
+        default="default",
+        help=f"{' | '.join(PRESETS)} (priqn/presets/train_<name>.toml; default: default)",
     )
     parser.add_argument("--steps", type=int, help="training budget in env decisions (total_steps)")
     parser.add_argument("--config", metavar="FILE", help="TOML file merged over the preset")

@@ -263,3 +263,47 @@ def test_good_commands_pass() -> None:
     commands += [("x", argv) for _, argv in inline_commands(text)]
     assert len(commands) == 7
     assert not check(commands)
+
+
+# ------------------------------------------------------------- what ships, in help
+
+
+def _help(verb: str) -> str:
+    parser, _ = _parser([verb])
+    return " ".join(parser.format_help().split())
+
+
+def test_sweep_help_lists_every_shipped_experiment() -> None:
+    from priqn.paths import EXPERIMENTS, shipped
+
+    names = sorted(p.stem for p in shipped(EXPERIMENTS).glob("*.toml"))
+    assert {"headline", "table2", "smoke"} <= set(names)
+    assert ", ".join(names) in _help("sweep")
+
+
+def test_train_help_lists_every_preset() -> None:
+    from priqn.train_config import PRESETS
+
+    assert "right-of-way" in PRESETS
+    assert " | ".join(PRESETS) in _help("train")
+
+
+# ---------------------------------------------------------------------- version
+
+
+def test_one_version_everywhere() -> None:
+    """pyproject.toml types it; the package, ``priqn --version`` and the changelog read it."""
+    import tomllib
+    from importlib.metadata import version
+
+    import priqn
+
+    typed = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert version("priqn") == priqn.__version__ == typed, "reinstall: pip install -e ."
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        cli._top_parser().parse_args(["--version"])
+    assert out.getvalue().strip() == f"priqn {typed}"
+    changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
+    releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", changelog, re.M)
+    assert releases and releases[0] == typed, "CHANGELOG.md's newest release is the version"
