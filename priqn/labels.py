@@ -119,6 +119,14 @@ def near_greedy(label: PolicyLabel, eps: float) -> PolicyLabel:
     return dataclasses.replace(label, extra=(*label.extra, "near-greedy", f"ε={eps:g}"))
 
 
+def at_budget(label: PolicyLabel, budget: int) -> PolicyLabel:
+    """``label``'s policy as kept at ``budget`` decisions (an ``eval-at<N>/`` evaluation of
+    ``checkpoint.keep_at``): the same row with ``@60k`` (or ``@<N>``) appended, so each
+    budget is a row of its own."""
+    word = f"@{budget // 1000}k" if budget % 1000 == 0 else f"@{budget}"
+    return dataclasses.replace(label, extra=(*label.extra, word))
+
+
 def _missing_to_none(value: Any) -> Any:
     if value is None or value == "" or (isinstance(value, float) and math.isnan(value)):
         return None

@@ -367,6 +367,30 @@ def test_control_evaluations_are_their_own_rows(runs, tmp_path) -> None:
     assert load_evaluation(runs, partial=True).left_out == ("pr_s0/eval-other",)
 
 
+def test_kept_snapshots_are_rows_of_their_budget(runs, tmp_path) -> None:
+    """eval-at<N>/ (the policy a run kept at N decisions, checkpoint.keep_at) is a row of
+    its own, labelled with its budget, whatever label its episode table carries."""
+    for seed in (0, 1):
+        write_run(
+            runs,
+            f"pr_s{seed}",
+            "Pr-IQN QD ✓ 0.2 ✗",
+            PR,
+            seed,
+            iqn_value,
+            eval_dir_name="eval-at60000",
+        )
+    ev = load_evaluation(runs)
+    assert "pr_s0/eval-at60000" in [r.name for r in ev.runs]
+    assert tables.policy_order(ev.episodes) == [
+        "IQN",
+        "Pr-IQN QD ✓ 0.2 ✗",
+        "Pr-IQN QD ✓ 0.2 ✗ @60k",
+    ]
+    means = ev.episodes.groupby("label")["success"].mean()
+    assert means["Pr-IQN QD ✓ 0.2 ✗ @60k"] == means["IQN"]  # its own episodes (iqn_value)
+
+
 def test_partial_report_with_nothing_evaluated_is_one_line(tmp_path) -> None:
     (tmp_path / "grid" / "cell").mkdir(parents=True)
     (tmp_path / "grid" / "cell" / "config.toml").write_text("")

@@ -18,9 +18,9 @@ import pandas as pd
 
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import episode_columns, is_nets_evaluation
+from priqn.evaluate import episode_columns, is_nets_evaluation, snapshot_budget
 from priqn.io import read_json
-from priqn.labels import CONFIG_COLUMNS
+from priqn.labels import CONFIG_COLUMNS, PolicyLabel, at_budget
 from priqn.objectives import OBJECTIVES, names_in_columns
 from priqn.runs import RunFolder, Status
 
@@ -201,6 +201,9 @@ def read_evaluation(
     holdout = str(meta.get("holdout_hash"))
     if str(frame["holdout_hash"].iloc[0]) != holdout:
         raise PriqnError(f"{csv}: holdout_hash differs from {meta_path}")
+    budget, _ = snapshot_budget(eval_dir.name.removeprefix(f"{RunFolder.EVAL}-"))
+    if budget and eval_dir.name != RunFolder.EVAL:  # a kept snapshot: its budget is in its row
+        frame["label"] = at_budget(PolicyLabel.from_row(frame.iloc[0]), budget).render()
     frame["run"] = name
     info = RunInfo(
         name=name,
