@@ -214,7 +214,7 @@ def make_env(*args: Any, **kwargs: Any):  # noqa: ANN201 - returns an Intersecti
 
 
 # IntersectionEnv.metadata: gymnasium.make reads the render modes before it makes the env.
-make_env.metadata = {"render_modes": ["rgb_array"], "render_fps": 2}  # type: ignore[attr-defined]
+make_env.metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 2}  # type: ignore[attr-defined]
 
 GYMNASIUM_SYNC_REFUSED = (
     "gymnasium.make_vec('priqn/Intersection-v0', vectorization_mode='sync') cannot run this "
