@@ -122,6 +122,17 @@ def test_the_gui_episode_is_the_libsumo_episode(recorded):
     assert int(gui["steps"]) == ref["steps"] and gui["outcome"] == ref["outcome"]
     got = np.array([gui[f"return_{o}"] for o in OBJECTIVES], dtype=np.float32)
     np.testing.assert_array_equal(got, np.array(ref["returns"], dtype=np.float32))
+    # ... and it is the episode priqn evaluate scored for this cell.
+    table = pd.read_csv(CELL / "eval" / "episodes.csv")
+    row = table[
+        (table["net"] == SCENE[1])
+        & (table["density"] == float(SCENE[3]))
+        & (table["eval_run"] == int(SCENE[5]))
+        & (table["episode"] == 0)
+    ].iloc[0]
+    assert int(row["steps"]) == int(gui["steps"])
+    for o in OBJECTIVES:
+        assert gui[f"return_{o}"] == pytest.approx(row[f"return_{o}"], abs=1e-5), o
 
 
 @pytest.mark.slow

@@ -338,7 +338,7 @@ class GuiView:
             sim.poi.setPosition("priqn.target", x, y)
         else:
             sim.poi.add("priqn.target", x, y, TARGET_COLOUR, layer=111, width=1.6, height=1.6)
-        self.label(f"{text} | {self.note}" if self.note else text, action=text, **self.params)
+        self.label(f"{text}; {self.note}" if self.note else text, action=text, **self.params)
 
     def label(self, text: str, **params: str) -> None:
         """Text shown above the ego (a POI's type, drawn by the view scheme); ``params``
