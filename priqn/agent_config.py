@@ -22,6 +22,8 @@ COMPARATOR_NAMES: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd
 ``priqn.preorder.COMPARATOR_FUNCTIONS``)."""
 PREORDER_PRESETS: tuple[str, ...] = ("total", "partial", "right-of-way")
 """Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
+COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
+"""Values of ``learner.compile`` (``priqn.agents.learner.resolve_compile``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,8 +136,14 @@ class LearnerConfig:
     """Clip the global gradient norm to this value (0 = no clipping)."""
     autocast_bf16: bool = False
     """Run the network's forward passes in bfloat16 autocast (loss, targets and subsets stay float32); faster on CPUs with bf16 support, see docs/implementation-details.md."""
+    compile: str = "auto"
+    """torch.compile the update (target forward; online forward, loss and backward; CUDA graphs on CUDA): auto (on for CUDA where Triton is installed, off on CPU, where it did not pay on this project's 2-core CPU: docs/implementation-details.md §12), on, or off (the eager update, bit for bit)."""
 
     def __post_init__(self) -> None:
+        if self.compile not in COMPILE_MODES:
+            raise ValueError(
+                f"compile: unknown {self.compile!r} (valid: {', '.join(COMPILE_MODES)})"
+            )
         gammas = self.gamma if isinstance(self.gamma, tuple) else (self.gamma,)
         if not gammas:  # the length against the run's objectives: TrainConfig
             raise ValueError("gamma: expected one number or one per objective")

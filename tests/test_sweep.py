@@ -1285,3 +1285,127 @@ def test_explain_design_reaches_every_seed_at_every_budget(tmp_path: Path) -> No
         str(exp.cell_at("pr-iqn-qd-tp-eps0.2", 4, 60000)[1])
         == "results/headline/pr-iqn-qd-tp-eps0.2__seed4"
     )
+
+
+# --------------------------------------------------------------------------- GPU shares (local)
+
+GPU_CELLS = '''
+"""A cell body that records its CUDA_VISIBLE_DEVICES and when it ran."""
+import os
+import time
+
+from priqn.io import atomic_write_json
+
+
+def gpu(cell):
+    start = time.time()
+    time.sleep(1.5)  # long enough that the pool's cells overlap
+    out = cell.run_dir.parent / "gpu-calls"
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(
+        out / f"{cell.policy}-seed{cell.seed}.json",
+        {"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": start, "end": time.time()},
+    )
+    atomic_write_json(cell.run_dir / "meta.json", {"status": "complete", "seed": cell.seed})
+    atomic_write_json(cell.run_dir / "eval" / "meta.json", {"status": "complete"})
+'''
+
+
+def _most_at_once(spans: list[tuple[float, float]]) -> int:
+    events = sorted([(s, 1) for s, _ in spans] + [(e, -1) for _, e in spans])
+    now = best = 0
+    for _, step in events:
+        now += step
+        best = max(best, now)
+    return best
+
+
+def test_gpu_shares_bound_and_spread_local_cells() -> None:
+    from priqn.experiment import ResourceSpec
+    from priqn.sweep.backends import GpuShares, local_slots
+
+    quarter = GpuShares(["0", "1"], 0.25)
+    assert quarter.capacity == 8
+    assert [quarter.acquire() for _ in range(4)] == ["0", "1", "0", "1"]  # spread
+    quarter.release("0")
+    assert quarter.acquire() == "0"
+    assert GpuShares(["0", "1", "2"], 1 / 3).capacity == 9  # rounding: 3 a GPU, not 2
+    assert GpuShares(["4", "5", "6"], 2).capacity == 1  # groups of two whole GPUs
+    assert GpuShares(["4", "5", "6", "7"], 2).acquire() == "4,5"
+    res = ResourceSpec(cpus_per_cell=2, gpus_per_cell=0.5)
+    assert local_slots(res, 16, GpuShares(["0"], 0.5)) == 2  # the GPU bounds
+    assert local_slots(res, 16, GpuShares(["0", "1", "2", "3", "4", "5"], 0.5)) == 8  # CPUs
+    assert local_slots(res, 16, None) == 8
+    for ids, share, message in (
+        ([], 0.5, "no CUDA GPU torch can see"),
+        (["0"], 1.5, "expected a whole number"),
+        (["0"], 2, "has 1 GPU"),
+    ):
+        with pytest.raises(PriqnError, match=message):
+            GpuShares(ids, share)
+
+
+def test_local_sweep_pins_cells_to_gpu_shares(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two faked GPUs at 0.5 a cell and 8 cores: 4 cells at a time (not 8), 2 per GPU,
+    each cell's child sees only its GPU."""
+    from priqn.sweep import backends
+
+    mod_dir = tmp_path / "mods"
+    mod_dir.mkdir()
+    (mod_dir / "gpucells.py").write_text(GPU_CELLS)
+    monkeypatch.setenv(
+        "PYTHONPATH", os.pathsep.join([str(mod_dir), os.environ.get("PYTHONPATH", "")])
+    )
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    monkeypatch.setattr(backends, "gpu_count", lambda: 2)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
+    path = write_experiment(tmp_path, ["a", "b"], [0, 1, 2, 3])
+    path.write_text(path.read_text().replace("cpus_per_cell = 1", "gpus_per_cell = 0.5"))
+    exp = load_experiment(path)
+    assert exp.resources.gpus_per_cell == 0.5
+    assert default_jobs(exp.resources) == 4
+    messages: list[str] = []
+    res = run_sweep(exp, cell_fn="gpucells:gpu", report=False, progress=False, log=messages.append)
+    assert len(res.completed) == 8 and not res.failed
+    assert "4 cell(s) at a time, 0.5 GPU each on 2 GPU(s)" in messages[0]
+    calls = [json.loads(p.read_text()) for p in (exp.runs_dir / "gpu-calls").iterdir()]
+    assert len(calls) == 8
+    by_gpu: dict[str, list[tuple[float, float]]] = {}
+    for c in calls:
+        by_gpu.setdefault(c["gpu"], []).append((c["start"], c["end"]))
+    assert set(by_gpu) == {"0", "1"}  # every cell pinned to one GPU, both GPUs used
+    assert _most_at_once([span for spans in by_gpu.values() for span in spans]) <= 4
+    assert all(_most_at_once(spans) <= 2 for spans in by_gpu.values())
+
+
+def test_local_sweep_ignores_gpu_shares_without_a_gpu(
+    tmp_path: Path, fake_cells: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """table2.toml asks for a GPU a cell (for Ray); a CPU machine still runs it locally."""
+    from priqn.sweep import backends
+
+    monkeypatch.setattr(backends, "gpu_count", lambda: 0)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    path = write_experiment(tmp_path, ["ok"], [0])
+    exp = load_experiment(path, gpus_per_cell=1.0)
+    assert default_jobs(exp.resources) == 2
+    messages: list[str] = []
+    res = run_sweep(exp, cell_fn=fake_cells, report=False, progress=False, log=messages.append)
+    assert res.completed == ["fake/ok__seed0"]
+    assert any("torch sees no CUDA GPU here: cells run on the CPU" in m for m in messages)
+
+
+def test_bench_sweep_scaling_arithmetic_and_cells_option() -> None:
+    from priqn.bench.sweep import aggregate_rate, parse_cells, scaling_ratios
+
+    assert parse_cells("2") == [2]
+    assert parse_cells("8,2,4") == [1, 2, 4, 8]  # one cell alone is the baseline
+    for bad in ("0", "x", "", "1,-2"):
+        with pytest.raises(PriqnError, match=f"--cells {bad}: expected"):
+            parse_cells(bad)
+    assert aggregate_rate([100.0, 80.0]) == pytest.approx(180.0)
+    assert aggregate_rate([100.0, None]) is None
+    assert scaling_ratios([100.0, 180.0, None]) == [1.0, 1.8, None]
+    assert scaling_ratios([None, 5.0]) == [None, None]

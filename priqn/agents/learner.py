@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import copy
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import torch
 
-from priqn.agent_config import LearnerConfig
+from priqn.agent_config import COMPILE_MODES, LearnerConfig
 from priqn.agents.loss import quantile_huber_loss
 from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
+from priqn.errors import PriqnError
 
 
 def make_adam(params: Any, lr: float, eps: float, device: torch.device) -> torch.optim.Adam:
@@ -42,8 +43,84 @@ def _own_group(quantiles_BHTA: torch.Tensor, groups: int) -> torch.Tensor:
     return torch.diagonal(blocks, dim1=1, dim2=2).permute(0, 3, 1, 2)
 
 
+COMPILE_AUTO_DEVICES: tuple[str, ...] = ("cuda",)
+"""Device types where ``learner.compile = "auto"`` compiles the update. Not ``cpu``: on
+this project's 2-core AMD EPYC the compiled update was no faster than the eager one
+(``priqn bench train --compile``; docs/implementation-details.md §12). On CUDA an eager
+update at batch 32 is launch-bound (5-7 ms on an H200 whatever the resolution), which is
+what CUDA graphs remove (LeanRL: 2.7-6.8x on an H100 for CleanRL's updates)."""
+
+
+def has_compiler(device: torch.device) -> bool:
+    """Whether torch.compile's default back-end can build kernels for ``device`` here
+    (Triton for CUDA; the CPU back-end needs a C++ compiler, which is not checked)."""
+    if device.type == "cuda":
+        try:
+            from torch.utils._triton import has_triton
+        except ImportError:
+            return False
+        return bool(has_triton())
+    return device.type == "cpu"
+
+
+def resolve_compile(setting: str, device: torch.device) -> bool:
+    """``learner.compile`` on ``device``: True to compile the update.
+
+    ``"auto"`` compiles on the device types of :data:`COMPILE_AUTO_DEVICES` where a
+    compiler is available; ``"on"`` always (a missing compiler is a one-line error);
+    ``"off"`` never (the eager update, bit for bit).
+    """
+    if setting not in COMPILE_MODES:
+        raise PriqnError(
+            f"learner.compile: unknown {setting!r} (valid: {', '.join(COMPILE_MODES)})"
+        )
+    if setting == "off":
+        return False
+    if setting == "auto":
+        return device.type in COMPILE_AUTO_DEVICES and has_compiler(device)
+    if not has_compiler(device):
+        raise PriqnError(
+            f"learner.compile = 'on': torch.compile has no back-end for {device.type} here "
+            "(CUDA needs the triton package); set learner.compile = 'auto' or 'off'"
+        )
+    return True
+
+
+def _online_loss(
+    online: torch.nn.Module,
+    obs: Mapping[str, torch.Tensor],
+    taus_BGN: torch.Tensor,
+    action_B: torch.Tensor,
+    target_BHNp: torch.Tensor,
+    kappa: float,
+    bf16: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Online quantiles at the sampled τ → (loss, predicted quantiles ``[B, H, N]``).
+
+    The part of an update that needs gradients; :class:`Learner` runs it as it is (eager)
+    or compiled (``learner.compile``), with the same operations in the same order.
+    """
+    B, G, N = taus_BGN.shape
+    H = target_BHNp.shape[1]
+    with torch.autocast(taus_BGN.device.type, torch.bfloat16, enabled=bf16):
+        quantiles_BHNA = _own_group(online(obs, taus_BGN.reshape(B, G * N)).float(), G)
+    pred_BHN = quantiles_BHNA.gather(3, action_B[:, None, None, None].expand(B, H, N, 1))
+    pred_BHN = pred_BHN.squeeze(3)
+    taus_BHN = taus_BGN.expand(B, H, N)
+    loss_BH = quantile_huber_loss(pred_BHN, target_BHNp, taus_BHN, kappa)
+    # Heads are independent learners on one encoder: sum over heads, mean over batch.
+    return loss_BH.mean(dim=0).sum(), pred_BHN
+
+
 class Learner:
-    """Online + target network, Adam, and one IQN update per :meth:`update` call."""
+    """Online + target network, Adam, and one IQN update per :meth:`update` call.
+
+    With ``cfg.compile`` resolving to on (:func:`resolve_compile`), the target network's
+    forward pass and the online forward + loss (and so its backward) run through
+    ``torch.compile`` — mode ``"reduce-overhead"`` (CUDA graphs) on CUDA. τ are drawn
+    eagerly from the same generator either way, and the target rules (Algorithm 1 for
+    Pr-IQN), Adam and gradient clipping stay eager.
+    """
 
     def __init__(
         self,
@@ -63,6 +140,14 @@ class Learner:
         self.tau_generator.manual_seed(int(tau_seed))
         self.grid_K = tau_grid(cfg.num_quantiles, device)
         self.updates = 0
+        self.compiled = resolve_compile(cfg.compile, device)
+        """Whether the update runs compiled (``cfg.compile`` resolved on ``device``)."""
+        self._target_forward: Callable[..., torch.Tensor] = self.target
+        self._loss: Callable[..., tuple[torch.Tensor, torch.Tensor]] = _online_loss
+        if self.compiled:
+            mode = "reduce-overhead" if device.type == "cuda" else None
+            self._target_forward = torch.compile(self.target, mode=mode, dynamic=False)
+            self._loss = torch.compile(_online_loss, mode=mode, dynamic=False)
 
     def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats.
@@ -85,12 +170,14 @@ class Learner:
         G = H if self.agent.spec.own_taus else 1
         taus_BGN = torch.rand(B, G, N, generator=self.tau_generator, device=dev)
         taus_prime_BGNp = torch.rand(B, G, Np, generator=self.tau_generator, device=dev)
+        if self.compiled and dev.type == "cuda":
+            torch.compiler.cudagraph_mark_step_begin()  # last update's graph outputs are free
 
         with torch.no_grad(), self._autocast():
             # One target-network pass: N' sampled τ' for the loss + the fixed K grid for
             # the target rule (argmax / optimal subsets); the encoder runs once.
             taus_next = torch.cat([taus_prime_BGNp.reshape(B, G * Np), self.grid_K.expand(B, K)], 1)
-            next_BHTA = self.target(next_obs, taus_next).float()
+            next_BHTA = self._run(self._target_forward, next_obs, taus_next).float()
             next_BHNpA = _own_group(next_BHTA[:, :, : G * Np], G)
             next_grid_BHKA = next_BHTA[:, :, G * Np :]
             subsets = self.agent.subsets
@@ -103,14 +190,10 @@ class Learner:
             discount_BH = self.agent.head_discounts(discount_B5)
             target_BHNp = reward_BH[:, :, None] + discount_BH[:, :, None] * next_BHNp
 
-        with self._autocast():
-            quantiles_BHNA = _own_group(self.online(obs, taus_BGN.reshape(B, G * N)).float(), G)
-        pred_BHN = quantiles_BHNA.gather(3, action_B[:, None, None, None].expand(B, H, N, 1))
-        pred_BHN = pred_BHN.squeeze(3)
-        taus_BHN = taus_BGN.expand(B, H, N)
-        loss_BH = quantile_huber_loss(pred_BHN, target_BHNp, taus_BHN, cfg.kappa)
-        # Heads are independent learners on one encoder: sum over heads, mean over batch.
-        loss = loss_BH.mean(dim=0).sum()
+        loss, pred_BHN = self._run(
+            self._loss, self.online, obs, taus_BGN, action_B, target_BHNp, cfg.kappa,
+            cfg.autocast_bf16,
+        )  # fmt: skip
 
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -126,6 +209,21 @@ class Learner:
             sizes = subsets.last.sizes() if self.agent.spec.target_rule == "optimal-subset" else {}
             stats.update({f"subset_size/{k}": v for k, v in sizes.items()})
         return stats
+
+    def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)``; a compiled ``fn`` that fails to build is one line naming the fix."""
+        if not self.compiled:
+            return fn(*args)
+        try:
+            return fn(*args)
+        except Exception as exc:  # torch._dynamo.exc.BackendCompilerFailed and kin
+            if "dynamo" not in type(exc).__module__ and "inductor" not in type(exc).__module__:
+                raise
+            line = next((ln for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
+            raise PriqnError(
+                f"learner.compile: torch.compile failed on {self.device.type} ({line}); "
+                "set learner.compile = 'off'"
+            ) from exc
 
     def _autocast(self) -> Any:
         """bfloat16 autocast of the forward passes when ``autocast_bf16`` is set."""

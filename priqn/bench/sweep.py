@@ -9,6 +9,12 @@ last cell's end, gives cells per hour; the ratio concurrent / sequential says wh
 ``priqn sweep --jobs N`` (or ``[resources].cpus_per_cell``) should put more cells on this
 machine at once. The ratio, not the absolute figures, is the result: both modes run under
 the same machine load, in the same command.
+
+``--cells 1,2,4,8`` (a list) measures scaling instead: 1 cell alone, then 2 at a time, 4,
+8, and prints the aggregate decisions/s of each level (the sum of its cells' training-loop
+rates) as a ratio to one cell's. With ``--device cuda`` on several GPUs the cells are
+pinned round-robin (``CUDA_VISIBLE_DEVICES``); on one GPU they share it, which is what
+``[resources].gpus_per_cell = 1/n`` does in a local sweep.
 """
 
 from __future__ import annotations
@@ -56,6 +62,36 @@ def recommend_jobs(ratio: float, jobs: int, threshold: float = RECOMMEND_THRESHO
     """Cells at a time to use: ``jobs`` if ``ratio`` (concurrent / sequential) beats
     ``threshold``, else 1."""
     return jobs if ratio > threshold else 1
+
+
+def aggregate_rate(rates: list[float | None]) -> float | None:
+    """Decisions/s of cells that ran at once: the sum of their rates (None if one is missing)."""
+    if not rates or any(r is None for r in rates):
+        return None
+    return float(sum(r for r in rates if r is not None))
+
+
+def scaling_ratios(aggregates: list[float | None]) -> list[float | None]:
+    """Each level's aggregate decisions/s over the first level's (one cell alone)."""
+    base = aggregates[0] if aggregates else None
+    if base is None or base <= 0:
+        return [None] * len(aggregates)
+    return [None if a is None else a / base for a in aggregates]
+
+
+def parse_cells(text: str) -> list[int]:
+    """``--cells``: one count (``2``) or a list of levels (``1,2,4,8``; 1 is put first)."""
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        raise PriqnError(
+            f"--cells {text}: expected a positive number of cells or a list such as 1,2,4,8"
+        )
+    if len(counts) == 1:
+        return counts
+    return sorted(set(counts) | {1})
 
 
 def usable_cores() -> int:
@@ -130,9 +166,11 @@ def run_cells(
     logs: list[Path],
     jobs: int,
     on_done: Callable[[int, float], None] | None = None,
+    envs: list[dict[str, str]] | None = None,
 ) -> tuple[float, list[float]]:
     """Run ``commands`` ``jobs`` at a time, in order, each in its own process group with its
-    output in ``logs[i]``; returns (wall clock of the whole batch, each command's elapsed s).
+    output in ``logs[i]`` and ``envs[i]`` added to its environment; returns (wall clock of
+    the whole batch, each command's elapsed s).
 
     ``on_done(i, elapsed_s)`` is called as each command ends. A command that fails stops
     the others and raises :class:`PriqnError` naming its log; Ctrl-C stops them all.
@@ -153,7 +191,7 @@ def run_cells(
                     stdout=fh,
                     stderr=subprocess.STDOUT,
                     stdin=subprocess.DEVNULL,
-                    env=env,
+                    env={**env, **(envs[i] if envs else {})},
                     start_new_session=True,  # its env workers form one group with it
                 )
                 running[i] = (proc, time.perf_counter(), fh)
@@ -199,8 +237,11 @@ def measure_mode(
     net: str,
     steps: int,
     device: str,
+    gpus: list[str] | None = None,
 ) -> dict[str, Any]:
-    """Run ``cells`` benchmark cells ``jobs`` at a time into ``root/mode``; their timings."""
+    """Run ``cells`` benchmark cells ``jobs`` at a time into ``root/mode``; their timings.
+
+    ``gpus``: cell i sees only ``gpus[i % len(gpus)]`` (``CUDA_VISIBLE_DEVICES``)."""
     runs_dir = root / mode
     commands = [
         train_command(runs_dir, f"cell{i}", i, agent, net, steps, device) for i in range(cells)
@@ -220,7 +261,8 @@ def measure_mode(
         )
 
     print(f"{mode}: {cells} cells, {jobs} at a time ...", file=sys.stderr, flush=True)
-    wall_s, elapsed = run_cells(commands, logs, jobs, done)
+    envs = [{"CUDA_VISIBLE_DEVICES": gpus[i % len(gpus)]} for i in range(cells)] if gpus else None
+    wall_s, elapsed = run_cells(commands, logs, jobs, done, envs)
     runs = [CellRun(i, elapsed[i], _decisions_per_s(runs_dir / f"cell{i}")) for i in range(cells)]
     return {
         "mode": mode,
@@ -242,7 +284,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--steps", type=int, default=4000, help="training decisions per cell (default 4000)"
     )
-    parser.add_argument("--cells", type=int, default=2, help="cells per mode (default 2)")
+    parser.add_argument(
+        "--cells",
+        default="2",
+        help="cells per mode (default 2), or a list such as 1,2,4,8: that many at a time, "
+        "aggregate decisions/s against one cell",
+    )
     parser.add_argument("--agent", default="iqn", help="agent every cell trains (default iqn)")
     parser.add_argument("--net", default="tjunction", help="training pool (default tjunction)")
     parser.add_argument(
@@ -255,10 +302,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
 
 
-def _check(args: argparse.Namespace) -> None:
-    """One-line errors for options that cannot measure anything."""
+def _check(args: argparse.Namespace) -> list[int]:
+    """One-line errors for options that cannot measure anything; the ``--cells`` counts."""
     if args.steps < 1:
         raise PriqnError(f"--steps {args.steps}: expected a positive number of decisions")
+    counts = parse_cells(str(args.cells))
+    if len(counts) > 1:
+        return counts
+    args.cells = counts[0]
     if args.jobs < 2:
         raise PriqnError(f"--jobs {args.jobs}: expected 2 or more (1 is the baseline mode)")
     if args.cells < args.jobs:
@@ -266,6 +317,7 @@ def _check(args: argparse.Namespace) -> None:
             f"--cells {args.cells}: expected at least --jobs ({args.jobs}) cells, "
             "else the concurrent mode never runs that many at a time"
         )
+    return counts
 
 
 def run(args: argparse.Namespace) -> int:
@@ -273,7 +325,9 @@ def run(args: argparse.Namespace) -> int:
     from priqn.experiment import ResourceSpec
     from priqn.sweep.scheduler import default_jobs
 
-    _check(args)
+    counts = _check(args)
+    if len(counts) > 1:
+        return run_scaling(args, counts)
     cores = usable_cores()
     print(
         f"priqn bench sweep: {args.cells} {args.agent} cells on {args.net}, {args.steps} "
@@ -332,6 +386,86 @@ def run(args: argparse.Namespace) -> int:
                     "concurrent": conc,
                     "ratio": ratio,
                     "recommended_jobs": best,
+                },
+                indent=2,
+            )
+            + "\n"
+        )
+    return 0
+
+
+def _cell_gpus(device: str) -> list[str] | None:
+    """GPU ids to pin scaling cells to round-robin: None off CUDA or with one GPU."""
+    if not device.startswith("cuda") or ":" in device:
+        return None
+    from priqn.sweep.backends import visible_gpus
+
+    ids = visible_gpus()
+    return ids if len(ids) > 1 else None
+
+
+def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
+    """``--cells 1,2,4,...``: each level's cells at once; aggregate decisions/s vs one cell."""
+    cores = usable_cores()
+    gpus = _cell_gpus(args.device)
+    pinned = f", pinned round-robin to GPUs {','.join(gpus)}" if gpus else ""
+    print(
+        f"priqn bench sweep: {args.agent} cells on {args.net}, {args.steps} decisions each "
+        f"(default preset, no evaluation), {', '.join(map(str, counts))} at a time on device "
+        f"{args.device}{pinned}; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
+        flush=True,
+    )
+    root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
+    keep = args.keep
+    try:
+        levels = [
+            measure_mode(root, f"x{n}", n, n, args.agent, args.net, args.steps, args.device, gpus)
+            for n in counts
+        ]
+    except PriqnError:
+        keep = True
+        raise
+    finally:
+        if keep:
+            print(f"runs folder kept: {root}", file=sys.stderr)
+        else:
+            shutil.rmtree(root, ignore_errors=True)
+    aggregates = [aggregate_rate([c["decisions_per_s"] for c in m["cells"]]) for m in levels]
+    ratios = scaling_ratios(aggregates)
+    print(
+        f"{'cells':>5} {'wall s':>8} {'cells/h':>8} {'decisions/s':>12} {'per cell':>9} {'x one cell':>11}"
+    )
+    for n, m, agg, ratio in zip(counts, levels, aggregates, ratios, strict=True):
+        m["aggregate_decisions_per_s"], m["ratio"] = agg, ratio
+        per = "-" if agg is None else f"{agg / n:.1f}"
+        print(
+            f"{n:>5} {m['wall_s']:>8.1f} {m['cells_per_hour']:>8.1f} "
+            f"{'-' if agg is None else f'{agg:.1f}':>12} {per:>9} "
+            f"{'-' if ratio is None else f'{ratio:.2f}x':>11}"
+        )
+    best = max(
+        (i for i in range(len(counts)) if aggregates[i] is not None),
+        key=lambda i: aggregates[i] or 0.0,
+        default=None,
+    )
+    if best is not None:
+        n = counts[best]
+        share = (
+            f"; in a local sweep: gpus_per_cell = {len(gpus or [0]) / n:.3g}"
+            if args.device.startswith("cuda")
+            else ""
+        )
+        print(f"most decisions/s: {n} cell(s) at a time ({ratios[best]:.2f}x one cell){share}")
+    if args.json is not None:
+        args.json.write_text(
+            json.dumps(
+                {
+                    "agent": args.agent,
+                    "net": args.net,
+                    "steps": args.steps,
+                    "device": args.device,
+                    "cores": cores,
+                    "levels": levels,
                 },
                 indent=2,
             )

@@ -5,6 +5,11 @@ observation size and network, for every agent asked for, and prints each agent's
 per update as a ratio to IQN's (the issue's target: Pr-IQN ≤ 1.5× IQN). Part 2 runs the
 real training loop (vector env workers + learning) for a short budget in a temporary
 run folder and reports env decisions/s and updates/s end to end.
+
+``--compile`` times every agent twice in part 1, eager (``learner.compile = "off"``) and
+compiled (``"on"``: torch.compile, CUDA graphs on CUDA), taking turns in the same rounds
+on the same device, and prints compiled / eager; ``learner.compile = "auto"`` follows what
+this measured (docs/implementation-details.md §12).
 """
 
 from __future__ import annotations
@@ -52,6 +57,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also time every agent with learner.autocast_bf16 on (part 1)",
     )
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="also time every agent with learner.compile on, beside eager (part 1)",
+    )
 
 
 def _obs_space(cfg: Any) -> Any:
@@ -85,14 +95,24 @@ def _synthetic_batch(space: Any, batch: int, rng: np.random.Generator) -> dict[s
 
 
 def _make_learner(
-    preset: str, agent_name: str, batch_size: int, device: str, bf16: bool = False
+    preset: str,
+    agent_name: str,
+    batch_size: int,
+    device: str,
+    bf16: bool = False,
+    compiled: bool = False,
 ) -> tuple[Any, Any]:
     from priqn.agents.learner import Learner
     from priqn.agents.registry import make_agent
     from priqn.train_config import build_network, resolve_config, select_device
 
     cfg = resolve_config(preset=preset, agent=agent_name)
-    learner_cfg = dataclasses.replace(cfg.learner, batch_size=batch_size, autocast_bf16=bf16)
+    learner_cfg = dataclasses.replace(
+        cfg.learner,
+        batch_size=batch_size,
+        autocast_bf16=bf16,
+        compile="on" if compiled else "off",
+    )
     cfg = dataclasses.replace(cfg, learner=learner_cfg)
     space, num_actions = _obs_space(cfg)
     dev = select_device(device)
@@ -110,7 +130,7 @@ def _make_learner(
         b = _synthetic_batch(space, batch_size, rng)
         b["action"] = rng.integers(0, num_actions, batch_size)
         batches.append(b)
-    for i in range(5):  # warm-up
+    for i in range(5):  # warm-up (compiled: builds the kernels, records the CUDA graphs)
         learner.update(batches[i % 4])
     return learner, (cfg, batches)
 
@@ -138,15 +158,23 @@ def updates_per_second(
     device: str,
     rounds: int = 3,
     bf16: bool = False,
+    compiled: bool = False,
 ) -> list[dict[str, Any]]:
     """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
 
     The cases take turns for ``rounds`` rounds of ``seconds / rounds`` each and the best
     round counts, so load from other processes hits all cases alike. ``bf16`` adds each
-    agent once more with ``learner.autocast_bf16`` on, right after its float32 case.
+    agent once more with ``learner.autocast_bf16`` on, right after its float32 case;
+    ``compiled`` adds each of those once more with ``learner.compile = "on"`` (the others
+    run with ``"off"``: eager whatever the device).
     """
-    cases = [(a, b) for a in agents for b in ((False, True) if bf16 else (False,))]
-    made = {c: _make_learner(preset, c[0], batch_size, device, bf16=c[1]) for c in cases}
+    cases = [
+        (a, b, c)
+        for a in agents
+        for b in ((False, True) if bf16 else (False,))
+        for c in ((False, True) if compiled else (False,))
+    ]
+    made = {c: _make_learner(preset, c[0], batch_size, device, c[1], c[2]) for c in cases}
     best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
         for c in cases:
@@ -160,6 +188,7 @@ def updates_per_second(
                 "preset": preset,
                 "agent": c[0],
                 "bf16": c[1],
+                "compiled": c[2],
                 "obs_px": cfg.env.obs_size_px,
                 "device": str(learner.device),
                 "updates_per_s": best[c],
@@ -244,6 +273,23 @@ def print_time_table(results: list[dict[str, Any]]) -> None:
         print(f"{what:<56}{''.join(cells)}")
 
 
+def compile_ratios(results: list[dict[str, Any]]) -> list[str]:
+    """One line per eager case that has a compiled twin: compiled / eager updates/s."""
+    by_case = {(r["agent"], r["bf16"], r["compiled"]): r for r in results}
+    lines = []
+    for (agent, bf16, compiled), eager in by_case.items():
+        twin = by_case.get((agent, bf16, True))
+        if compiled or twin is None:
+            continue
+        ratio = twin["updates_per_s"] / eager["updates_per_s"]
+        lines.append(
+            f"{agent}{' bf16' if bf16 else ''}: compiled / eager on {eager['device']}: "
+            f"{ratio:.2f}x updates/s ({eager['ms_per_update']:.2f} -> "
+            f"{twin['ms_per_update']:.2f} ms/update)"
+        )
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
@@ -257,20 +303,28 @@ def run(args: argparse.Namespace) -> int:
         f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start"
     )
     print(
-        f"{'preset':<8} {'px':>4} {'agent':<13} {'updates/s':>10} {'ms/update':>10} {'x ' + agents[0]:>10}"
+        f"{'preset':<8} {'px':>4} {'agent':<18} {'updates/s':>10} {'ms/update':>10} {'x ' + agents[0]:>10}"
     )
     for preset in presets:
         results = updates_per_second(
-            preset, agents, args.batch_size, args.seconds, args.device, bf16=args.bf16
+            preset,
+            agents,
+            args.batch_size,
+            args.seconds,
+            args.device,
+            bf16=args.bf16,
+            compiled=args.compile,
         )
         base = results[0]["ms_per_update"]
         for r in results:
-            name = f"{r['agent']} bf16" if r["bf16"] else r["agent"]
+            name = r["agent"] + (" bf16" if r["bf16"] else "") + (" comp" if r["compiled"] else "")
             print(
-                f"{preset:<8} {r['obs_px']:>4} {name:<13} {r['updates_per_s']:>10.1f} "
+                f"{preset:<8} {r['obs_px']:>4} {name:<18} {r['updates_per_s']:>10.1f} "
                 f"{r['ms_per_update']:>10.2f} {r['ms_per_update'] / base:>10.2f}",
                 flush=True,
             )
+        for line in compile_ratios(results):
+            print(f"{preset:<8} {line}", flush=True)
     if args.loop_steps > 0:
         print(
             f"\nend-to-end training loop (default preset, learning on: one update per "

@@ -7,10 +7,16 @@ becomes one Ray task declaring ``num_cpus`` / ``num_gpus`` from ``[resources]``;
 starts the child on whichever node Ray picks, so a cell never shares a process with
 libsumo from another cell. Results are the run folders the child writes under the runs
 folder (on a multi-node cluster: a shared filesystem path, docs/sweeps.md).
+
+Locally, ``gpus_per_cell > 0`` pins each cell to a share of one GPU (or to whole GPUs
+when it is 2 or more) through the child's ``CUDA_VISIBLE_DEVICES`` (:class:`GpuShares`),
+and the pool runs at most as many cells as the GPUs hold.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import socket
 import sys
 import threading
@@ -21,6 +27,105 @@ from typing import Any, Protocol
 from priqn.errors import PriqnError
 from priqn.experiment import ResourceSpec
 from priqn.sweep.process import _STOP_GRACE_S, run_cell_process
+
+# --------------------------------------------------------------------------- GPU shares
+
+
+def gpu_count() -> int:
+    """CUDA GPUs this process sees (0 without a CUDA build of torch); tests fake it."""
+    try:
+        import torch
+    except ImportError:  # pragma: no cover - torch is a dependency
+        return 0
+    return int(torch.cuda.device_count()) if torch.cuda.is_available() else 0
+
+
+def visible_gpus() -> list[str]:
+    """The ids a cell's ``CUDA_VISIBLE_DEVICES`` may name: this process's own
+    ``CUDA_VISIBLE_DEVICES`` entries if set, else ``0 .. gpu_count() - 1``."""
+    n = gpu_count()
+    mine = os.environ.get("CUDA_VISIBLE_DEVICES", "").strip()
+    if mine:
+        return [x.strip() for x in mine.split(",") if x.strip()][:n]
+    return [str(i) for i in range(n)]
+
+
+class GpuShares:
+    """Hands each local cell its GPU(s) as a ``CUDA_VISIBLE_DEVICES`` value.
+
+    ``per_cell <= 1``: every GPU holds ``floor(1 / per_cell)`` cells (0.25: four) and a
+    cell gets the GPU with the most free room (ties: the lowest id), so cells spread
+    over the GPUs. ``per_cell > 1`` must be a whole number k: the GPUs form
+    ``floor(n / k)`` groups of k, one cell per group. Thread-safe.
+    """
+
+    def __init__(self, ids: list[str], per_cell: float) -> None:
+        if per_cell <= 0:
+            raise PriqnError(f"[resources] gpus_per_cell = {per_cell:g}: expected > 0")
+        if not ids:
+            raise PriqnError(
+                f"[resources] gpus_per_cell = {per_cell:g} but this machine has no CUDA GPU "
+                "torch can see; set gpus_per_cell = 0 (or --gpus-per-cell 0) or use --ray"
+            )
+        if per_cell <= 1:
+            per_gpu = math.floor(1.0 / per_cell + 1e-9)
+            self._free = {gpu: per_gpu for gpu in ids}
+        else:
+            k = round(per_cell)
+            if abs(per_cell - k) > 1e-9:
+                raise PriqnError(
+                    f"[resources] gpus_per_cell = {per_cell:g}: above 1 a cell takes whole "
+                    "GPUs locally; expected a whole number"
+                )
+            if len(ids) < k:
+                raise PriqnError(
+                    f"[resources] gpus_per_cell = {k} but this machine has {len(ids)} GPU(s)"
+                )
+            self._free = {",".join(ids[i : i + k]): 1 for i in range(0, len(ids) - k + 1, k)}
+        self.per_cell = per_cell
+        self.num_gpus = len(ids)
+        self.capacity = sum(self._free.values())
+        """Cells the GPUs hold at once."""
+        self._order = list(self._free)
+        self._lock = threading.Lock()
+
+    def acquire(self) -> str:
+        """A free share: the ``CUDA_VISIBLE_DEVICES`` value for one cell."""
+        with self._lock:
+            gpu = max(self._order, key=lambda g: (self._free[g], -self._order.index(g)))
+            if self._free[gpu] < 1:
+                raise RuntimeError("GpuShares: no free GPU share (more cells than slots)")
+            self._free[gpu] -= 1
+            return gpu
+
+    def release(self, gpu: str) -> None:
+        """Give back a share from :meth:`acquire`."""
+        with self._lock:
+            self._free[gpu] += 1
+
+
+def local_slots(resources: ResourceSpec, cores: int, gpus: GpuShares | None = None) -> int:
+    """Cells at a time on one machine: ``max(1, cores // cpus_per_cell)``, and no more than
+    ``gpus`` holds (``floor(1 / gpus_per_cell)`` per GPU)."""
+    slots = max(1, int(cores // resources.cpus_per_cell))
+    return slots if gpus is None else max(1, min(slots, gpus.capacity))
+
+
+def _run_on_share(
+    shares: GpuShares | None,
+    spec: dict[str, Any],
+    log_path: Path,
+    stop: threading.Event,
+) -> tuple[int, str, bool]:
+    """One local cell on its GPU share (if any), released before the cell counts as done."""
+    if shares is None:
+        return run_cell_process(spec, log_path, stop)
+    gpu = shares.acquire()
+    try:
+        return run_cell_process({**spec, "cuda_visible_devices": gpu}, log_path, stop)
+    finally:
+        shares.release(gpu)
+
 
 # --------------------------------------------------------------------------- back-ends
 
@@ -48,18 +153,23 @@ class Backend(Protocol):
 
 
 class LocalBackend:
-    """Runs cells as child processes on this machine, ``jobs`` at a time."""
+    """Runs cells as child processes on this machine, ``jobs`` at a time; with ``gpus``,
+    each on its GPU share and no more at once than the GPUs hold."""
 
-    def __init__(self, jobs: int) -> None:
-        self.slots = max(1, jobs)
+    def __init__(self, jobs: int, gpus: GpuShares | None = None) -> None:
+        self.slots = max(1, jobs if gpus is None else min(jobs, gpus.capacity))
+        self._gpus = gpus
         self._stop = threading.Event()
         self._pool = futures.ThreadPoolExecutor(max_workers=self.slots, thread_name_prefix="cell")
 
     def describe(self) -> str:
-        return f"local pool, {self.slots} cell(s) at a time"
+        text = f"local pool, {self.slots} cell(s) at a time"
+        if self._gpus is not None:
+            text += f", {self._gpus.per_cell:g} GPU each on {self._gpus.num_gpus} GPU(s)"
+        return text
 
     def submit(self, spec: dict[str, Any], log_path: Path) -> futures.Future:
-        return self._pool.submit(run_cell_process, spec, log_path, self._stop)
+        return self._pool.submit(_run_on_share, self._gpus, spec, log_path, self._stop)
 
     def wait(self, handles: list[Any], timeout_s: float) -> list[tuple[Any, int, str, bool]]:
         done, _ = futures.wait(handles, timeout=timeout_s, return_when=futures.FIRST_COMPLETED)

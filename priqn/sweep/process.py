@@ -85,6 +85,8 @@ def run_cell_process(
         # `python -m` puts the working directory first on sys.path, ahead of PYTHONPATH:
         # a checkout there would shadow the snapshot (Python >= 3.11: PYTHONSAFEPATH).
         env["PYTHONSAFEPATH"] = "1"
+    if spec.get("cuda_visible_devices") is not None:  # the local pool's GPU share
+        env["CUDA_VISIBLE_DEVICES"] = str(spec["cuda_visible_devices"])
     spec = {**spec, "parent_pid": os.getpid()}
     log_path.parent.mkdir(parents=True, exist_ok=True)
     interrupted: BaseException | None = None

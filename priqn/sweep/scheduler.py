@@ -22,6 +22,7 @@ from typing import Any
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, ResourceSpec
 from priqn.io import atomic_write_json
+from priqn.sweep import backends
 from priqn.sweep.backends import Backend, LocalBackend, RayBackend
 from priqn.sweep.cells import Cell, expand
 from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
@@ -115,10 +116,20 @@ class SweepResult:
         return self.skipped + self.completed
 
 
+def gpu_shares(resources: ResourceSpec) -> backends.GpuShares | None:
+    """This machine's GPUs shared out ``gpus_per_cell`` a cell; None when that is 0 or
+    torch sees no CUDA GPU here (cells then run on the CPU, as before GPUs were shared)."""
+    if resources.gpus_per_cell <= 0:
+        return None
+    ids = backends.visible_gpus()
+    return backends.GpuShares(ids, resources.gpus_per_cell) if ids else None
+
+
 def default_jobs(resources: ResourceSpec) -> int:
-    """Cells at a time on this machine: ``max(1, cores // cpus_per_cell)``."""
+    """Cells at a time on this machine: ``max(1, cores // cpus_per_cell)``, and with
+    ``gpus_per_cell > 0`` no more than the GPUs hold (``floor(1 / gpus_per_cell)`` each)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, int((cores or 1) // resources.cpus_per_cell))
+    return backends.local_slots(resources, cores or 1, gpu_shares(resources))
 
 
 def run_sweep(
@@ -139,7 +150,9 @@ def run_sweep(
 
     ``use_ray`` runs cells as Ray tasks (``ray_address`` None: a new local Ray cluster;
     ``"auto"`` or an address: an existing one); otherwise a local pool of ``jobs``
-    child processes (default :func:`default_jobs`). ``only`` keeps cells whose name
+    child processes (default :func:`default_jobs`), each pinned to its GPU share when
+    ``[resources].gpus_per_cell > 0`` and a GPU is visible (``jobs`` is then capped by
+    what the GPUs hold). ``only`` keeps cells whose name
     matches one of the glob patterns. ``code_dir``: every cell's child runs the priqn
     found there (a snapshot worktree) instead of this one. A failing cell never stops the
     others.
@@ -166,7 +179,14 @@ def run_sweep(
             if use_ray:
                 backend: Backend = RayBackend(ray_address, exp.resources, jobs)
             else:
-                backend = LocalBackend(jobs or default_jobs(exp.resources))
+                shares = gpu_shares(exp.resources)
+                if shares is None and exp.resources.gpus_per_cell > 0:
+                    say(
+                        f"priqn sweep: warning: [resources] gpus_per_cell = "
+                        f"{exp.resources.gpus_per_cell:g} but torch sees no CUDA GPU here: "
+                        "cells run on the CPU"
+                    )
+                backend = LocalBackend(jobs or default_jobs(exp.resources), shares)
             say(
                 f"priqn sweep {exp.experiment.name}: {len(cells)} cells, "
                 f"{len(result.skipped)} already complete, {len(todo)} to run ({backend.describe()})"
