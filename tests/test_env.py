@@ -161,6 +161,9 @@ def _check_env() -> list[str]:
         "priqn/Intersection-v0", config=EnvConfig(obs_size_px=32), render_mode="rgb_array"
     )
     env = made.unwrapped
+    # check_env makes an env per listed render mode; "human" opens sumo-gui, which needs a
+    # display: tests/test_play.py checks that mode under Xvfb.
+    env.metadata = {**env.metadata, "render_modes": ["rgb_array"]}
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
