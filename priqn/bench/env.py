@@ -18,6 +18,12 @@ process, and a fresh process keeps the measurements independent):
    alone drifted by ±25 % on a shared machine).
 3. **vector** — ``make_vector_env`` with 1 and with 2 workers, total decisions/s.
 
+The sensors are also timed against their first implementation
+(:class:`~priqn.env.sensors_reference.ReferenceSensors`) on the same states: every
+``observe`` of a step is repeated by the reference, in alternating order (reference
+first on every other decision), outside the step's timing, and the two outputs are
+compared byte for byte (``sensors ref ms``, ``sensors mismatches``).
+
 Each density is measured ``--repeats`` times in fresh processes; the table shows the
 run with the median ``env/floor`` ratio (the env's cost over SUMO's own).
 """
@@ -94,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{'density':>7} {'env dec/s':>9} {'floor dec/s':>11} {'env/floor':>9} "
         f"{'reset ms':>8} {'episode ms':>10} {'dec/s incl. resets':>18} {'risk us/step':>12}"
-        "   env step ms = sumo + sensors + planner + risk + rest"
+        "   env step ms = sumo + sensors + planner + risk + rest   sensors: ref ms, new/ref"
     )
     for d in densities:
         runs = [
@@ -119,7 +125,10 @@ def run(args: argparse.Namespace) -> int:
             f"{ratio:>8.2f}x {env['reset_ms']:>8.1f} {ep['ms']:>10.1f} "
             f"{ep['decisions_per_s']:>18.1f} {env['risk_us_per_step']:>12.1f}   "
             f"{env['step_ms']:.2f} = {p['sumo_ms']:.2f} + {p['sensors_ms']:.2f} + "
-            f"{p['plan_ms']:.2f} + {p['risk_ms']:.2f} + {p['rest_ms']:.2f}"
+            f"{p['plan_ms']:.2f} + {p['risk_ms']:.2f} + {p['rest_ms']:.2f}   "
+            f"{env['sensors_ref_ms']:.2f}, {p['sensors_ms'] / env['sensors_ref_ms']:.2f} "
+            f"(median of pairs {env['sensors_vs_ref']['median_ratio']:.2f})"
+            + (f"  MISMATCHES {env['sensors_mismatches']}" if env["sensors_mismatches"] else "")
         )
     if args.max_workers:
         print(f"{'workers':>7} {'dec/s':>9} {'speed-up':>9}")
@@ -296,6 +305,9 @@ def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
         if done >= spec["decisions"]:
             break
     sim_steps = parts.pop("risk_steps")
+    ref_s, mismatches = parts.pop("sensors_ref_ms"), parts.pop("sensors_mismatches")
+    pairs = np.array(parts.pop("sensors_pairs")).reshape(-1, 2)  # (new, reference) seconds
+    step_s -= parts.pop("excluded_s")  # the reference sensors ran inside env.step
     risk_s = parts["risk_ms"]
     parts_ms = {k: 1e3 * v / done for k, v in parts.items()}
     parts_ms["rest_ms"] = 1e3 * step_s / done - sum(parts_ms.values())
@@ -308,6 +320,14 @@ def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
         "reset_ms": 1e3 * reset_s / len(episodes),
         "parts_ms": parts_ms,
         "risk_us_per_step": 1e6 * risk_s / max(sim_steps, 1),
+        "sensors_ref_ms": 1e3 * ref_s / done,
+        "sensors_mismatches": mismatches,
+        "sensors_vs_ref": {
+            "mean_ratio": float(pairs[:, 0].sum() / pairs[:, 1].sum()) if len(pairs) else 0.0,
+            "median_ratio": float(np.median(pairs[:, 0] / pairs[:, 1])) if len(pairs) else 0.0,
+            "new_median_ms": float(1e3 * np.median(pairs[:, 0])) if len(pairs) else 0.0,
+            "ref_median_ms": float(1e3 * np.median(pairs[:, 1])) if len(pairs) else 0.0,
+        },
         "episode": {
             "count": len(whole),
             "decisions": n_whole / max(len(whole), 1),
@@ -325,7 +345,11 @@ def _time_parts(env: Any) -> dict[str, Any]:
 
     Returns the dict the wrappers add seconds to while ``env.step`` runs (resets are
     not counted); ``risk_steps`` counts the SUMO steps the risk measure covered and
-    ``simulation_step`` is the unwrapped libsumo step.
+    ``simulation_step`` is the unwrapped libsumo step. ``sensors_ref_ms`` times the
+    reference sensors on the same inputs (``excluded_s``: their time inside the step,
+    with the comparison, to take off the step's; ``sensors_pairs``: (new, reference)
+    seconds of each observation, whose median ratio resists a loaded machine's
+    preemptions), ``sensors_mismatches`` counts the observations where the two differ.
     """
     import libsumo
 
@@ -333,7 +357,8 @@ def _time_parts(env: Any) -> dict[str, Any]:
 
     totals: dict[str, Any] = {
         "sumo_ms": 0.0, "plan_ms": 0.0, "sensors_ms": 0.0, "risk_ms": 0.0, "risk_steps": 0,
-        "simulation_step": libsumo.simulationStep,
+        "simulation_step": libsumo.simulationStep, "sensors_ref_ms": 0.0,
+        "sensors_mismatches": 0, "excluded_s": 0.0, "sensors_pairs": [],
     }  # fmt: skip
     in_step = [False]
 
@@ -367,9 +392,40 @@ def _time_parts(env: Any) -> dict[str, Any]:
     libsumo.simulationStep = timed(libsumo.simulationStep, "sumo_ms")
     planner.plan = timed(planner.plan, "plan_ms")
     measures.conflict_times_s = counted_risk
-    env._sensors.observe = timed(env._sensors.observe, "sensors_ms")
+    env._sensors.observe = _with_reference(env._sensors, in_step, totals)
     env.step = stepping
     return totals
+
+
+def _with_reference(sensors: Any, in_step: list[bool], totals: dict[str, Any]) -> Any:
+    """``sensors.observe``, timed into ``totals["sensors_ms"]``, with the reference sensors
+    timed on the same inputs (alternating which runs first) and compared byte for byte."""
+    import numpy as np
+
+    from priqn.env.sensors_reference import ReferenceSensors
+
+    new, ref = sensors.observe, ReferenceSensors(sensors.cfg).observe
+    calls = [0]
+
+    def observe(*a: Any, **k: Any) -> Any:
+        if not in_step[0]:
+            return new(*a, **k)
+        t_in = time.perf_counter()
+        calls[0] += 1
+        out, took = {}, {}
+        for name in ("ref", "new") if calls[0] % 2 else ("new", "ref"):
+            t0 = time.perf_counter()
+            out[name] = (ref if name == "ref" else new)(*a, **k)
+            took[name] = time.perf_counter() - t0
+        same = all(np.array_equal(x, y) for x, y in zip(out["new"], out["ref"], strict=True))
+        totals["sensors_ms"] += took["new"]
+        totals["sensors_ref_ms"] += took["ref"]
+        totals["sensors_pairs"].append((took["new"], took["ref"]))
+        totals["sensors_mismatches"] += not same
+        totals["excluded_s"] += time.perf_counter() - t_in - took["new"]
+        return out["new"]
+
+    return observe
 
 
 def _measure_vector(cfg: Any, spec: dict[str, Any]) -> dict[str, Any]:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from priqn.env.geometry import DRIVABLE, MARKING, ROUTE, Boxes, MapRaster, boxes_corners
+from priqn.env.geometry import DRIVABLE, MARKING, ROUTE, Boxes, MapRaster
 
 BEV_CHANNELS: dict[str, str] = {
     "drivable": "drivable area (all lanes, internal lanes, junction)",
@@ -51,6 +51,13 @@ BEV_CHANNELS: dict[str, str] = {
 """BEV channels that :class:`SensorConfig.bev_channels` may name, in no particular order."""
 
 _MAP_BITS = {"drivable": DRIVABLE, "lane_markings": MARKING, "route": ROUTE}
+
+_SIGN_FWD = np.array([1.0, 1.0, -1.0, -1.0])
+"""Box corners counter-clockwise from the front-right one: sign of the half length ..."""
+_SIGN_LEFT = np.array([-1.0, 1.0, 1.0, -1.0])
+"""... and of the half width (as :func:`~priqn.env.geometry.boxes_corners`)."""
+_NEXT = np.array([1, 2, 3, 0])
+"""The corner after each corner: edge j runs from corner j to corner ``_NEXT[j]``."""
 
 
 @dataclass(frozen=True)
@@ -142,10 +149,21 @@ class Sensors:
         left = np.ones((n, 1)) * (self._left_max - centres)[None, :]
         self._pix_fwd = fwd.ravel().astype(np.float32)
         self._pix_left = left.ravel().astype(np.float32)
+        self._row_fwd = (self._fwd_max - centres).astype(np.float32)  # [H], = _pix_fwd rows
+        self._col_left = (self._left_max - centres).astype(np.float32)  # [W]
+        self._min_half = res / np.sqrt(2.0)
         self._luts = {
             name: np.where(np.arange(256) & bit, 255, 0).astype(np.uint8)
             for name, bit in _MAP_BITS.items()
         }
+        # One lookup [C, 256] for all map channels (rows of zeros for the box channels).
+        self._lut_C256 = np.zeros((len(cfg.bev_channels), 256), np.uint8)
+        for ci, name in enumerate(cfg.bev_channels):
+            if name in self._luts:
+                self._lut_C256[ci] = self._luts[name]
+        self._box_channels = [
+            (ci, name) for ci, name in enumerate(cfg.bev_channels) if name not in self._luts
+        ]
         # LiDAR geometry.
         az = np.arange(cfg.lidar_rays) * (2 * np.pi / cfg.lidar_rays)
         self._ray_cos, self._ray_sin = np.cos(az), np.sin(az)
@@ -173,6 +191,16 @@ class Sensors:
         self._g_count = np.bincount(self._g_cell, minlength=n * n)
         self._rk_to_g = np.full(cfg.lidar_rays * len(self._tan_el), -1, np.intp)
         self._rk_to_g[self._g_rk] = np.arange(len(self._g_rk))
+        # The fast LiDAR counts on a canvas one cell wider on every side ("padded", flat
+        # index (row + 1)·(n + 2) + col + 1): whatever falls off the grid is clipped onto
+        # the border, which is cut off at the end. Per (ray, beam): the padded cell of its
+        # ground return, or 0 (a border cell) where it has none.
+        pad_cell = (self._g_cell // n + 1) * (n + 2) + self._g_cell % n + 1
+        self._ground_pad_RK = np.zeros(cfg.lidar_rays * len(self._tan_el), np.intp)
+        self._ground_pad_RK[self._g_rk] = pad_cell
+        self._ground_count_HW = self._g_count.reshape(n, n)
+        self._ray_cs_R2 = np.stack([self._ray_cos, self._ray_sin], axis=1)
+        self._grid_base_2 = np.array([self._fwd_max, self._left_max])
         self._ego_mask_key: tuple[float, float] | None = None
         self._ego_mask = np.zeros(n * n, dtype=bool)
 
@@ -227,14 +255,21 @@ class Sensors:
         Same model as :meth:`lidar` (which bins these points), for pictures and checks;
         ground returns are traced only inside the grid, face returns up to the range.
         """
-        bits = self._sample_map(map_raster, ego)
-        ret = self._returns(bits, self._to_ego_frame(ego, actors)[0])
-        ground = self._ground(bits, ret)
+        bits_HW = self._sample_map(map_raster, ego)
+        rel = self._to_ego_frame(ego, actors, in_grid=False)[0]
+        ray_N, range_N, height_N = self._face_hits(rel) if len(rel) else (np.zeros(0, np.intp),) * 3
+        lo, hi = np.zeros(0, np.intp), np.zeros(0, np.intp)
+        if len(ray_N):
+            lo, hi, _ = self._claims(ray_N, range_N, height_N)
+        k_K = np.arange(len(self._tan_el))
+        i, k = np.nonzero((k_K >= lo[:, None]) & (k_K < hi[:, None]))  # claimed beams
+        free_RK = np.ones((self.cfg.lidar_rays, len(k_K)), dtype=bool)
+        free_RK[ray_N[i], k] = False
+        ground = free_RK.ravel().take(self._g_rk) & ((bits_HW.take(self._g_cell) & DRIVABLE) != 0)
         gi = self._g_ray[ground]
         rng = self._g_range[ground]
         ground = np.stack([rng * self._ray_cos[gi], rng * self._ray_sin[gi], 0 * rng], axis=1)
-        i, k = np.nonzero(ret.claimed)
-        t, ray = ret.hit_t[i], ret.hit_ray[i]
+        t, ray = range_N[i], ray_N[i]
         z = self.cfg.lidar_height_m + t * self._tan_el[k]
         boxes = np.stack([t * self._ray_cos[ray], t * self._ray_sin[ray], z], axis=1)
         return np.concatenate([ground, boxes])
@@ -275,26 +310,40 @@ class Sensors:
 
     # ------------------------------------------------------------------ internals
     def _sample_map(self, map_raster: MapRaster, ego: Boxes) -> np.ndarray:
-        """Map bits at every grid cell centre, flat [H·W]."""
+        """Map bits at every grid cell centre, flat ``bits_HW`` [H·W].
+
+        The world position of a cell centre is ``fwd·(cos, sin) + left·(−sin, cos)``; fwd
+        is constant along a row and left along a column, so the products are taken on the
+        ``[H]`` and ``[W]`` vectors and broadcast (the same float32 values as per cell).
+        """
         ex, ey = ego.center_xy[0]
         c, s = np.cos(ego.heading_rad[0]), np.sin(ego.heading_rad[0])
         res = map_raster.resolution_m
         ox, oy = map_raster.origin_xy
         hgt, wid = map_raster.bits.shape
-        # World position in raster cells, as float32 (one fused expression per axis).
-        fx = self._pix_fwd * np.float32(c / res) - self._pix_left * np.float32(s / res)
+        fwd_H1, left_1W = self._row_fwd[:, None], self._col_left[None, :]
+        fx = fwd_H1 * np.float32(c / res) - left_1W * np.float32(s / res)
         fx += np.float32((ex - ox) / res)
-        fy = self._pix_fwd * np.float32(s / res) + self._pix_left * np.float32(c / res)
+        fy = fwd_H1 * np.float32(s / res) + left_1W * np.float32(c / res)
         fy += np.float32((ey - oy) / res)
         ix = np.clip(fx, 0, wid - 1).astype(np.intp)  # trunc == floor once clipped >= 0
         iy = np.clip(fy, 0, hgt - 1).astype(np.intp)
         iy *= wid
         iy += ix
-        return map_raster.bits.ravel().take(iy)
+        return map_raster.bits.ravel().take(iy.ravel())
 
-    def _to_ego_frame(self, ego: Boxes, actors: Boxes) -> tuple[Boxes, np.ndarray]:
+    def _to_ego_frame(
+        self, ego: Boxes, actors: Boxes, in_grid: bool = True
+    ) -> tuple[Boxes, np.ndarray]:
         """Actors in the ego frame (x forward, y left) without those that cannot be seen,
-        and the indices of the kept ones."""
+        and the indices of the kept ones.
+
+        ``in_grid``: keep only the boxes that may overlap the grid (their bounding circle,
+        plus a metre, meets it): those are all the grids need. A box outside the grid can
+        neither cover a cell nor block a beam before it leaves the grid (along a ray, the
+        grid is one segment from the sensor), and its own returns fall outside. Otherwise
+        also every box within LiDAR range (for :meth:`lidar_points`).
+        """
         if len(actors) == 0:
             return actors, np.zeros(0, np.intp)
         h0 = ego.heading_rad[0]
@@ -304,50 +353,63 @@ class Sensors:
         left = -d[:, 0] * s + d[:, 1] * c
         half_diag = 0.5 * np.hypot(actors.length_m, actors.width_m)
         cfg = self.cfg
+        if in_grid:
+            half_diag += 1.0
         visible = (
             (fwd - half_diag < self._fwd_max)
             & (fwd + half_diag > -cfg.behind_m)
             & (np.abs(left) - half_diag < self._left_max)
-        ) | (np.hypot(fwd, left) - half_diag < cfg.lidar_range_m)
+        )
+        if not in_grid:
+            visible |= np.hypot(fwd, left) - half_diag < cfg.lidar_range_m
         idx = np.flatnonzero(visible)
         rel = Boxes(
-            np.stack([fwd, left], axis=1)[idx],
-            (actors.heading_rad - h0)[idx],
+            np.stack([fwd[idx], left[idx]], axis=1),
+            actors.heading_rad[idx] - h0,
             actors.length_m[idx],
             actors.width_m[idx],
             actors.height_m[idx],
         )
         return rel, idx
 
-    def _box_cells(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray]:
-        """(flat cell index, box index) of every cell whose centre lies inside a box."""
+    def _box_cells(
+        self, rel: Boxes, with_box: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(cell_P, box_P)``: flat cell index and box index of every cell whose centre lies
+        inside a box (P pairs; a cell inside two boxes is listed twice). ``box_P`` is None
+        unless ``with_box``.
+
+        Each box is tested on a ``[2k+1, 2k+1]`` patch of cells around its centre cell (k
+        from the largest box), as one ``[M, K, K]`` mask; the cell and box indices are read
+        with one boolean index each.
+        """
         n = self.cfg.size_px
         res = self._res
-        m = len(rel)
-        if m == 0:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        min_half = res / np.sqrt(2.0)
-        hl = np.maximum(0.5 * rel.length_m, min_half)
-        hw = np.maximum(0.5 * rel.width_m, min_half)
-        k = int(np.ceil(np.max(np.hypot(hl, hw)) / res)) + 1
-        off = np.arange(-k, k + 1)
-        row_c, col_c = self.cfg.cell_of(rel.center_xy[:, 0], rel.center_xy[:, 1])
-        r0 = np.floor(row_c).astype(np.intp)
-        c0 = np.floor(col_c).astype(np.intp)
-        rows = r0[:, None, None] + off[None, :, None]  # [M, K, 1]
-        cols = c0[:, None, None] + off[None, None, :]  # [M, 1, K]
+        if len(rel) == 0:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp) if with_box else None
+        hl_M = np.maximum(0.5 * rel.length_m, self._min_half)
+        hw_M = np.maximum(0.5 * rel.width_m, self._min_half)
+        k = int(np.ceil(np.max(np.hypot(hl_M, hw_M)) / res)) + 1
+        off_K = np.arange(-k, k + 1)
+        fwd_M, left_M = rel.center_xy[:, 0], rel.center_xy[:, 1]
+        rows_MK = np.floor((self._fwd_max - fwd_M) / res).astype(np.intp)[:, None] + off_K
+        cols_MK = np.floor((self._left_max - left_M) / res).astype(np.intp)[:, None] + off_K
         # Cell-centre offsets from the box centre in the ego frame (fwd, left).
-        dfwd = (self._fwd_max - (rows + 0.5) * res) - rel.center_xy[:, 0, None, None]
-        dleft = (self._left_max - (cols + 0.5) * res) - rel.center_xy[:, 1, None, None]
-        ch = np.cos(rel.heading_rad)[:, None, None]
-        sh = np.sin(rel.heading_rad)[:, None, None]
-        inside = np.abs(dfwd * ch + dleft * sh) <= hl[:, None, None]
-        inside &= np.abs(-dfwd * sh + dleft * ch) <= hw[:, None, None]
-        inside &= (rows >= 0) & (rows < n) & (cols >= 0) & (cols < n)
-        b, i, j = np.nonzero(inside)
-        return rows[b, i, 0] * n + cols[b, 0, j], b
+        dfwd_MK1 = ((self._fwd_max - (rows_MK + 0.5) * res) - fwd_M[:, None])[:, :, None]
+        dleft_M1K = ((self._left_max - (cols_MK + 0.5) * res) - left_M[:, None])[:, None, :]
+        ch_M11 = np.cos(rel.heading_rad)[:, None, None]
+        sh_M11 = np.sin(rel.heading_rad)[:, None, None]
+        inside_MKK = np.abs(dfwd_MK1 * ch_M11 + dleft_M1K * sh_M11) <= hl_M[:, None, None]
+        inside_MKK &= np.abs(-dfwd_MK1 * sh_M11 + dleft_M1K * ch_M11) <= hw_M[:, None, None]
+        inside_MKK &= ((rows_MK >= 0) & (rows_MK < n))[:, :, None]
+        inside_MKK &= ((cols_MK >= 0) & (cols_MK < n))[:, None, :]
+        cell_MKK = (rows_MK * n)[:, :, None] + cols_MK[:, None, :]
+        if not with_box:
+            return cell_MKK[inside_MKK], None
+        return cell_MKK[inside_MKK], np.nonzero(inside_MKK)[0]
 
     def _ego_cells(self, ego: Boxes) -> np.ndarray:
+        """bool [H·W]: the ego footprint (cached per ego length and width)."""
         key = (float(ego.length_m[0]), float(ego.width_m[0]))
         if key != self._ego_mask_key:
             rel = Boxes.make([0.0, 0.0], 0.0, key[0], key[1])
@@ -359,144 +421,141 @@ class Sensors:
 
     def _bev_from(
         self,
-        bits: np.ndarray,
+        bits_HW: np.ndarray,
         ego: Boxes,
         rel: Boxes,
         visible: np.ndarray,
         actor_speed_mps: np.ndarray | None,
     ) -> np.ndarray:
+        """``bev_CHW``: the map channels in one lookup (``_lut_C256``), then the boxes."""
         cfg = self.cfg
         n = cfg.size_px
-        out = np.zeros((len(cfg.bev_channels), n * n), dtype=np.uint8)
-        ego_mask = self._ego_cells(ego)
-        cells = boxes = None
-        for ci, name in enumerate(cfg.bev_channels):
-            if name in self._luts:
-                self._luts[name].take(bits, out=out[ci])
-            elif name == "ego":
-                out[ci][ego_mask] = 255
-            else:
-                if cells is None:
-                    cells, boxes = self._box_cells(rel)
-                if name == "actors":
-                    out[ci][cells] = 255
-                else:  # actor_speed
-                    if actor_speed_mps is None:
-                        raise ValueError("the actor_speed channel needs actor_speed_mps")
-                    speed = np.asarray(actor_speed_mps, dtype=float).reshape(-1)[visible]
-                    val = np.clip(speed / cfg.speed_scale_mps, 0.0, 1.0) * 254 + 1
-                    order = np.argsort(val[boxes], kind="stable")  # faster actors on top
-                    out[ci][cells[order]] = val[boxes][order].astype(np.uint8)
-        return out.reshape(len(cfg.bev_channels), n, n)
+        out_CP = self._lut_C256.take(bits_HW, axis=1)
+        for ci, name in self._box_channels:
+            if name == "ego":
+                out_CP[ci][self._ego_cells(ego)] = 255
+                continue
+            cells, boxes = self._box_cells(rel, with_box=name == "actor_speed")
+            if name == "actors":
+                out_CP[ci][cells] = 255
+            else:  # actor_speed
+                if actor_speed_mps is None:
+                    raise ValueError("the actor_speed channel needs actor_speed_mps")
+                speed = np.asarray(actor_speed_mps, dtype=float).reshape(-1)[visible]
+                val = np.clip(speed / cfg.speed_scale_mps, 0.0, 1.0) * 254 + 1
+                order = np.argsort(val[boxes], kind="stable")  # faster actors on top
+                out_CP[ci][cells[order]] = val[boxes][order].astype(np.uint8)
+        return out_CP.reshape(len(cfg.bev_channels), n, n)
 
-    def _returns(self, bits: np.ndarray, rel: Boxes) -> _Returns:
-        """Trace every beam: which box face it hits first, or whether it reaches the road."""
+    def _face_hits(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ray_N, range_N, height_N)``: every (ray, sensor-facing box edge) intersection
+        within range, sorted by ray, then range; ``height_N`` is the box's height.
+
+        Only the rays inside each edge's angular span can meet it: those (ray, edge) pairs
+        are listed instead of testing all rays against all edges. The edge quantities are
+        rows of one array, so that each selection and gather is one numpy call.
+        """
         cfg = self.cfg
-        rays, beams = cfg.lidar_rays, len(self._tan_el)
-        blocked_rk = np.zeros(0, np.intp)
-        hit_t = np.zeros(0)
-        hit_ray = np.zeros(0, np.intp)
-        claimed = np.zeros((0, beams), dtype=bool)
-        if len(rel):
-            corners = boxes_corners(rel.center_xy, rel.heading_rad, rel.length_m, rel.width_m)
-            p = corners.reshape(-1, 2)
-            e = (np.roll(corners, -1, axis=1) - corners).reshape(-1, 2)
-            cpe = p[:, 0] * e[:, 1] - p[:, 1] * e[:, 0]
-            front = cpe < 0  # edges facing the sensor (boxes are counter-clockwise)
-            p, e, cpe = p[front], e[front], cpe[front]
-            box_of_edge = np.repeat(np.arange(len(rel)), 4)[front]
-            # Only the rays inside each edge's angular span can meet it: list those
-            # (ray, edge) pairs instead of testing all rays against all edges.
-            dth = 2 * np.pi / rays
-            az_p = np.arctan2(p[:, 1], p[:, 0])
-            q = p + e
-            az_q = np.arctan2(q[:, 1], q[:, 0])  # front edges run clockwise: span [az_q, az_p]
-            width = np.mod(az_p - az_q, 2 * np.pi)
-            k0 = np.ceil(az_q / dth - 1e-9).astype(np.intp)
-            k1 = np.floor((az_q + width) / dth + 1e-9).astype(np.intp)
-            n_e = np.maximum(k1 - k0 + 1, 0)
-            e_i = np.repeat(np.arange(len(p)), n_e)
-            first = np.cumsum(n_e) - n_e
-            r_i = np.mod(np.repeat(k0 - first, n_e) + np.arange(len(e_i)), rays)
-            ux, uy = self._ray_cos[r_i], self._ray_sin[r_i]
-            den = ux * e[e_i, 1] - uy * e[e_i, 0]  # cross(u, e)
-            num = p[e_i, 0] * uy - p[e_i, 1] * ux  # cross(p, u)
-            # The ray meets the face iff den < 0 and 0 <= num/den <= 1; then t = cpe/den.
-            ok = (den < 0) & (num <= 0) & (num >= den)
-            r_i, e_i, den = r_i[ok], e_i[ok], den[ok]
-            t = cpe[e_i] / den
-            keep = t <= cfg.lidar_range_m
-            r_i, e_i, t = r_i[keep], e_i[keep], t[keep]
-            if len(t):
-                order = np.lexsort((t, r_i))  # by ray, nearest face first
-                r_i, t = r_i[order], t[order]
-                height = rel.height_m[box_of_edge[e_i[order]]]
-                h = cfg.lidar_height_m
-                # Beams whose height at the face, h + t·tan(el), lies in [0, height].
-                k_lo = np.searchsorted(self._tan_el, -h / t, side="left")
-                k_hi = np.searchsorted(self._tan_el, (height - h) / t, side="right")
-                k = np.arange(beams)
-                span = (k >= k_lo[:, None]) & (k < k_hi[:, None])  # [n, K]
-                # A beam stops at the first face (in range order) on its ray that spans it.
-                cum = np.cumsum(span, axis=0, dtype=np.int32)
-                first = np.flatnonzero(np.r_[True, r_i[1:] != r_i[:-1]])
-                start = np.repeat(first, np.diff(np.r_[first, len(r_i)]))
-                base = cum[start - 1] * (start > 0)[:, None]
-                claimed = span & (cum - span == base)
-                ii, kk = np.nonzero(claimed)
-                blocked_rk = r_i[ii] * beams + kk
-                hit_t, hit_ray = t, r_i
-        return _Returns(hit_t, hit_ray, claimed, blocked_rk)
+        rays = cfg.lidar_rays
+        # Corners counter-clockwise from the front-right one (as geometry.boxes_corners).
+        hl_M1 = (0.5 * rel.length_m)[:, None]
+        hw_M1 = (0.5 * rel.width_m)[:, None]
+        ch_M1, sh_M1 = np.cos(rel.heading_rad)[:, None], np.sin(rel.heading_rad)[:, None]
+        edges_6M4 = np.empty((6, len(rel), 4))
+        px, py, ex, ey, cpe, height = edges_6M4
+        px[:] = rel.center_xy[:, 0:1] + _SIGN_FWD * (ch_M1 * hl_M1) + _SIGN_LEFT * -(sh_M1 * hw_M1)
+        py[:] = rel.center_xy[:, 1:2] + _SIGN_FWD * (sh_M1 * hl_M1) + _SIGN_LEFT * (ch_M1 * hw_M1)
+        np.subtract(px[:, _NEXT], px, out=ex)
+        np.subtract(py[:, _NEXT], py, out=ey)
+        cpe[:] = px * ey - py * ex
+        height[:] = rel.height_m[:, None]
+        front_6F = edges_6M4[:, cpe < 0]  # edges facing the sensor (boxes are counter-clockwise)
+        px, py, ex, ey, cpe, height = front_6F
+        dth = 2 * np.pi / rays
+        az_p = np.arctan2(py, px)
+        az_q = np.arctan2(py + ey, px + ex)  # front edges run clockwise: span [az_q, az_p]
+        width = np.mod(az_p - az_q, 2 * np.pi)
+        k0 = np.ceil(az_q / dth - 1e-9).astype(np.intp)
+        k1 = np.floor((az_q + width) / dth + 1e-9).astype(np.intp)
+        n_F = np.maximum(k1 - k0 + 1, 0)
+        e_i = np.repeat(np.arange(len(n_F)), n_F)
+        r_i = np.repeat(k0 - (np.cumsum(n_F) - n_F), n_F)
+        r_i += np.arange(len(e_i))
+        r_i %= rays
+        ux, uy = self._ray_cos[r_i], self._ray_sin[r_i]
+        px, py, ex, ey, cpe, height = front_6F[:, e_i]
+        den = ux * ey - uy * ex  # cross(u, e)
+        num = px * uy - py * ux  # cross(p, u)
+        # The ray meets the face iff den < 0 and 0 <= num/den <= 1; then t = cpe/den.
+        ok = np.flatnonzero((den < 0) & (num <= 0) & (num >= den))
+        t = cpe[ok] / den[ok]
+        keep = ok[t <= cfg.lidar_range_m]
+        t = t[t <= cfg.lidar_range_m]
+        r_i = r_i[keep]
+        order = np.lexsort((t, r_i))  # by ray, nearest face first
+        return r_i[order], t[order], height[keep][order]
 
-    def _ground(self, bits: np.ndarray, ret: _Returns) -> np.ndarray:
-        """bool [G]: which precomputed ground returns exist (on the road, not blocked)."""
-        free = np.ones(len(self._rk_to_g), dtype=bool)
-        free[ret.blocked_rk] = False
-        return free.take(self._g_rk) & ((bits.take(self._g_cell) & DRIVABLE) != 0)
+    def _claims(
+        self, ray_N: np.ndarray, range_N: np.ndarray, height_N: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(lo_N, hi_N, k_split_N)``: face hit ``i`` stops the beams ``lo_N[i] ≤ k <
+        hi_N[i]`` (indices into the sorted elevations; none where ``lo ≥ hi``), and the
+        beams below ``k_split_N[i]`` return under ``lidar_split_height_m``.
 
-    def _lidar_from(self, bits: np.ndarray, rel: Boxes) -> np.ndarray:
-        cfg = self.cfg
-        n = cfg.size_px
-        hw = n * n
-        ret = self._returns(bits, rel)
-        # Ground returns: all of a drivable cell's, less those a face blocks.
-        drivable = (bits & DRIVABLE) != 0
-        low = self._g_count * drivable
-        g = self._rk_to_g[ret.blocked_rk]
-        blocked_cells = self._g_cell[g[g >= 0]]
-        low -= np.bincount(blocked_cells[drivable[blocked_cells]], minlength=hw)
-        high = np.zeros(hw, np.int64)
-        if len(ret.hit_t):
-            # All beams of one (ray, face) hit land in the same cell: count them per hit.
-            h = cfg.lidar_height_m
-            k_split = np.searchsorted(self._tan_el, (cfg.lidar_split_height_m - h) / ret.hit_t)
-            below = np.arange(len(self._tan_el))[None, :] < k_split[:, None]
-            n_low = np.count_nonzero(ret.claimed & below, axis=1)
-            n_high = np.count_nonzero(ret.claimed & ~below, axis=1)
-            row, col = cfg.cell_of(
-                ret.hit_t * self._ray_cos[ret.hit_ray], ret.hit_t * self._ray_sin[ret.hit_ray]
-            )
-            row, col = np.floor(row).astype(np.intp), np.floor(col).astype(np.intp)
-            inside = (row >= 0) & (row < n) & (col >= 0) & (col < n)
-            cell = (row * n + col)[inside]
-            low += np.bincount(cell, weights=n_low[inside], minlength=hw).astype(np.int64)
-            high += np.bincount(cell, weights=n_high[inside], minlength=hw).astype(np.int64)
-        out = np.empty((2, hw), dtype=np.uint8)
-        np.minimum(low, 255, out=out[0], casting="unsafe")
-        np.minimum(high, 255, out=out[1], casting="unsafe")
-        return out.reshape(2, n, n)
+        A beam stops at the first face (in range order) on its ray whose height at that
+        range covers it: ``h + t·tan(el) ∈ [0, height]``, the beams ``[k_lo, k_hi)``.
+        ``k_lo`` depends on the range only and grows with it, so the faces in front of a
+        face cover, of its beams, exactly those below the largest ``k_hi`` in front: the
+        claim is ``[max(k_lo, that), k_hi)``, one running maximum per ray.
+        """
+        h = self.cfg.lidar_height_m
+        k_lo = np.searchsorted(self._tan_el, -h / range_N, side="left")
+        k_hi = np.searchsorted(self._tan_el, (height_N - h) / range_N, side="right")
+        # Largest k_hi of the faces before each one on its ray (rays sorted: an offset of
+        # ray · (K + 1) keeps the running maximum from crossing into the next ray).
+        base = ray_N * (len(self._tan_el) + 1)
+        key = base + k_hi
+        before = np.empty_like(key)
+        before[0] = -1
+        np.maximum.accumulate(key[:-1], out=before[1:])
+        lo = np.maximum(k_lo, before - base)
+        split = self.cfg.lidar_split_height_m - h
+        return lo, k_hi, np.searchsorted(self._tan_el, split / range_N)
 
-
-@dataclass(frozen=True)
-class _Returns:
-    hit_t: np.ndarray
-    """[n] range of each (ray, face) intersection, sorted by ray then range."""
-    hit_ray: np.ndarray
-    """[n] ray index of each intersection."""
-    claimed: np.ndarray
-    """bool [n, K]: beams (sorted by elevation) that stop on that face."""
-    blocked_rk: np.ndarray
-    """int: ``ray · K + beam`` of every beam that stops on a face (each at most once)."""
+    def _lidar_from(self, bits_HW: np.ndarray, rel: Boxes) -> np.ndarray:
+        """``lidar_2HW``: ground returns of the drivable cells less those a face blocks,
+        plus the face returns (counted on the padded canvas, then cut to the grid)."""
+        n = self.cfg.size_px
+        drivable_HW = ((bits_HW & DRIVABLE) != 0).reshape(n, n)
+        out = np.empty((2, n, n), dtype=np.uint8)
+        ray_N, range_N, height_N = self._face_hits(rel) if len(rel) else (np.zeros(0),) * 3
+        if not len(ray_N):
+            np.minimum(self._ground_count_HW * drivable_HW, 255, out=out[0], casting="unsafe")
+            out[1] = 0
+            return out
+        lo, hi, k_split = self._claims(ray_N, range_N, height_N)
+        n_all = np.maximum(hi - lo, 0)
+        n_low = np.maximum(np.minimum(hi, k_split) - lo, 0)
+        # Ground returns that a face blocks: beams lo..hi-1 of each hit's ray.
+        first = np.cumsum(n_all) - n_all
+        rk = np.repeat(ray_N * len(self._tan_el) + lo - first, n_all)
+        rk += np.arange(len(rk))
+        pp = (n + 2) * (n + 2)
+        blocked_P = np.bincount(self._ground_pad_RK[rk], minlength=pp)
+        # All beams of one (ray, face) hit land in the same cell: count them per hit.
+        xy_N2 = self._ray_cs_R2[ray_N] * range_N[:, None]
+        rc_N2 = np.floor((self._grid_base_2 - xy_N2) / self._res)  # (row, col), as cell_of
+        np.clip(rc_N2, -1, n, out=rc_N2)
+        cell = (rc_N2 @ np.array([n + 2.0, 1.0])).astype(np.intp) + (n + 3)
+        face_2P = np.bincount(
+            np.concatenate([cell, cell + pp]),
+            weights=np.concatenate([n_low, n_all - n_low]),
+            minlength=2 * pp,
+        ).reshape(2, n + 2, n + 2)[:, 1:-1, 1:-1]
+        low = (self._ground_count_HW - blocked_P.reshape(n + 2, n + 2)[1:-1, 1:-1]) * drivable_HW
+        np.minimum(low + face_2P[0], 255, out=out[0], casting="unsafe")
+        np.minimum(face_2P[1], 255, out=out[1], casting="unsafe")
+        return out
 
 
 # --------------------------------------------------------------------------- synthetic scene
