@@ -8,10 +8,14 @@
   state of a complete run (a few MB; all a committed result folder keeps).
 
 On disk each is a plain dict of its fields (the keys written since the first release, so
-old files still load), saved with :func:`priqn.io.atomic_torch_save` (temp file + rename,
-with a ``<file>.sha256`` sidecar). :func:`load` and :func:`load_policy_state` turn a
-damaged, truncated or foreign file into one :class:`~priqn.errors.PriqnError` line that
-names the file. Which file lives where (and the replay buffer file a checkpoint names) is
+old files still load) plus ``format`` (:data:`FORMAT_VERSION`), saved with
+:func:`priqn.io.atomic_torch_save` (temp file + rename, with a ``<file>.sha256`` sidecar).
+It holds nothing but tensors and plain data (dicts, lists, numbers, strings), so every
+load is ``torch.load(weights_only=True)`` (:func:`priqn.io.torch_load`): a file from
+anyone runs no code. :func:`load` and :func:`load_policy_state` turn a damaged,
+truncated, tampered or foreign file into one :class:`~priqn.errors.PriqnError` line that
+names the file, and :func:`restore` does the same for weights that do not fit a network.
+Which file lives where (and the replay buffer file a checkpoint names) is
 :class:`priqn.runs.RunFolder`'s business.
 """
 
@@ -27,6 +31,19 @@ import numpy as np
 from priqn.errors import PriqnError
 from priqn.io import atomic_torch_save, torch_load
 from priqn.objectives import OBJECTIVES
+
+FORMAT_VERSION = 2
+"""The on-disk format written now, under the key ``format``. 1 (no ``format`` key, before
+issue 35): ``obs`` numpy arrays and ``torch_version`` torch's ``TorchVersion``, read
+through :func:`legacy_allow_list`; 2: ``obs`` tensors (numpy again once loaded),
+``torch_version`` a str: tensors and plain data only."""
+
+FORMAT_KEY = "format"
+"""The key of the format version in the on-disk dict (absent: format 1)."""
+
+LEGACY_DTYPES = ("uint8", "float32")
+"""The observation dtypes a format-1 checkpoint's numpy ``obs`` may have (all priqn's
+observations ever had); any other dtype is refused in one line."""
 
 REMEDY = "delete the run folder's checkpoints/ and train again with --force"
 """What to do about a damaged checkpoint (the end of its one-line error)."""
@@ -111,8 +128,16 @@ _State = TypeVar("_State", Checkpoint, PolicyState)
 
 
 def as_dict(state: Checkpoint | PolicyState) -> dict[str, Any]:
-    """The on-disk dict of ``state``: its fields in order (tensors not copied)."""
-    return {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    """The on-disk dict of ``state``: its fields in order (tensors not copied), the
+    observations as tensors, then ``format``: nothing but tensors and plain data."""
+    import torch
+
+    data = {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    if isinstance(state, Checkpoint):
+        data["obs"] = {k: torch.from_numpy(np.array(v)) for k, v in state.obs.items()}
+        data["torch_version"] = str(state.torch_version)
+    data[FORMAT_KEY] = FORMAT_VERSION
+    return data
 
 
 def save(state: Checkpoint | PolicyState, path: str | os.PathLike) -> None:
@@ -121,8 +146,39 @@ def save(state: Checkpoint | PolicyState, path: str | os.PathLike) -> None:
     import torch
 
     if isinstance(state, Checkpoint):
-        state = dataclasses.replace(state, torch_version=torch.__version__)
+        state = dataclasses.replace(state, torch_version=str(torch.__version__))
     atomic_torch_save(as_dict(state), path)
+
+
+def legacy_allow_list() -> list[Any]:
+    """What a format-1 checkpoint holds beyond tensors and plain data, admitted by name and
+    nothing else: numpy arrays of :data:`LEGACY_DTYPES` (``obs``; an array is rebuilt
+    from its raw bytes, never from pickled objects) and torch's ``TorchVersion`` (a str)."""
+    from torch.torch_version import TorchVersion
+
+    reconstruct = np.zeros(0).__reduce__()[0]  # numpy(._)core.multiarray._reconstruct
+    return [
+        np.ndarray,
+        np.dtype,
+        *(type(np.dtype(name)) for name in LEGACY_DTYPES),
+        TorchVersion,
+        (reconstruct, "numpy.core.multiarray._reconstruct"),
+        (reconstruct, "numpy._core.multiarray._reconstruct"),
+    ]
+
+
+def restore(load_state: Callable[[], Any], path: str | os.PathLike, remedy: str) -> Any:
+    """Call ``load_state`` (a ``load_state_dict`` of the weights in ``path``); weights whose
+    names or shapes do not fit the network are one line naming ``path``, not torch's."""
+    try:
+        return load_state()
+    except (RuntimeError, KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
+        detail = " ".join(str(exc).split())
+        detail = detail[:240] + ("..." if len(detail) > 240 else "")
+        raise PriqnError(
+            f"{path}: its weights do not fit the network this run's config.toml describes "
+            f"({type(exc).__name__}: {detail}); {remedy}"
+        ) from None
 
 
 def load(path: str | os.PathLike, map_location: Any = "cpu", remedy: str = REMEDY) -> Checkpoint:
@@ -138,15 +194,86 @@ def load_policy_state(
 
 
 def _load(cls: type[_State], path: str | os.PathLike, map_location: Any, remedy: str) -> _State:
-    """Read ``path`` and check it holds every required field of ``cls`` (one-line errors)."""
+    """Read ``path`` (tensors and plain data only) and check it holds every required field
+    of ``cls`` with the right kind of value (one-line errors)."""
     what = "checkpoint" if cls is Checkpoint else "policy file"
-    data = torch_load(path, what, remedy, map_location)
+    allow = legacy_allow_list() if cls is Checkpoint else ()
+    data = torch_load(path, what, remedy, map_location, allow)
     if not isinstance(data, Mapping):
         raise PriqnError(f"{path}: not a priqn {what} (a {type(data).__name__}); {remedy}")
+    version = data.get(FORMAT_KEY, 1)
+    if not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
+        raise PriqnError(
+            f"{path}: a {what} of format {version!r}, but this priqn reads formats 1 to "
+            f"{FORMAT_VERSION}; load it with the priqn that wrote it (or a newer one)"
+        )
     optional = cls.OPTIONAL
     names = [f.name for f in dataclasses.fields(cls)]
     missing = [n for n in names if n not in data and n not in optional]
     if missing:
         raise PriqnError(f"{path}: not a priqn {what} (no {', '.join(missing)}); {remedy}")
     values = {n: data[n] if n in data else optional[n]() for n in names}
+    wrong = [n for n, kinds in _KINDS.items() if n in names and not isinstance(values[n], kinds)]
+    if cls is Checkpoint and not wrong:
+        wrong = _wrong_checkpoint_parts(values)
+        values["obs"] = _observations(values["obs"], path, what, remedy)
+    if wrong:
+        raise PriqnError(
+            f"{path}: not a priqn {what} (wrong kind of value in {', '.join(wrong)}); {remedy}"
+        )
     return cls(**values)
+
+
+_KINDS: dict[str, type | tuple[type, ...]] = {
+    "online": Mapping,
+    "agent": Mapping,
+    "obs_shapes": Mapping,
+    "num_actions": int,
+    "step": int,
+    "objectives": (list, tuple),
+    "episodes": int,
+    "wall_s": (int, float),
+    "learner": Mapping,
+    "rng_replay": Mapping,
+    "rng_act": Mapping,
+    "obs": Mapping,
+    "config": Mapping,
+    "replay_file": (str, type(None)),
+    "torch_version": str,
+}
+"""The kind of value each on-disk field must hold (what a loader may rely on)."""
+
+
+def _wrong_checkpoint_parts(values: Mapping[str, Any]) -> list[str]:
+    """The parts of a checkpoint's ``learner`` that are not what a resume restores."""
+    import torch
+
+    learner = values["learner"]
+    kinds = {
+        "online": Mapping,
+        "target": Mapping,
+        "optimizer": Mapping,
+        "updates": int,
+        "tau_generator": torch.Tensor,
+    }
+    return [f"learner.{k}" for k, kind in kinds.items() if not isinstance(learner.get(k), kind)]
+
+
+def _observations(
+    obs: Mapping[str, Any], path: str | os.PathLike, what: str, remedy: str
+) -> dict[str, np.ndarray]:
+    """``obs`` as numpy arrays on the CPU (format 2 stores tensors, format 1 arrays)."""
+    import torch
+
+    out: dict[str, np.ndarray] = {}
+    for key, value in obs.items():
+        if isinstance(value, torch.Tensor):
+            out[key] = value.cpu().numpy()
+        elif isinstance(value, np.ndarray) and value.dtype.name in LEGACY_DTYPES:
+            out[key] = value
+        else:
+            raise PriqnError(
+                f"{path}: not a priqn {what} (obs[{key!r}] is a {type(value).__name__}, "
+                "expected a tensor); " + remedy
+            )
+    return out

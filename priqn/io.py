@@ -12,7 +12,7 @@ import errno
 import json
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -97,7 +97,9 @@ def sha256_file(path: str | os.PathLike) -> str:
 
 
 CHECKSUM_SUFFIX = ".sha256"
-"""Sidecar of a torch file: the SHA-256 of its bytes (torch.load does not verify them)."""
+"""Sidecar of a torch file: the SHA-256 of its bytes (torch.load does not verify them).
+It detects damage, not tampering: whoever can replace a file can rewrite its sidecar, which
+is why :func:`torch_load` never unpickles anything but tensors and plain data."""
 
 
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
@@ -115,37 +117,74 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
     atomic_write_bytes(path, data)
 
 
-def torch_load(path: str | os.PathLike, what: str, remedy: str, map_location: Any = "cpu") -> Any:
-    """``torch.load`` whose failure on a damaged file (truncated, bit-flipped, empty) is a
-    one-line :class:`PriqnError` naming the file, what it is and what to do."""
+def torch_load(
+    path: str | os.PathLike,
+    what: str,
+    remedy: str,
+    map_location: Any = "cpu",
+    allow: Sequence[Any] = (),
+) -> Any:
+    """``torch.load(..., weights_only=True)``: tensors and plain data (dicts, lists,
+    numbers, strings) only, never an arbitrary pickled object, so a file from anyone runs
+    no code. ``allow``: the few extra types admitted (``torch.serialization.safe_globals``
+    entries; :mod:`priqn.checkpoint` admits numpy arrays for old checkpoints). A damaged,
+    truncated or foreign file -- one naming any other Python object -- is a one-line
+    :class:`PriqnError` naming the file, what it is and what to do."""
     import pickle
     import zipfile
 
     import torch
 
-    sidecar = Path(str(path) + CHECKSUM_SUFFIX)
-    if sidecar.is_file():
-        try:
-            want = sidecar.read_text(encoding="utf-8").strip()
-            have = sha256_file(path)
-        except OSError as exc:
-            raise PriqnError(
-                f"{path}: cannot read {what} ({exc.strerror or exc}); {remedy}"
-            ) from None
-        if want != have:
-            raise PriqnError(
-                f"{path}: damaged or unreadable {what} (its SHA-256 does not match "
-                f"{sidecar.name}); {remedy}"
-            )
+    _check_sidecar(Path(path), what, remedy)
     try:
-        return torch.load(path, map_location=map_location, weights_only=False)
-    except (RuntimeError, EOFError, OSError, ValueError, KeyError, zipfile.BadZipFile,
-            pickle.UnpicklingError) as exc:  # fmt: skip
+        with torch.serialization.safe_globals(list(allow)):
+            return torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        raise PriqnError(f"{path}: {_refusal(str(exc), what)}; {remedy}") from None
+    except (RuntimeError, EOFError, OSError, ValueError, KeyError, TypeError,
+            AttributeError, zipfile.BadZipFile) as exc:  # fmt: skip
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         raise PriqnError(
             f"{path}: damaged or unreadable {what} ({type(exc).__name__}"
             f"{': ' + first[:120] if first else ''}); {remedy}"
         ) from None
+
+
+def _check_sidecar(path: Path, what: str, remedy: str) -> None:
+    """A ``<file>.sha256`` sidecar, when present, must match the file's bytes."""
+    sidecar = Path(str(path) + CHECKSUM_SUFFIX)
+    if not sidecar.is_file():
+        return
+    try:
+        want = sidecar.read_text(encoding="utf-8").strip()
+        have = sha256_file(path)
+    except OSError as exc:
+        raise PriqnError(f"{path}: cannot read {what} ({exc.strerror or exc}); {remedy}") from None
+    if want != have:
+        raise PriqnError(
+            f"{path}: damaged or unreadable {what} (its SHA-256 does not match "
+            f"{sidecar.name}); {remedy}"
+        )
+
+
+def _refusal(message: str, what: str) -> str:
+    """One line for torch's weights-only refusal: which Python object the file names (a
+    pickle that would run code, or a type priqn never stores), else damage."""
+    import re
+
+    inner = message.split("WeightsUnpickler error:")[-1]  # torch's own words, if any
+    named = re.search(r"GLOBAL (\S+) (?:was not an allowed global|whose module)", inner)
+    if named is None:
+        named = re.search(r"(?:unrecognized function|but got) (<[^>]*>|\S+)", inner)
+    if named is not None:
+        return (
+            f"refused: not a priqn {what}: it names the Python object {named.group(1)}, and "
+            "priqn loads only tensors and plain data from torch files (unpickling other "
+            "objects could run code)"
+        )
+    lines = inner.strip().splitlines()
+    first = lines[0][:120] if lines else ""
+    return f"damaged or unreadable {what} (UnpicklingError{': ' + first if first else ''})"
 
 
 def _as_user_error(exc: OSError, target: Path) -> PriqnError:

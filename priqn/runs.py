@@ -223,7 +223,42 @@ class RunFolder:
 
         if not self.is_run():
             raise PriqnError(f"{self.path}: not a run folder (no {self.CONFIG})")
-        return from_dict(TrainConfig, load_toml(self.config_path), where=str(self.config_path))
+        data = load_toml(self.config_path)
+        env = data.get("env") if isinstance(data, Mapping) else None
+        objectives = env.get("objectives") if isinstance(env, Mapping) else None
+        if isinstance(objectives, list):
+            for entry in objectives:
+                self._refuse_module_from_the_folder(entry)
+        return from_dict(TrainConfig, data, where=str(self.config_path))
+
+    def _refuse_module_from_the_folder(self, entry: Any) -> None:
+        """A ``package.module:NAME`` objective of config.toml whose package would be found
+        in this run folder (or a folder holding it, e.g. a namespace package ``results``
+        when Python runs from the checkout) is refused before anything is imported: a run
+        folder is data, never code. Located with ``find_spec`` of the top-level name,
+        which runs nothing."""
+        import importlib.util
+
+        if not isinstance(entry, str) or ":" not in entry:
+            return
+        top = entry.partition(":")[0].partition(".")[0]
+        try:
+            spec = importlib.util.find_spec(top) if top else None
+        except (ImportError, ValueError):
+            return  # resolve_objectives says it cannot import it, in one line
+        if spec is None:
+            return
+        folder = self.path.resolve()
+        places = [Path(p).resolve() for p in spec.submodule_search_locations or ()]
+        origin = Path(spec.origin).resolve() if spec.origin and spec.has_location else None
+        if any(folder.is_relative_to(p) for p in places) or (
+            origin is not None and origin.is_relative_to(folder)
+        ):
+            raise PriqnError(
+                f"{self.config_path}: env.objectives names {entry!r}, whose package {top!r} "
+                "would be imported from the run folder itself; priqn imports objectives only "
+                "from installed packages or your own modules, never from a run folder (data)"
+            )
 
     def meta(self) -> dict[str, Any]:
         """meta.json (a missing or unreadable file is a one-line error)."""
@@ -466,11 +501,12 @@ class RunFolder:
         dev = select_device(device)
         remedy = "restore it from git or re-train the run (priqn train --force)"
         if snapshot:
+            source = self.snapshot_path(snapshot)
             state = self._load_snapshot(snapshot, cfg.checkpoint.keep_at, dev)
         elif latest.is_file():
-            state = checkpoint.load(latest, dev, remedy).policy_state()
+            source, state = latest, checkpoint.load(latest, dev, remedy).policy_state()
         elif final.is_file():
-            state = checkpoint.load_policy_state(final, dev, remedy)
+            source, state = final, checkpoint.load_policy_state(final, dev, remedy)
         else:
             raise PriqnError(
                 f"{self.path}: no {self.rel(latest)} or {self.rel(final)} to load a policy from"
@@ -485,9 +521,9 @@ class RunFolder:
         agent = make_agent(cfg.agent.name, cfg.agent_config, names)
         space = observation_space(state.obs_shapes)
         network = build_network(cfg, space, int(state.num_actions), seed=0, agent=agent)
-        network.load_state_dict(state.online)
+        checkpoint.restore(lambda: network.load_state_dict(state.online), source, remedy)
         network.eval()
-        agent.load_state_dict(state.agent)  # the running scale, if any
+        checkpoint.restore(lambda: agent.load_state_dict(state.agent), source, remedy)  # scale
         labels = policy_labels(cfg, agent)
         return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
 

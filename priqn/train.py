@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.checkpoint import Checkpoint, PolicyState
+from priqn.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.config import describe, flatten, to_dict
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
@@ -476,7 +476,7 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | 
             f"({', '.join(state.objectives)}) but {run.CONFIG} lists ({', '.join(t.objectives)}); "
             "restore the run's config.toml or start a new run"
         )
-    if not t.learner.load_state_dict(state.learner):
+    if not restore(lambda: t.learner.load_state_dict(state.learner), run.latest_checkpoint, REMEDY):
         written_on = "cuda" if device.type == "cpu" else "cpu"
         print(
             f"priqn train: {run.path.name}: the checkpoint was written on {written_on}, this "

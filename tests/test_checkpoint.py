@@ -23,6 +23,13 @@ CHECKPOINT_KEYS = [
 """The keys of checkpoints/latest.pt since the first release (old files must keep loading),
 then the optional ``objectives`` (declared objectives; absent = the default five)."""
 POLICY_KEYS = ["online", "agent", "obs_shapes", "num_actions", "step", "objectives"]
+"""The keys of policy.pt (``agent`` and ``objectives`` optional); both files end in
+``format`` since issue 35 (absent: format 1)."""
+
+
+def safe_load(path: Path) -> dict:
+    """The raw on-disk dict, read the only way priqn reads torch files (weights only)."""
+    return torch.load(path, weights_only=True)
 
 
 def make_checkpoint(step: int = 40) -> Checkpoint:
@@ -77,10 +84,12 @@ def test_checkpoint_round_trip_keeps_every_field_and_the_keys_on_disk(tmp_path: 
     expected = np.random.default_rng(2)
     expected.random(3)
     assert rng.random() == expected.random()
-    # On disk: the same plain dict of the same keys as ever, with a SHA-256 sidecar,
-    # and no temp file left behind.
-    raw = torch.load(path, weights_only=False)
-    assert list(raw) == CHECKPOINT_KEYS
+    # On disk: the same plain dict of the same keys as ever, then the format version;
+    # tensors and plain data only (the observations as tensors); a SHA-256 sidecar, and
+    # no temp file left behind.
+    raw = safe_load(path)
+    assert list(raw) == [*CHECKPOINT_KEYS, "format"] and raw["format"] == checkpoint.FORMAT_VERSION
+    assert isinstance(raw["obs"]["bev"], torch.Tensor) and type(raw["torch_version"]) is str
     assert Path(str(path) + CHECKSUM_SUFFIX).is_file()
     assert sorted(p.name for p in path.parent.iterdir()) == ["latest.pt", "latest.pt.sha256"]
 
@@ -108,15 +117,13 @@ def test_policy_state_round_trip_and_from_a_checkpoint(tmp_path: Path) -> None:
     assert policy.agent == state.learner["agent"] and policy.online is state.learner["online"]
     path = tmp_path / "policy.pt"
     checkpoint.save(policy, path)
-    assert list(torch.load(path, weights_only=False)) == POLICY_KEYS
+    assert list(safe_load(path)) == [*POLICY_KEYS, "format"]
     back = checkpoint.load_policy_state(path)
     assert back.step == 80 and back.obs_shapes == state.obs_shapes
     for name, tensor in policy.online.items():
         assert torch.equal(tensor, back.online[name])
     # An older policy.pt without the agent's state reads as an empty one.
-    torch.save(
-        {k: v for k, v in torch.load(path, weights_only=False).items() if k != "agent"}, path
-    )
+    torch.save({k: v for k, v in safe_load(path).items() if k not in ("agent", "format")}, path)
     Path(str(path) + CHECKSUM_SUFFIX).unlink()
     assert checkpoint.load_policy_state(path).agent == {}
 

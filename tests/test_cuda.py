@@ -7,7 +7,8 @@ machine with ``pytest tests/test_cuda.py tests/test_preorder.py -k cuda``.
 
 from __future__ import annotations
 
-import io
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from priqn.agents.learner import Learner
 from priqn.agents.network import tau_grid
 from priqn.agents.policy import Policy
 from priqn.agents.registry import AGENT_SPECS, make_agent
-from priqn.checkpoint import PolicyState
+from priqn.checkpoint import Checkpoint, PolicyState
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 
@@ -48,11 +49,16 @@ def test_every_agent_fits_a_fixed_batch_on_cuda(name):
 
 
 def saved_and_loaded(learner: Learner, map_location: str) -> dict:
-    """``learner``'s state through a file, loaded as a resume loads it (onto its device)."""
-    buffer = io.BytesIO()
-    torch.save(learner.state_dict(), buffer)
-    buffer.seek(0)
-    return torch.load(buffer, map_location=map_location, weights_only=False)
+    """``learner``'s state through a checkpoint file, loaded as a resume loads it (weights
+    only, onto its device; the observations come back as CPU numpy arrays)."""
+    obs = {"bev": np.arange(6, dtype=np.uint8).reshape(2, 3)}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "latest.pt"
+        state = Checkpoint(0, 0, 0.0, learner.state_dict(), {}, {}, obs, {}, A, {})
+        checkpoint.save(state, path)
+        back = checkpoint.load(path, map_location)
+    assert isinstance(back.obs["bev"], np.ndarray) and np.array_equal(back.obs["bev"], obs["bev"])
+    return back.learner
 
 
 def test_a_cuda_learner_resumes_identically_on_cuda():

@@ -233,7 +233,7 @@ def test_an_objective_from_a_test_module_trains_evaluates_and_shows(own_objectiv
     assert len(train) and np.allclose(train["return_constant_cost"], -0.25 * train["length"])
     import torch
 
-    state = torch.load(run / "policy.pt", weights_only=False)
+    state = torch.load(run / "policy.pt", weights_only=True)
     assert state["objectives"][-1] == "constant_cost"
     assert state["online"]["head_out.weight"].shape[0] == 6 * 25  # six heads x 25 actions
     episodes = pd.read_csv(run / "eval" / "episodes.csv")

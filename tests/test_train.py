@@ -251,7 +251,7 @@ def test_same_seed_same_training(tmp_path):
         for n in "ab"
     ]
     assert rows[0] == rows[1]
-    sa, sb = (torch.load(tmp_path / n / "checkpoints/latest.pt", weights_only=False) for n in "ab")
+    sa, sb = (torch.load(tmp_path / n / "checkpoints/latest.pt", weights_only=True) for n in "ab")
     for k, v in sa["learner"]["online"].items():
         assert torch.equal(v, sb["learner"]["online"][k]), k
 
