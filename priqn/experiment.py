@@ -94,7 +94,8 @@ class ExperimentSpec:
 
 @dataclass(frozen=True)
 class ResourceSpec:
-    """The ``[resources]`` table: what one cell needs (local pool size, Ray task options)."""
+    """The ``[resources]`` table: what one cell needs (local pool size and GPU shares, Ray
+    task options)."""
 
     cpus_per_cell: float = 1.0
     """CPU cores one cell counts for: the local pool runs ``cores // cpus_per_cell`` cells at
@@ -103,7 +104,10 @@ class ResourceSpec:
     partly idle and two cells on 2 cores give 1.56x the decisions per hour of one
     (``priqn bench sweep``; docs/sweeps.md, "Local machine")."""
     gpus_per_cell: float = 0.0
-    """GPUs one cell needs (Ray ``num_gpus``; fractions share a GPU)."""
+    """GPUs one cell needs: Ray ``num_gpus``; in a local sweep each cell is pinned to its
+    share of one GPU (``CUDA_VISIBLE_DEVICES``) and at most ``floor(1 / gpus_per_cell)``
+    cells run on each GPU (a whole number k above 1: k GPUs a cell); ignored, with a
+    warning, where torch sees no GPU (docs/sweeps.md, "Local machine")."""
 
 
 @dataclass(frozen=True)

@@ -200,6 +200,8 @@ class Learner:
         if cfg.grad_clip_norm > 0:
             torch.nn.utils.clip_grad_norm_(self.online.parameters(), cfg.grad_clip_norm)
         self.optimizer.step()
+        if self.compiled:  # gradients may live in CUDA-graph memory: drop them with the step
+            self.optimizer.zero_grad(set_to_none=True)
         self.updates += 1
         if self.updates % cfg.target_update_interval == 0:
             self.sync_target()
