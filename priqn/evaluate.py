@@ -37,7 +37,7 @@ import re
 import shutil
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -387,21 +387,47 @@ def _select(obs: Any, i: int) -> Any:
     return np.asarray(obs)[i : i + 1]
 
 
-def run_scenes(
+@dataclasses.dataclass(frozen=True)
+class RolloutStep:
+    """One decision of one scene as :func:`rollout` played it."""
+
+    scene: Scene
+    """The scene (episode) this decision belongs to."""
+    step: int
+    """Decision index within the episode (0-based)."""
+    action: int
+    """The action sent to the env."""
+    decision: Any
+    """The policy's :class:`priqn.agents.policy.Decision` for this state alone (B = 1)."""
+    reward_N: np.ndarray
+    """float64 ``[N]``: the reward vector this decision earned (the run's objectives)."""
+    frame: np.ndarray | None
+    """The env's rendering of the state decided on (``frames=True``; else None)."""
+    episode: dict[str, Any] | None
+    """When this decision ended the episode: its values (:func:`priqn.episodes.episode_values`
+    and the mean ``subset_<name>`` sizes); None before."""
+
+
+def rollout(
     policy: Any,
     vec_env: Any,
     scenes: Sequence[Scene],
-    on_episode: Callable[[Scene, dict[str, Any]], None],
-    progress: Any | None = None,
-) -> None:
-    """Play every scene once on ``vec_env`` (SAME_STEP autoreset) with ``policy``.
+    quantiles: bool = False,
+    frames: bool = False,
+) -> Iterator[RolloutStep]:
+    """Play every scene once on ``vec_env`` (SAME_STEP autoreset) with ``policy``, yielding
+    each decision as a :class:`RolloutStep`. The one rollout loop: ``priqn evaluate`` (also
+    of the reference drivers), training's periodic evaluation, ``priqn inspect`` and the
+    mechanism analysis all play their scenes here.
 
-    Each worker takes the next scene when its episode ends: it is reset to that
-    scene with ``options['reset_mask']`` (the autoreset's own scene is discarded).
-    (A first plain reset initialises every worker; its scenes are discarded too.)
-    The policy acts on one row at a time with the scene's generator, so results do
-    not depend on the number of workers. ``on_episode(scene, values)`` is called
-    with the episode's values as each episode finishes.
+    ``policy.decide(obs, rng, quantiles=...)`` gets one row at a time with the scene's
+    acting generator, so results do not depend on the number of workers, nor on
+    ``quantiles`` (record the quantiles) or ``frames`` (render the state before each
+    decision, ``vec_env.call("render")``; its env needs ``render_mode="rgb_array"``).
+    Each worker takes the next scene when its episode ends: it is reset to that scene with
+    ``options['reset_mask']`` (the autoreset's own scene is discarded). (A first plain
+    reset initialises every worker; its scenes are discarded too.) Steps come in
+    (vector step, worker) order; a scene's steps in order.
     """
     from priqn.agents.policy import SubsetSizeMeans
 
@@ -410,10 +436,12 @@ def run_scenes(
     queue = list(scenes)
     slot: list[Scene | None] = [None] * num_envs
     rngs: list[np.random.Generator | None] = [None] * num_envs
+    steps = [0] * num_envs
     obs: Any = None
 
     def assign(i: int) -> None:
         nonlocal obs
+        steps[i] = 0
         if not queue:
             slot[i], rngs[i] = None, None
             return
@@ -435,20 +463,50 @@ def run_scenes(
         assign(i)
     while any(s is not None for s in slot):
         actions = np.zeros(num_envs, dtype=np.int64)
+        decisions: list[Any] = [None] * num_envs
         for i, scene in enumerate(slot):
             if scene is not None:
-                actions[i] = int(np.asarray(policy.act(_select(obs, i), rngs[i])).reshape(-1)[0])
-                sizes.add(getattr(policy, "last_subset_sizes", None), rows=slice(i, i + 1))
-        obs, _, terminated, truncated, infos = vec_env.step(actions)
-        for i in range(num_envs):
-            if slot[i] is None or not (terminated[i] or truncated[i]):
+                decisions[i] = policy.decide(_select(obs, i), rngs[i], quantiles=quantiles)
+                actions[i] = int(np.asarray(decisions[i].actions_B).reshape(-1)[0])
+                sizes.add(decisions[i].subset_sizes_BS, rows=slice(i, i + 1))
+        rendered = vec_env.call("render") if frames else None
+        obs, rewards, terminated, truncated, infos = vec_env.step(actions)
+        for i, scene in enumerate(slot):
+            if scene is None:
                 continue
-            values = episode_values(final_info(infos, i))
-            values.update(sizes.pop(i))
-            on_episode(slot[i], values)
+            ended = bool(terminated[i] or truncated[i])
+            values = None
+            if ended:
+                values = episode_values(final_info(infos, i))
+                values.update(sizes.pop(i))
+            yield RolloutStep(
+                scene,
+                steps[i],
+                int(actions[i]),
+                decisions[i],
+                np.asarray(rewards[i], dtype=np.float64).reshape(-1),
+                None if rendered is None else np.asarray(rendered[i]),
+                values,
+            )
+            steps[i] += 1
+            if ended:
+                assign(i)
+
+
+def run_scenes(
+    policy: Any,
+    vec_env: Any,
+    scenes: Sequence[Scene],
+    on_episode: Callable[[Scene, dict[str, Any]], None],
+    progress: Any | None = None,
+) -> None:
+    """Play every scene once with :func:`rollout`; ``on_episode(scene, values)`` is called
+    with the episode's values as each episode finishes (and ``progress.update(1)``)."""
+    for step in rollout(policy, vec_env, scenes):
+        if step.episode is not None:
+            on_episode(step.scene, step.episode)
             if progress is not None:
                 progress.update(1)
-            assign(i)
 
 
 def _merge(obs: Any, new_obs: Any, i: int) -> Any:
@@ -800,6 +858,12 @@ class ReferenceDriver:
         if self.name == "random":
             return np.array([int(rng.integers(self.num_actions))], np.int64)
         return np.zeros(1, np.int64)
+
+    def decide(self, obs: Any, rng: np.random.Generator, quantiles: bool = False) -> Any:
+        """:meth:`act` as a :class:`priqn.agents.policy.Decision` (no subsets, no quantiles)."""
+        from priqn.agents.policy import Decision
+
+        return Decision(self.act(obs, rng))
 
 
 def reference_env_config(paths: Iterable[str | Path]) -> tuple[Any, list[str]]:

@@ -1,8 +1,9 @@
 """``priqn inspect``: why a policy chose each action, decision by decision.
 
-Re-runs a trained policy greedily on evaluation scenes (the scene seeds of ``priqn
-evaluate``, so an inspected episode is the evaluated one) in its own loop — nothing is
-added to the training or evaluation hot path — and writes into ``--out``:
+Re-runs a trained policy on evaluation scenes (the scene seeds of ``priqn evaluate``,
+so an inspected episode is the evaluated one) through the one rollout loop of
+``priqn evaluate`` (:func:`priqn.evaluate.rollout`, asked for quantiles and frames; one
+forward pass per decision) and writes into ``--out``:
 
 - ``index.html``: one self-contained page (frames beside it in ``frames/``; no server,
   no network) with a slider and a play button. Each frame shows the BEV + LiDAR view,
@@ -67,19 +68,28 @@ class InspectConfig:
     near-greedy``; IQN / Ensemble / MA-IQN only): the orange dots are its near-greedy set."""
 
 
-@dataclasses.dataclass
-class Decision:
+@dataclasses.dataclass(frozen=True)
+class InspectedDecision:
     """Everything the page shows about one decision."""
 
     episode: int
+    """Index of the inspected episode (0-based)."""
     step: int
+    """Decision index within the episode (0-based)."""
     action: int
+    """The chosen action."""
     quantiles_HKA: np.ndarray
+    """float32 ``[H, K, A]``: the fixed-grid quantiles the policy acted on."""
     subsets_NA: np.ndarray | None
+    """bool ``[N, A]``: each preorder level's optimal subset (None without a preorder)."""
     leaf_A: np.ndarray | None
+    """bool ``[A]``: the set the action was sampled from (leaf or near-greedy set)."""
     reward_5: np.ndarray
+    """``[N]``: the reward vector the decision earned."""
     returns_5: np.ndarray
+    """``[N]``: the episode's returns up to and including this decision."""
     frame: np.ndarray
+    """RGB image of the state decided on (BEV | LiDAR)."""
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -129,47 +139,39 @@ def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any
 # ----------------------------------------------------------------------------- rollout
 
 
-def rollout(policy: Any, env: Any, scenes: list[Any]) -> list[Decision]:
-    """Play each scene greedily exactly as ``priqn evaluate`` does, recording every decision."""
-    import torch
+def rollout(policy: Any, vec_env: Any, scenes: list[Any]) -> list[InspectedDecision]:
+    """Play each scene exactly as ``priqn evaluate`` does (the one rollout loop,
+    :func:`priqn.evaluate.rollout`, with quantiles and frames), recording every decision.
+
+    ``vec_env`` renders (``render_mode="rgb_array"``); one forward pass per decision.
+    """
     from tqdm import tqdm
 
-    decisions: list[Decision] = []
-    subsets = policy.agent.subsets
-    for episode, scene in enumerate(tqdm(scenes, desc="inspect", unit="episode", disable=None)):
-        rng = np.random.default_rng(scene.act_seed)
-        obs, _ = env.reset(seed=scene.reset_seed, options=scene.reset_options())
-        returns = np.zeros(len(policy.agent.objectives))
-        done, step = False, 0
-        while not done:
-            batch = {k: np.asarray(v)[None] for k, v in obs.items()}
-            q_HKA = policy.quantiles(batch)[0]
-            action = int(policy.act(batch, rng)[0])  # the same acting call as evaluate
-            per_obj = leaf = None
-            if policy.near_greedy_eps is not None:  # the set the control just sampled from
-                leaf = policy.last_near_greedy_BA[0]
-            elif subsets is not None:  # the subsets the acting rule just used
-                per_obj = subsets.last.per_objective[0].cpu().numpy()
-                leaf = subsets.last.leaf[0].cpu().numpy()
-            frame = env.render()
-            obs, reward, terminated, truncated, _ = env.step(action)
-            reward = np.asarray(reward, dtype=np.float64)
-            returns = returns + reward
+    from priqn.evaluate import rollout as play
+
+    decisions: list[InspectedDecision] = []
+    episode = {scene: e for e, scene in enumerate(scenes)}
+    returns: dict[Any, np.ndarray] = {}
+    with tqdm(total=len(scenes), desc="inspect", unit="episode", disable=None) as bar:
+        for s in play(policy, vec_env, scenes, quantiles=True, frames=True):
+            d = s.decision
+            total = returns.get(s.scene, np.zeros(len(policy.agent.objectives))) + s.reward_N
+            returns[s.scene] = total
             decisions.append(
-                Decision(
-                    episode,
-                    step,
-                    action,
-                    q_HKA.float().cpu().numpy() if isinstance(q_HKA, torch.Tensor) else q_HKA,
-                    per_obj,
-                    leaf,
-                    reward,
-                    returns.copy(),
-                    frame,
+                InspectedDecision(
+                    episode[s.scene],
+                    s.step,
+                    s.action,
+                    d.quantiles_BHKA[0],
+                    None if d.subsets_BLA is None else d.subsets_BLA[0],
+                    None if d.leaf_BA is None else d.leaf_BA[0],
+                    s.reward_N,
+                    total.copy(),
+                    s.frame,
                 )
             )
-            step += 1
-            done = bool(terminated or truncated)
+            if s.episode is not None:
+                bar.update(1)
     return decisions
 
 
@@ -185,7 +187,7 @@ def head_names(agent: Any) -> list[str]:
     return [f"head {h} (weighted sum)" for h in range(agent.num_heads)]
 
 
-def pruned_by(d: Decision, preorder: Any) -> dict[str, str]:
+def pruned_by(d: InspectedDecision, preorder: Any) -> dict[str, str]:
     """For each objective's head: the first level (topological order) whose optimal
     subset does not contain that head's greedy action ('' = it survives to the leaf)."""
     out: dict[str, str] = {}
@@ -202,7 +204,7 @@ def pruned_by(d: Decision, preorder: Any) -> dict[str, str]:
     return out
 
 
-def decision_rows(decisions: list[Decision], agent: Any, table: np.ndarray) -> list[dict]:
+def decision_rows(decisions: list[InspectedDecision], agent: Any, table: np.ndarray) -> list[dict]:
     """``decisions.csv`` rows."""
     preorder = None if agent.subsets is None else agent.subsets.preorder
     rows = []
@@ -233,7 +235,7 @@ def decision_rows(decisions: list[Decision], agent: Any, table: np.ndarray) -> l
 # ----------------------------------------------------------------------------- pictures
 
 
-def _panel_values(d: Decision, agent: Any) -> list[tuple[str, np.ndarray]]:
+def _panel_values(d: InspectedDecision, agent: Any) -> list[tuple[str, np.ndarray]]:
     """(title, values [A]) of every heat map: each head, plus the acting rule's view."""
     means_HA = d.quantiles_HKA.mean(axis=1)
     names = head_names(agent)
@@ -247,7 +249,7 @@ def _panel_values(d: Decision, agent: Any) -> list[tuple[str, np.ndarray]]:
 
 
 def frame_figure(
-    d: Decision, agent: Any, table_A2: np.ndarray, shape_VD: tuple[int, int], dpi: int
+    d: InspectedDecision, agent: Any, table_A2: np.ndarray, shape_VD: tuple[int, int], dpi: int
 ) -> bytes:
     """One decision as a PNG: view, heat maps with subsets, quantile fans, rewards."""
     import matplotlib
@@ -419,7 +421,7 @@ show(0);
 """
 
 
-def _page_rows(rows: list[dict], decisions: list[Decision]) -> list[dict]:
+def _page_rows(rows: list[dict], decisions: list[InspectedDecision]) -> list[dict]:
     out = []
     for r, d in zip(rows, decisions, strict=True):
         r = dict(r)
@@ -438,7 +440,7 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     """Inspect ``run_dir`` on the configured scenes; returns ``out_dir/index.html``."""
     import pandas as pd
 
-    from priqn.env.intersection import IntersectionEnv
+    from priqn.env.vector import make_vector_env
 
     run_dir, out = Path(run_dir), Path(out_dir)
     run = RunFolder(run_dir)
@@ -453,12 +455,13 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=eval_cfg.max_episode_steps)
     # Frames for people at 128 px or more, whatever the observation size.
     view_cfg = dataclasses.replace(env_cfg, render_size_px=max(128, env_cfg.obs_size_px))
-    env = IntersectionEnv(view_cfg, render_mode="rgb_array")
+    # One env worker, as for every rollout (libsumo: one simulation per process).
+    vec_env = make_vector_env(view_cfg, 1, seed=eval_cfg.seed, render_mode="rgb_array")
     try:
-        decisions = rollout(policy, env, scenes)
-        table = env.action_table()
+        decisions = rollout(policy, vec_env, scenes)
+        table = np.asarray(vec_env.call("action_table")[0])
     finally:
-        env.close()
+        vec_env.close()
 
     agent = policy.agent
     rows = decision_rows(decisions, agent, table)

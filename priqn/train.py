@@ -282,7 +282,8 @@ class Trainer:
         self.clock = SectionClock()  # where the wall time goes (meta.json time_s)
         self.step, self.episodes, self.wall_before = 0, 0, 0.0
         self.epsilon, self.wall = cfg.exploration.eps_start, 0.0
-        self.last_stats: dict[str, float] = {}
+        self.latest_update_stats: dict[str, float] = {}
+        """The latest learner update's statistics (loss, q_mean, target |S_r|), for logging."""
 
     def facts(self) -> dict[str, Any]:
         """What meta.json records about this session's learner and replay buffer."""
@@ -312,8 +313,9 @@ class Trainer:
         E = self.num_envs
         with self.clock("act"):
             self.epsilon = linear_epsilon(self.cfg.exploration, self.step, self.cfg.total_steps)
-            actions = self.policy.act(obs, self.rng_act)
-            self.subset_sizes.add(self.policy.last_subset_sizes)
+            decision = self.policy.decide(obs, self.rng_act)
+            self.subset_sizes.add(decision.subset_sizes_BS)
+            actions = decision.actions_B
             explore = self.rng_act.random(E) < self.epsilon
             return np.where(explore, self.rng_act.integers(self.num_actions, size=E), actions)
 
@@ -340,7 +342,7 @@ class Trainer:
         """The updates due once this step's decisions count: one per decisions_per_update
         decisions after learning_starts. The batch comes from the transitions stored so
         far (not the E in flight); a resume without a saved replay buffer refills a
-        batch's worth first. ``last_stats``: the last update's statistics."""
+        batch's worth first. ``latest_update_stats``: the latest update's statistics."""
         cfg = self.cfg
         decisions = self.step + self.num_envs
         if decisions < cfg.replay.learning_starts or len(self.replay) < cfg.learner.batch_size:
@@ -352,14 +354,14 @@ class Trainer:
                 batch = self.replay.sample(cfg.learner.batch_size, self.rng_replay)
             with self.clock("update"):
                 stats = self.learner.update(batch)
-        self.last_stats = stats or self.last_stats
+        self.latest_update_stats = stats or self.latest_update_stats
 
     def log(self, logger: TrainLogger, ended: np.ndarray, infos: Mapping[str, Any]) -> None:
         """The ended episodes (metrics.csv, TensorBoard), the progress bar and, every
         log_interval_steps, the training scalars."""
         log_t0 = time.perf_counter()
         self.wall = self.wall_before + log_t0 - self.t0
-        last_loss = self.last_stats.get("loss", math.nan)
+        latest_loss = self.latest_update_stats.get("loss", math.nan)
         for e in np.flatnonzero(ended):
             self.episodes += 1
             info = final_info(infos, int(e))
@@ -373,7 +375,7 @@ class Trainer:
                 wall_s=round(self.wall, 2),
                 epsilon=round(self.epsilon, 4),
                 updates=self.learner.updates,
-                loss=round(last_loss, 5) if not math.isnan(last_loss) else "",
+                loss=round(latest_loss, 5) if not math.isnan(latest_loss) else "",
             )
             logger.episode(row, self.step)
         if log_t0 - self.t_rate >= 5.0:
@@ -390,7 +392,7 @@ class Trainer:
         if line is not None and self.step >= self.next_log:
             self.next_log = self.step + self.cfg.log_interval_steps
             scalars = {"epsilon": self.epsilon, "updates_per_s": self.updates_per_s}
-            logger.interval(self.step, line, {**scalars, **self.last_stats})
+            logger.interval(self.step, line, {**scalars, **self.latest_update_stats})
         self.clock.add("logging", time.perf_counter() - log_t0)
 
     def evaluate(self, evaluation: HoldoutEvaluation, logger: TrainLogger) -> None:
@@ -529,7 +531,7 @@ class HoldoutEvaluation:
     (started before the loop, reused by every evaluation; a context manager that closes it).
 
     The scenes of an evaluation depend only on the eval seed and the step, and are
-    played by the evaluation's own rollout (:func:`priqn.evaluate.run_scenes`).
+    played by the one rollout loop (:func:`priqn.evaluate.rollout`, via ``run_scenes``).
     """
 
     def __init__(self, cfg: TrainConfig, seed: int) -> None:

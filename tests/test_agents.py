@@ -145,10 +145,12 @@ def test_near_greedy_policy_label_acting_and_refusal():
     }
     values_BKA = policy.quantiles(obs)[:, 0]
     allowed_BA = rules.near_greedy_subsets(values_BKA, 0.2).leaf.numpy()
-    actions = control.act(obs, rng)
+    decision = control.decide(obs, rng)
+    actions = decision.actions_B
     assert allowed_BA[np.arange(5), actions].all()
-    assert control.last_subset_sizes.shape == (5, 1)
-    assert (control.last_subset_sizes[:, 0] == allowed_BA.sum(axis=1)).all()
+    assert np.array_equal(decision.leaf_BA, allowed_BA) and decision.subsets_BLA is None
+    assert decision.subset_sizes_BS.shape == (5, 1)
+    assert (decision.subset_sizes_BS[:, 0] == allowed_BA.sum(axis=1)).all()
     with pytest.raises(PriqnError, match="near-greedy acting applies to agents with one scalar"):
         Policy(small_net(5), make_agent("pr-iqn"), K).near_greedy(0.2)
 
@@ -413,3 +415,52 @@ def test_parameter_counts_in_the_docs():
             counts.append(sum(p.numel() for p in build_network(cfg, space, n, 0).parameters()))
         heads = 1 if agent == "iqn" else 5
         assert f"| {shown} | {heads} | {counts[0]:,} | {counts[1]:,} |" in doc, (agent, counts)
+
+
+@pytest.mark.parametrize("name", sorted(AGENT_SPECS))
+def test_decide_records_what_the_acting_rule_used_without_side_channels(name):
+    """Policy.decide returns the actions, each level's optimal subset (the ones Algorithm 1
+    gives for the recorded quantiles), the leaf and, when asked, the quantiles; asking for
+    the quantiles changes neither the actions nor the generator's stream; nothing of the
+    decision is left on the policy."""
+    torch.manual_seed(0)
+    agent = make_agent(name)
+    policy = Policy(small_net(agent.num_heads), agent, 8)
+    obs = random_obs(np.random.default_rng(1), 6)
+    rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    plain = policy.decide(obs, rng_a)
+    full = policy.decide(obs, rng_b, quantiles=True)
+    assert rng_a.random() == rng_b.random()  # the same draws consumed
+    assert np.array_equal(plain.actions_B, full.actions_B) and plain.quantiles_BHKA is None
+    assert full.quantiles_BHKA.shape == (6, agent.num_heads, 8, A)
+    assert np.array_equal(policy.act(obs, np.random.default_rng(5)), plain.actions_B)
+    assert not [k for k in vars(policy) if k.startswith("last")]
+    if agent.subsets is None:
+        assert plain.subsets_BLA is None and plain.leaf_BA is None
+        assert plain.subset_sizes_BS is None and policy.subset_size_names == ()
+        return
+    from priqn.preorder import optimal_subsets
+
+    again = optimal_subsets(
+        torch.from_numpy(full.quantiles_BHKA), agent.subsets.preorder, agent.cfg.comparator,
+        agent.cfg.eps,
+    )  # fmt: skip
+    assert plain.levels == agent.subsets.preorder.objectives
+    assert np.array_equal(plain.subsets_BLA, again.per_objective.numpy())
+    assert np.array_equal(plain.leaf_BA, again.leaf.numpy())
+    assert plain.leaf_BA[np.arange(6), plain.actions_B].all()
+    sizes = np.concatenate([again.per_objective.sum(-1), again.leaf.sum(-1, keepdim=True)], -1)
+    assert plain.subset_sizes_BS.tolist() == sizes.tolist()
+    assert policy.subset_size_names == (*plain.levels, "leaf")
+    one = plain.row(2)
+    assert one.actions_B.tolist() == [plain.actions_B[2]] and one.subsets_BLA.shape == (1, 5, A)
+
+
+def test_act_with_subsets_returns_the_subsets_the_rule_acted_on():
+    q = torch.randn(4, 5, 8, A)
+    agent = make_agent("pr-iqn")
+    u = torch.rand(4)
+    actions, out = rules.act_with_subsets(rules.act_leaf_uniform, q, agent.subsets, u)
+    assert torch.equal(actions, agent.act(q, u)) and torch.equal(out.leaf, agent.subsets(q).leaf)
+    actions, out = rules.act_with_subsets(rules.act_argmax, q[:, :1], None, u)
+    assert out is None and torch.equal(actions, q[:, 0].mean(1).argmax(1))

@@ -95,6 +95,11 @@ class FakePolicy:
         assert obs["seed"].shape == (1, 1)
         return np.array([(int(obs["seed"][0, 0]) + int(rng.integers(3))) % 3], np.int64)
 
+    def decide(self, obs, rng, quantiles=False):
+        from priqn.agents.policy import Decision
+
+        return Decision(self.act(obs, rng))
+
 
 def make_env(num_envs: int):
     return SyncVectorEnv([FakeEnv for _ in range(num_envs)], autoreset_mode=AutoresetMode.SAME_STEP)
@@ -416,3 +421,32 @@ def test_densities_flag_out_of_range_blames_the_flag(tmp_path) -> None:
     assert out.returncode == 2
     assert "--densities 1.5: each density must be in (0, 1]" in out.stderr
     assert "--set" not in out.stderr
+
+
+def test_rollout_yields_each_decision_once_and_the_episode_at_its_end() -> None:
+    """The one rollout loop: every scene's decisions in order, numbered from 0, the
+    episode's values on its last decision only; the same for any worker count."""
+    from priqn.evaluate import rollout
+
+    scenes = make_scenes(CFG, NETS)[:7]
+    by_workers = {}
+    for workers in (1, 3):
+        env = make_env(workers)
+        try:
+            steps = list(rollout(FakePolicy(), env, scenes))
+        finally:
+            env.close()
+        per_scene: dict = {}
+        for s in steps:
+            per_scene.setdefault(s.scene, []).append(s)
+        assert list(per_scene) == scenes if workers == 1 else set(per_scene) == set(scenes)
+        for scene, played in per_scene.items():
+            assert [s.step for s in played] == list(range(len(played)))
+            assert [s.episode is not None for s in played] == [False] * (len(played) - 1) + [True]
+            assert played[-1].episode["steps"] == len(played) == 1 + scene.reset_seed % 4
+            assert all(s.decision.actions_B.tolist() == [s.action] for s in played)
+            assert all(s.frame is None and s.reward_N.shape == (1,) for s in played)
+        by_workers[workers] = {
+            scene: [s.action for s in played] for scene, played in per_scene.items()
+        }
+    assert by_workers[1] == by_workers[3]

@@ -125,6 +125,29 @@ ACTING_RULES: dict[str, Callable[..., torch.Tensor]] = {
 """Acting rule name → ``fn(quantiles_BHKA, subsets | None, u_B, weights_5) -> actions_B`` (int64)."""
 
 
+def act_with_subsets(
+    act: Callable[..., torch.Tensor],
+    quantiles_BHKA: torch.Tensor,
+    subsets: SubsetFn | None,
+    u_B: torch.Tensor,
+    weights_5: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, Any]:
+    """``(actions_B, the optimal subsets the rule acted on)``: acting rule ``act`` (an
+    :data:`ACTING_RULES` value) applied once; the subsets are what its call of
+    ``subsets`` returned (None when it made none, e.g. an argmax rule)."""
+    if subsets is None:
+        return act(quantiles_BHKA, None, u_B, weights_5), None
+    made: list[Any] = []
+
+    def recorded(q_BNKA: torch.Tensor) -> Any:
+        out = subsets(q_BNKA)
+        made.append(out)
+        return out
+
+    actions_B = act(quantiles_BHKA, recorded, u_B, weights_5)
+    return actions_B, (made[-1] if made else None)
+
+
 # ----------------------------------------------------------------------------- near-greedy control
 
 
