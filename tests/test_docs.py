@@ -149,14 +149,21 @@ def inline_commands(text: str) -> Iterator[tuple[int, list[str]]]:
             yield number, tokens[1:]
 
 
-def all_commands() -> list[tuple[str, list[str]]]:
-    """``("file:line", argv)`` of every priqn command in README.md and docs/*.md."""
-    out: list[tuple[str, list[str]]] = []
+Command = tuple[str, list[str], bool]
+"""``("file:line", argv, inline)``: where, the arguments after ``priqn``, prose or block."""
+
+
+def commands_in(text: str, where: str = "x") -> list[Command]:
+    """Every priqn command of one markdown text."""
+    block = [(f"{where}:{n}", argv, False) for n, argv in code_block_commands(text)]
+    return block + [(f"{where}:{n}", argv, True) for n, argv in inline_commands(text)]
+
+
+def all_commands() -> list[Command]:
+    """Every priqn command in README.md and docs/*.md."""
+    out: list[Command] = []
     for path in doc_files():
-        text = path.read_text(encoding="utf-8")
-        rel = path.relative_to(ROOT).as_posix()
-        for number, argv in itertools.chain(code_block_commands(text), inline_commands(text)):
-            out.append((f"{rel}:{number}", argv))
+        out += commands_in(path.read_text(encoding="utf-8"), path.relative_to(ROOT).as_posix())
     return out
 
 
@@ -177,11 +184,13 @@ def _parser(argv: list[str]) -> tuple[argparse.ArgumentParser, list[str]]:
     return parser, argv[1:]
 
 
-def parse_error(argv: list[str]) -> str | None:
+def parse_error(argv: list[str], inline: bool = False) -> str | None:
     """Why ``priqn argv`` would not parse (argparse's message), or None if it parses.
 
     ``priqn VERB`` and ``priqn VERB SUB`` (plain words, no options) name a command: a
-    missing required argument is fine there, an unknown verb or sub-command is not.
+    missing required argument is fine there, an unknown verb or sub-command is not. In
+    prose (``inline``), ``priqn sweep --ray`` names an option: a missing required
+    *positional* is fine there; a missing required option (``--out``) never is.
     """
     if argv and not argv[0].startswith("-") and argv[0] not in cli.COMMANDS:
         return f"unknown command {argv[0]!r} (priqn.cli.COMMANDS: {', '.join(cli.COMMANDS)})"
@@ -201,17 +210,20 @@ def parse_error(argv: list[str]) -> str | None:
         if placeholder and placeholder.group(1) in rest:
             rest = [("1" if a == placeholder.group(1) else a) for a in rest]
             continue
-        if naming and "the following arguments are required" in message:
+        required = re.search(r"the following arguments are required: (.*)", message)
+        if required and naming:
+            return None
+        if required and inline and not any(n.startswith("-") for n in required[1].split(", ")):
             return None
         return message
     return "placeholders did not resolve"
 
 
-def check(commands: list[tuple[str, list[str]]]) -> list[str]:
+def check(commands: list[Command]) -> list[str]:
     """One line per command that does not parse."""
     bad = []
-    for where, argv in commands:
-        error = parse_error(argv)
+    for where, argv, inline in commands:
+        error = parse_error(argv, inline)
         if error:
             bad.append(f"{where}: priqn {shlex.join(argv)}\n    {error}")
     return bad
@@ -224,8 +236,8 @@ def test_the_docs_have_commands() -> None:
     """The collector finds commands in blocks and inline spans (else the test is empty)."""
     commands = all_commands()
     assert len(commands) > 50
-    assert any(argv[:1] == ["sweep"] for _, argv in commands)
-    assert any(where.startswith("README.md") for where, _ in commands)
+    assert any(argv[:1] == ["sweep"] for _, argv, _ in commands)
+    assert any(where.startswith("README.md") for where, _, _ in commands)
 
 
 def test_every_documented_command_parses() -> None:
@@ -243,12 +255,12 @@ def test_every_documented_command_parses() -> None:
         "Run `priqn sweep smoke --no-such-flag`.\n",  # unknown option
         "Run `priqn bench env|preorder|nope`.\n",  # one alternative is no sub-command
         "```bash\ncd x && priqn train \\\n  --agent\n```\n",  # --agent needs a value
+        "```bash\npriqn sweep --ray\n```\n",  # a block is run: the experiment is missing
+        "Mention `priqn inspect --net holdout/tjunction_00`.\n",  # a required option is not
     ],
 )
 def test_a_bad_command_fails(markdown: str) -> None:
-    text = markdown
-    commands = [("x", argv) for _, argv in code_block_commands(text)]
-    commands += [("x", argv) for _, argv in inline_commands(text)]
+    commands = commands_in(markdown)
     assert commands, "the bad command was not collected"
     assert check(commands), f"accepted: {commands}"
 
@@ -257,11 +269,11 @@ def test_good_commands_pass() -> None:
     text = (
         "```bash\n.venv/bin/pip install -e . && .venv/bin/priqn sweep smoke  # comment\n```\n"
         "Then `priqn report runs/ --out reports/x/ [--seed 0]` and `priqn inspect`.\n"
-        "`priqn --version`, `priqn evaluate RUN --snapshot N`, `priqn bench env|preorder`\n"
+        "`priqn --version`, `priqn evaluate RUN --snapshot N`, `priqn bench env|preorder`,\n"
+        "`priqn sweep --ray`\n"
     )
-    commands = [("x", argv) for _, argv in code_block_commands(text)]
-    commands += [("x", argv) for _, argv in inline_commands(text)]
-    assert len(commands) == 7
+    commands = commands_in(text)
+    assert len(commands) == 8
     assert not check(commands)
 
 
@@ -307,3 +319,67 @@ def test_one_version_everywhere() -> None:
     changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
     releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", changelog, re.M)
     assert releases and releases[0] == typed, "CHANGELOG.md's newest release is the version"
+
+
+# ------------------------------------------------- numbers come from committed reports
+
+REGION = re.compile(r"<!-- numbers: (\S+) -->(.*?)<!-- end numbers -->", re.S)
+NUMBER = re.compile(r"[+-]?\d+(?:\.\d+)?")
+
+
+def _normal(text: str) -> str:
+    """Unicode minus as ASCII, thousands separators dropped (2,000,000 -> 2000000)."""
+    return re.sub(r"(?<=\d),(?=\d{3}\b)", "", text.replace("−", "-"))
+
+
+def unsourced_numbers(text: str) -> list[str]:
+    """Numbers in ``<!-- numbers: FILE -->`` regions that FILE does not contain.
+
+    Checked: every number with a decimal point or at least four digits (estimates,
+    interval ends, budgets), as a whole token with its sign.
+    """
+    bad = []
+    for source, region in REGION.findall(text):
+        report = _normal((ROOT / source).read_text(encoding="utf-8"))
+        for number in NUMBER.findall(_normal(region)):
+            if "." not in number and len(number.lstrip("+-")) < 4:
+                continue
+            if not re.search(rf"(?<![\d.]){re.escape(number)}(?!\d)", report):
+                bad.append(f"{number} (not in {source})")
+    return bad
+
+
+def test_readme_states_the_answer_in_its_first_screen() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    first = "\n".join(readme.splitlines()[:25])
+    assert REGION.search(first), "the first 25 lines hold a sourced region with the answer"
+    for words in ("20 training seeds per row", "60,000", "ruled out"):
+        assert words in first, words
+    assert len(readme.splitlines()) <= 250
+
+
+def test_readme_numbers_come_from_the_reports() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(REGION.findall(readme)) >= 2
+    assert not unsourced_numbers(readme)
+
+
+def test_a_number_not_in_the_report_fails() -> None:
+    text = (
+        "<!-- numbers: docs/results/headline/report.md -->−0.9 [−12.2, +10.4]<!-- end numbers -->"
+    )
+    assert unsourced_numbers(text) == ["+10.4 (not in docs/results/headline/report.md)"]
+
+
+def test_holm_family_sizes_in_the_docs_match_the_claims_table() -> None:
+    import csv
+
+    path = ROOT / "docs/results/table2_cpu/tables/claims.csv"
+    with path.open(encoding="utf-8") as f:
+        rows = [r for r in csv.DictReader(f) if r["role"] == "primary"]
+    paper = sum(r["family"] == "paper" for r in rows)
+    ours = sum(r["family"] == "ours" for r in rows)
+    results = " ".join((ROOT / "docs/results.md").read_text(encoding="utf-8").split())
+    assert f"family ({paper} comparisons) and within ours ({ours})" in results
+    statistics = " ".join((ROOT / "docs/statistics.md").read_text(encoding="utf-8").split())
+    assert f"{paper + ours} primary comparisons ({paper} + {ours})" in statistics
