@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "tables, rliable statistics and figures from evaluated runs",
     ),
     "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),
+    "mechanism": (
+        "priqn.analysis.mechanism",
+        "replay Pr-IQN cells: safety removals and the safety head's calibration",
+    ),
     "inspect": (
         "priqn.inspector",
         "why a policy acted: per-objective quantiles and optimal subsets",

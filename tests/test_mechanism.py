@@ -1,0 +1,178 @@
+"""priqn mechanism: the counting on hand-made rollout records, and a smoke replay of a
+committed headline cell (2 episodes, SUMO in a worker process)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from priqn.agents.policy import Decision
+from priqn.analysis.mechanism import (
+    MechanismConfig,
+    decision_rows,
+    group_rows,
+    reliability_table,
+    seed_summary,
+)
+from priqn.evaluate import RolloutStep, Scene
+from priqn.objectives import OBJECTIVES
+
+A, K = 4, 4
+SAFETY, LANE = OBJECTIVES.index("safety"), OBJECTIVES.index("lane_keeping")
+CFG = MechanismConfig(horizon=2)
+CELL = Path(__file__).resolve().parents[1] / "results" / "headline" / "pr-iqn-qd-tp-eps0.2__seed19"
+
+
+def step(
+    scene: Scene,
+    t: int,
+    action: int,
+    safety_keeps: list[int],
+    lane_greedy: int,
+    safety_quantiles: list[float],
+    reward_safety: float = 0.0,
+    end: dict | None = None,
+) -> RolloutStep:
+    """One decision: safety's subset, lane keeping's greedy action (its head's mean is
+    highest there) and the safety head's K quantiles at the executed action."""
+    q_HKA = np.zeros((len(OBJECTIVES), K, A), np.float32)
+    q_HKA[LANE, :, lane_greedy] = 1.0
+    q_HKA[SAFETY, :, action] = safety_quantiles
+    subsets_LA = np.ones((len(OBJECTIVES), A), bool)
+    subsets_LA[SAFETY] = [a in safety_keeps for a in range(A)]
+    reward_N = np.zeros(len(OBJECTIVES))
+    reward_N[SAFETY] = reward_safety
+    d = Decision(
+        np.array([action]), OBJECTIVES, subsets_LA[None], subsets_LA[SAFETY][None], q_HKA[None]
+    )
+    return RolloutStep(scene, t, action, d, reward_N, None, end)
+
+
+def scene(episode: int) -> Scene:
+    return Scene(0, "holdout/fourway_00", 0.5, episode, 100 + episode, 200 + episode, None)
+
+
+def outcome(collision: bool = False, off_road: bool = False) -> dict:
+    success = not (collision or off_road)
+    return {"success": success, "collision": collision, "off_road": off_road, "timeout": False}
+
+
+def episodes() -> list[list[RolloutStep]]:
+    """Episode 0: safety removes lane keeping's greedy action (3) at decisions 1 and 2, and
+    the episode ends off-road at decision 3 (penalty 10). Episode 1: no removal, success."""
+    s0, s1 = scene(0), scene(1)
+    bad = [-10.0, -10.0, -1.0, 0.0]  # 2 of 4 quantiles at or below -penalty/2
+    good = [0.0, 0.0, 0.0, 0.0]
+    off = outcome(off_road=True)
+    first = [
+        step(s0, 0, 0, [0, 1, 2, 3], 3, good),
+        step(s0, 1, 0, [0, 1], 3, bad),
+        step(s0, 2, 1, [0, 1], 3, bad),
+        step(s0, 3, 1, [0, 1, 3], 3, good, reward_safety=-10.0, end=off),
+    ]
+    second = [step(s1, 0, 2, [2, 3], 2, good), step(s1, 1, 2, [2], 2, good, end=outcome())]
+    return [first, second]
+
+
+def rows() -> pd.DataFrame:
+    out = []
+    for ep in episodes():
+        out += decision_rows(ep, OBJECTIVES, OBJECTIVES, CFG, penalty=10.0, gamma=0.5)
+    return pd.DataFrame(out)
+
+
+def test_decision_rows_count_removals_outcomes_and_predictions_by_hand():
+    d = rows()
+    assert d["removes_lane_keeping"].tolist() == [False, True, True, False, False, False]
+    # Risk's head is flat (all means 0): its greedy action is 0, which safety always keeps
+    # in episode 0 but not in episode 1 ([2, 3] and [2]).
+    assert d["removes_risk"].tolist() == [False, False, False, False, True, True]
+    assert d["removes_any"].tolist() == [False, True, True, False, True, True]
+    assert d["episode_violation"].tolist() == [True] * 4 + [False] * 2
+    # horizon 2: the last two decisions of the off-road episode are "within".
+    assert d["violation_within"].tolist() == [False, False, True, True, False, False]
+    assert d["off_road_within"].tolist() == d["violation_within"].tolist()
+    assert d["pred_violation"].tolist() == [0.0, 0.5, 0.5, 0.0, 0.0, 0.0]
+    assert d["pred_return"].tolist() == [0.0, -5.25, -5.25, 0.0, 0.0, 0.0]
+    # Realised discounted safety return-to-go with γ = 0.5: -10 at the last decision.
+    assert d["return_to_go"].tolist() == [-1.25, -2.5, -5.0, -10.0, 0.0, 0.0]
+    assert d["size_top"].tolist() == [4, 2, 2, 3, 2, 1]
+
+
+def test_seed_summary_and_reliability_by_hand():
+    s = seed_summary(rows(), CFG)
+    assert s["episodes"] == 2 and s["decisions"] == 6
+    assert s["removes_lane_keeping"] == pytest.approx(2 / 6)
+    assert s["violation_after_removal"] == pytest.approx(1 / 2)  # decisions 1, 2: only 2 within
+    assert s["violation_otherwise"] == pytest.approx(1 / 4)  # decisions 0, 3, e1: only 3
+    assert s["episodes_with_removal"] == 0.5
+    assert s["violation_episodes_with_removal"] == 1.0
+    assert s["violation_episodes_without"] == 0.0
+    assert s["observed_violation"] == pytest.approx(4 / 6)
+    assert s["pred_violation"] == pytest.approx(1 / 6)
+    # Brier: (0-1)^2 at decisions 0 and 3, (0.5-1)^2 at 1 and 2, 0 in episode 1.
+    assert s["brier"] == pytest.approx((1 + 0.25 + 0.25 + 1) / 6)
+    table = reliability_table(rows())
+    assert table["n"].sum() == 6
+    low, mid = table.iloc[0], table.iloc[5]
+    assert low["n"] == 4 and low["observed_violation"] == pytest.approx(2 / 4)
+    assert mid["bin"] == "[0.5, 0.6)" and mid["n"] == 2 and mid["observed_violation"] == 1.0
+    assert table.iloc[-1]["bin"] == "[0.9, 1.0]" and table.iloc[-1]["n"] == 0
+
+
+def test_group_rows_average_each_group_over_its_seeds():
+    seeds = pd.DataFrame(
+        {
+            "run": ["a", "b", "c"],
+            "row": ["r"] * 3,
+            "seed": [0, 1, 2],
+            "collapsed": [True, False, False],
+            "removes_lane_keeping": [0.4, 0.1, 0.2],
+        }
+    )
+    groups = group_rows(seeds).set_index("collapsed")
+    assert groups.loc["collapsed", "removes_lane_keeping"] == pytest.approx(0.4)
+    assert groups.loc["healthy", "removes_lane_keeping"] == pytest.approx(0.15)
+    assert groups.loc["all", "removes_lane_keeping"] == pytest.approx(0.7 / 3)
+    assert groups.loc["healthy", "seed"] == 2
+
+
+def test_an_unfinished_episode_is_refused():
+    with pytest.raises(ValueError, match="whole episode"):
+        decision_rows(episodes()[0][:2], OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.99)
+
+
+@pytest.mark.skipif(not (CELL / "policy.pt").is_file(), reason="headline cell not committed")
+def test_smoke_replay_of_a_committed_cell_matches_its_evaluation(tmp_path):
+    """Two hold-out episodes of a committed Pr-IQN* cell replay as eval/episodes.csv
+    recorded them; the table, the markdown, the reliability table and the figure appear."""
+    out = tmp_path / "mech"
+    res = subprocess.run(
+        [sys.executable, "-m", "priqn.cli", "mechanism", str(CELL), "--episodes", "2",
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    table = pd.read_csv(out / "mechanism.csv")
+    seed = table.iloc[0]
+    assert seed["run"] == CELL.name and seed["episodes"] == 2 and seed["decisions"] > 0
+    assert seed["replay_matches"] == 1.0
+    assert list(table["collapsed"].iloc[1:]) == ["collapsed", "healthy", "all"]
+    decisions = pd.read_csv(out / "decisions" / f"{CELL.name}.csv")
+    key = ["eval_run", "net", "density", "episode"]
+    played = decisions.groupby(key).size()
+    # The first two scenes by (eval run, episode, net, density): episode 0 of the first
+    # net at its first two densities; each as long as its evaluated episode.
+    assert [k[1:] for k in played.index] == [
+        ("holdout/fourway_00", 0.5, 0),
+        ("holdout/fourway_00", 0.75, 0),
+    ]
+    evaluated = pd.read_csv(CELL / "eval" / "episodes.csv").set_index(key)["steps"]
+    assert all(evaluated.loc[k] == n for k, n in played.items())
+    assert (out / "mechanism.png").stat().st_size > 0 and (out / "reliability.csv").is_file()
+    assert "| run |" in (out / "mechanism.md").read_text()
