@@ -1409,3 +1409,12 @@ def test_bench_sweep_scaling_arithmetic_and_cells_option() -> None:
     assert aggregate_rate([100.0, None]) is None
     assert scaling_ratios([100.0, 180.0, None]) == [1.0, 1.8, None]
     assert scaling_ratios([None, 5.0]) == [None, None]
+
+
+def test_bench_sweep_cells_take_further_overrides(tmp_path: Path) -> None:
+    from priqn.bench.sweep import train_command
+
+    cmd = train_command(tmp_path, "c", 3, "iqn", "tjunction", 800, "cuda", ("learner.compile=off",))
+    sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
+    assert sets[-1] == "learner.compile=off" and "replay.learning_starts=200" in sets
+    assert cmd[cmd.index("--device") + 1] == "cuda"

@@ -117,16 +117,25 @@ class CellRun:
 
 
 def train_command(
-    runs_dir: Path, name: str, seed: int, agent: str, net: str, steps: int, device: str
+    runs_dir: Path,
+    name: str,
+    seed: int,
+    agent: str,
+    net: str,
+    steps: int,
+    device: str,
+    extra: tuple[str, ...] = (),
 ) -> list[str]:
     """The ``priqn train`` command of one benchmark cell: default preset, ``steps``
     decisions, learning from decision ``min(500, steps // 4)`` on, no evaluation during
-    training, one checkpoint (the last, without the replay buffer)."""
+    training, one checkpoint (the last, without the replay buffer); ``extra`` are further
+    ``KEY=VALUE`` overrides (``--set``)."""
     sets = [
         "evaluation.interval_steps=0",
         f"checkpoint.interval_steps={10 * steps}",
         "checkpoint.save_replay=false",
         f"replay.learning_starts={min(500, steps // 4)}",
+        *extra,
     ]
     return [
         sys.executable, "-m", "priqn.cli", "train",
@@ -238,13 +247,15 @@ def measure_mode(
     steps: int,
     device: str,
     gpus: list[str] | None = None,
+    extra: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Run ``cells`` benchmark cells ``jobs`` at a time into ``root/mode``; their timings.
 
     ``gpus``: cell i sees only ``gpus[i % len(gpus)]`` (``CUDA_VISIBLE_DEVICES``)."""
     runs_dir = root / mode
     commands = [
-        train_command(runs_dir, f"cell{i}", i, agent, net, steps, device) for i in range(cells)
+        train_command(runs_dir, f"cell{i}", i, agent, net, steps, device, extra)
+        for i in range(cells)
     ]
     logs = [runs_dir / f"cell{i}.log" for i in range(cells)]
     finished = []
@@ -297,6 +308,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", default="auto", help="auto | cpu | cuda (as priqn train)")
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="further config override for every cell (repeatable), e.g. learner.compile=off",
+    )
+    parser.add_argument(
         "--keep", action="store_true", help="keep the temporary runs folder (its path is printed)"
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
@@ -340,7 +358,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         modes = [
             measure_mode(
-                root, name, jobs, args.cells, args.agent, args.net, args.steps, args.device
+                root,
+                name,
+                jobs,
+                args.cells,
+                args.agent,
+                args.net,
+                args.steps,
+                args.device,
+                extra=tuple(args.set),
             )
             for name, jobs in (("sequential", 1), ("concurrent", args.jobs))
         ]
@@ -419,7 +445,18 @@ def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
     keep = args.keep
     try:
         levels = [
-            measure_mode(root, f"x{n}", n, n, args.agent, args.net, args.steps, args.device, gpus)
+            measure_mode(
+                root,
+                f"x{n}",
+                n,
+                n,
+                args.agent,
+                args.net,
+                args.steps,
+                args.device,
+                gpus,
+                tuple(args.set),
+            )  # fmt: skip
             for n in counts
         ]
     except PriqnError:

@@ -53,6 +53,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
     parser.add_argument(
+        "--loop-compile",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="learner.compile of the end-to-end loop (default auto, as training; its wall "
+        "time includes the compiling)",
+    )
+    parser.add_argument(
         "--bf16",
         action="store_true",
         help="also time every agent with learner.autocast_bf16 on (part 1)",
@@ -205,12 +212,14 @@ def loop_throughput(
     device: str,
     learning: bool = True,
     overlap: bool = True,
+    compile_: str = "auto",
 ) -> dict[str, Any]:
     """Env decisions/s and updates/s of the real training loop (default preset).
 
     ``learning=False`` runs the same loop (same workers, acting rule, replay) with no
     update at all: the env-only throughput the end-to-end figure is compared with.
     ``overlap=False`` is the serial loop (update after the env step), the baseline.
+    ``compile_`` is ``learner.compile`` (compiling happens inside the timed loop).
     """
     from priqn.runs import RunFolder
     from priqn.train import train
@@ -229,6 +238,7 @@ def loop_throughput(
             f"checkpoint.interval_steps={10 * steps}",
             "checkpoint.save_replay=false",
             f"overlap_updates={str(overlap).lower()}",
+            f"learner.compile={compile_}",
         ],
     )
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
@@ -328,7 +338,8 @@ def run(args: argparse.Namespace) -> int:
     if args.loop_steps > 0:
         print(
             f"\nend-to-end training loop (default preset, learning on: one update per "
-            f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}"
+            f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}, "
+            f"learner.compile = {args.loop_compile}"
         )
         print(
             f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
@@ -338,9 +349,10 @@ def run(args: argparse.Namespace) -> int:
         for name in agents:
             # Same workers, same acting, no learning: the ceiling the loop is measured against;
             # the serial loop (update after the step) is the baseline of the overlap.
-            env_only = loop_throughput(args.net, name, args.loop_steps, args.device, False)
-            serial = loop_throughput(args.net, name, args.loop_steps, args.device, overlap=False)
-            r = loop_throughput(args.net, name, args.loop_steps, args.device)
+            steps, dev, comp = args.loop_steps, args.device, args.loop_compile
+            env_only = loop_throughput(args.net, name, steps, dev, False, compile_=comp)
+            serial = loop_throughput(args.net, name, steps, dev, overlap=False, compile_=comp)
+            r = loop_throughput(args.net, name, steps, dev, compile_=comp)
             r["env_only"] = env_only["decisions_per_s"]
             r["serial"] = serial["decisions_per_s"]
             results.append(r)
