@@ -319,6 +319,16 @@ def test_one_version_everywhere() -> None:
     changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
     releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", changelog, re.M)
     assert releases and releases[0] == typed, "CHANGELOG.md's newest release is the version"
+    citation = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
+    assert re.search(rf"^version: {re.escape(typed)}$", citation, re.M), "CITATION.cff"
+
+
+def test_ci_runs_the_readme_test_command_verbatim() -> None:
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    marker = next(i for i, line in enumerate(ci) if "the README's test command, verbatim" in line)
+    command = ci[marker + 1].strip()
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert f"```bash\n{command}\n```" in readme, command
 
 
 # ------------------------------------------------- numbers come from committed reports
