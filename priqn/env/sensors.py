@@ -56,6 +56,8 @@ _SIGN_FWD = np.array([1.0, 1.0, -1.0, -1.0])
 """Box corners counter-clockwise from the front-right one: sign of the half length ..."""
 _SIGN_LEFT = np.array([-1.0, 1.0, 1.0, -1.0])
 """... and of the half width (as :func:`~priqn.env.geometry.boxes_corners`)."""
+_FLIP_21 = np.array([[-1.0], [1.0]])
+"""Signs that make ``(sin, cos)·hw`` the left half-width vector ``(−sin·hw, cos·hw)``."""
 _NEXT = np.array([1, 2, 3, 0])
 """The corner after each corner: edge j runs from corner j to corner ``_NEXT[j]``."""
 
@@ -149,8 +151,6 @@ class Sensors:
         left = np.ones((n, 1)) * (self._left_max - centres)[None, :]
         self._pix_fwd = fwd.ravel().astype(np.float32)
         self._pix_left = left.ravel().astype(np.float32)
-        self._row_fwd = (self._fwd_max - centres).astype(np.float32)  # [H], = _pix_fwd rows
-        self._col_left = (self._left_max - centres).astype(np.float32)  # [W]
         self._min_half = res / np.sqrt(2.0)
         self._luts = {
             name: np.where(np.arange(256) & bit, 255, 0).astype(np.uint8)
@@ -201,6 +201,12 @@ class Sensors:
         self._ground_count_HW = self._g_count.reshape(n, n)
         self._ray_cs_R2 = np.stack([self._ray_cos, self._ray_sin], axis=1)
         self._grid_base_2 = np.array([self._fwd_max, self._left_max])
+        # Cell-centre fwd of padded rows -1..n, then left of padded columns -1..n (m).
+        pad = np.arange(-1, n + 1)
+        self._centre_2Q = np.concatenate(
+            [self._fwd_max - (pad + 0.5) * res, self._left_max - (pad + 0.5) * res]
+        )
+        self._centre_axis_21 = np.array([[0], [n + 2]])
         self._ego_mask_key: tuple[float, float] | None = None
         self._ego_mask = np.zeros(n * n, dtype=bool)
 
@@ -310,27 +316,22 @@ class Sensors:
 
     # ------------------------------------------------------------------ internals
     def _sample_map(self, map_raster: MapRaster, ego: Boxes) -> np.ndarray:
-        """Map bits at every grid cell centre, flat ``bits_HW`` [H·W].
-
-        The world position of a cell centre is ``fwd·(cos, sin) + left·(−sin, cos)``; fwd
-        is constant along a row and left along a column, so the products are taken on the
-        ``[H]`` and ``[W]`` vectors and broadcast (the same float32 values as per cell).
-        """
+        """Map bits at every grid cell centre, flat [H·W]."""
         ex, ey = ego.center_xy[0]
         c, s = np.cos(ego.heading_rad[0]), np.sin(ego.heading_rad[0])
         res = map_raster.resolution_m
         ox, oy = map_raster.origin_xy
         hgt, wid = map_raster.bits.shape
-        fwd_H1, left_1W = self._row_fwd[:, None], self._col_left[None, :]
-        fx = fwd_H1 * np.float32(c / res) - left_1W * np.float32(s / res)
+        # World position in raster cells, as float32 (one fused expression per axis).
+        fx = self._pix_fwd * np.float32(c / res) - self._pix_left * np.float32(s / res)
         fx += np.float32((ex - ox) / res)
-        fy = fwd_H1 * np.float32(s / res) + left_1W * np.float32(c / res)
+        fy = self._pix_fwd * np.float32(s / res) + self._pix_left * np.float32(c / res)
         fy += np.float32((ey - oy) / res)
         ix = np.clip(fx, 0, wid - 1).astype(np.intp)  # trunc == floor once clipped >= 0
         iy = np.clip(fy, 0, hgt - 1).astype(np.intp)
         iy *= wid
         iy += ix
-        return map_raster.bits.ravel().take(iy.ravel())
+        return map_raster.bits.ravel().take(iy)
 
     def _to_ego_frame(
         self, ego: Boxes, actors: Boxes, in_grid: bool = True
@@ -375,13 +376,14 @@ class Sensors:
     def _box_cells(
         self, rel: Boxes, with_box: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """``(cell_P, box_P)``: flat cell index and box index of every cell whose centre lies
-        inside a box (P pairs; a cell inside two boxes is listed twice). ``box_P`` is None
-        unless ``with_box``.
+        """``(pad_cell_P, box_P)``: padded-canvas index (see ``_ground_pad_RK``) and box
+        index of every cell whose centre lies inside a box (P pairs; a cell inside two boxes
+        is listed twice; cells off the grid are clipped onto the border, cut off by
+        :meth:`_crop`). ``box_P`` is None unless ``with_box``.
 
         Each box is tested on a ``[2k+1, 2k+1]`` patch of cells around its centre cell (k
-        from the largest box), as one ``[M, K, K]`` mask; the cell and box indices are read
-        with one boolean index each.
+        from the largest box), as one ``[M, K, K]`` mask; the cell-centre coordinates come
+        from a table of the padded rows and columns.
         """
         n = self.cfg.size_px
         res = self._res
@@ -390,32 +392,34 @@ class Sensors:
         hl_M = np.maximum(0.5 * rel.length_m, self._min_half)
         hw_M = np.maximum(0.5 * rel.width_m, self._min_half)
         k = int(np.ceil(np.max(np.hypot(hl_M, hw_M)) / res)) + 1
-        off_K = np.arange(-k, k + 1)
-        fwd_M, left_M = rel.center_xy[:, 0], rel.center_xy[:, 1]
-        rows_MK = np.floor((self._fwd_max - fwd_M) / res).astype(np.intp)[:, None] + off_K
-        cols_MK = np.floor((self._left_max - left_M) / res).astype(np.intp)[:, None] + off_K
+        # Padded (row, col) of the patch around each box's centre cell.
+        rc0_M2 = np.floor((self._grid_base_2 - rel.center_xy) / res).astype(np.intp)
+        rc_M2K = np.clip(rc0_M2[:, :, None] + np.arange(1 - k, k + 2), 0, n + 1)
         # Cell-centre offsets from the box centre in the ego frame (fwd, left).
-        dfwd_MK1 = ((self._fwd_max - (rows_MK + 0.5) * res) - fwd_M[:, None])[:, :, None]
-        dleft_M1K = ((self._left_max - (cols_MK + 0.5) * res) - left_M[:, None])[:, None, :]
+        d_M2K = self._centre_2Q.take(rc_M2K + self._centre_axis_21) - rel.center_xy[:, :, None]
+        dfwd_MK1, dleft_M1K = d_M2K[:, 0, :, None], d_M2K[:, 1, None, :]
         ch_M11 = np.cos(rel.heading_rad)[:, None, None]
         sh_M11 = np.sin(rel.heading_rad)[:, None, None]
         inside_MKK = np.abs(dfwd_MK1 * ch_M11 + dleft_M1K * sh_M11) <= hl_M[:, None, None]
         inside_MKK &= np.abs(-dfwd_MK1 * sh_M11 + dleft_M1K * ch_M11) <= hw_M[:, None, None]
-        inside_MKK &= ((rows_MK >= 0) & (rows_MK < n))[:, :, None]
-        inside_MKK &= ((cols_MK >= 0) & (cols_MK < n))[:, None, :]
-        cell_MKK = (rows_MK * n)[:, :, None] + cols_MK[:, None, :]
+        cell_MKK = rc_M2K[:, 0, :, None] * (n + 2) + rc_M2K[:, 1, None, :]
         if not with_box:
             return cell_MKK[inside_MKK], None
         return cell_MKK[inside_MKK], np.nonzero(inside_MKK)[0]
+
+    def _crop(self, canvas_Q: np.ndarray) -> np.ndarray:
+        """``[H, W]`` view of the grid inside a flat padded canvas ``[(H + 2)·(W + 2)]``."""
+        n = self.cfg.size_px
+        return canvas_Q.reshape(n + 2, n + 2)[1:-1, 1:-1]
 
     def _ego_cells(self, ego: Boxes) -> np.ndarray:
         """bool [H·W]: the ego footprint (cached per ego length and width)."""
         key = (float(ego.length_m[0]), float(ego.width_m[0]))
         if key != self._ego_mask_key:
             rel = Boxes.make([0.0, 0.0], 0.0, key[0], key[1])
-            cells, _ = self._box_cells(rel)
-            self._ego_mask = np.zeros(self.cfg.size_px**2, dtype=bool)
-            self._ego_mask[cells] = True
+            canvas_Q = np.zeros((self.cfg.size_px + 2) ** 2, dtype=bool)
+            canvas_Q[self._box_cells(rel)[0]] = True
+            self._ego_mask = self._crop(canvas_Q).ravel()
             self._ego_mask_key = key
         return self._ego_mask
 
@@ -430,22 +434,24 @@ class Sensors:
         """``bev_CHW``: the map channels in one lookup (``_lut_C256``), then the boxes."""
         cfg = self.cfg
         n = cfg.size_px
-        out_CP = self._lut_C256.take(bits_HW, axis=1)
+        out_CHW = self._lut_C256.take(bits_HW, axis=1).reshape(len(cfg.bev_channels), n, n)
         for ci, name in self._box_channels:
             if name == "ego":
-                out_CP[ci][self._ego_cells(ego)] = 255
+                out_CHW[ci].reshape(-1)[self._ego_cells(ego)] = 255
                 continue
             cells, boxes = self._box_cells(rel, with_box=name == "actor_speed")
+            canvas_Q = np.zeros((n + 2) * (n + 2), np.uint8)
             if name == "actors":
-                out_CP[ci][cells] = 255
+                canvas_Q[cells] = 255
             else:  # actor_speed
                 if actor_speed_mps is None:
                     raise ValueError("the actor_speed channel needs actor_speed_mps")
                 speed = np.asarray(actor_speed_mps, dtype=float).reshape(-1)[visible]
                 val = np.clip(speed / cfg.speed_scale_mps, 0.0, 1.0) * 254 + 1
                 order = np.argsort(val[boxes], kind="stable")  # faster actors on top
-                out_CP[ci][cells[order]] = val[boxes][order].astype(np.uint8)
-        return out_CP.reshape(len(cfg.bev_channels), n, n)
+                canvas_Q[cells[order]] = val[boxes][order].astype(np.uint8)
+            out_CHW[ci] = self._crop(canvas_Q)
+        return out_CHW
 
     def _face_hits(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(ray_N, range_N, height_N)``: every (ray, sensor-facing box edge) intersection
@@ -458,18 +464,20 @@ class Sensors:
         cfg = self.cfg
         rays = cfg.lidar_rays
         # Corners counter-clockwise from the front-right one (as geometry.boxes_corners).
-        hl_M1 = (0.5 * rel.length_m)[:, None]
-        hw_M1 = (0.5 * rel.width_m)[:, None]
-        ch_M1, sh_M1 = np.cos(rel.heading_rad)[:, None], np.sin(rel.heading_rad)[:, None]
+        # Rows of edges_6M4: corner x, y; edge (to the next corner) x, y; cross(corner,
+        # edge); box height. x = (c_x + ±cos·hl) + ±(−sin·hw), y = (c_y + ±sin·hl) + ±cos·hw.
+        cs_2M = np.stack([np.cos(rel.heading_rad), np.sin(rel.heading_rad)])
+        fwd_2M1 = (cs_2M * (0.5 * rel.length_m))[:, :, None]
+        left_2M1 = (cs_2M[::-1] * (0.5 * rel.width_m) * _FLIP_21)[:, :, None]
         edges_6M4 = np.empty((6, len(rel), 4))
-        px, py, ex, ey, cpe, height = edges_6M4
-        px[:] = rel.center_xy[:, 0:1] + _SIGN_FWD * (ch_M1 * hl_M1) + _SIGN_LEFT * -(sh_M1 * hw_M1)
-        py[:] = rel.center_xy[:, 1:2] + _SIGN_FWD * (sh_M1 * hl_M1) + _SIGN_LEFT * (ch_M1 * hw_M1)
-        np.subtract(px[:, _NEXT], px, out=ex)
-        np.subtract(py[:, _NEXT], py, out=ey)
-        cpe[:] = px * ey - py * ex
-        height[:] = rel.height_m[:, None]
-        front_6F = edges_6M4[:, cpe < 0]  # edges facing the sensor (boxes are counter-clockwise)
+        corner_2M4 = edges_6M4[0:2]
+        np.add(
+            rel.center_xy.T[:, :, None] + fwd_2M1 * _SIGN_FWD, left_2M1 * _SIGN_LEFT, out=corner_2M4
+        )
+        np.subtract(corner_2M4[:, :, _NEXT], corner_2M4, out=edges_6M4[2:4])
+        np.subtract(edges_6M4[0] * edges_6M4[3], edges_6M4[1] * edges_6M4[2], out=edges_6M4[4])
+        edges_6M4[5] = rel.height_m[:, None]
+        front_6F = edges_6M4[:, edges_6M4[4] < 0]  # edges facing the sensor (counter-clockwise)
         px, py, ex, ey, cpe, height = front_6F
         dth = 2 * np.pi / rays
         az_p = np.arctan2(py, px)

@@ -45,24 +45,6 @@ class ReferenceSensors(Sensors):
         boxes = np.stack([t * self._ray_cos[ray], t * self._ray_sin[ray], z], axis=1)
         return np.concatenate([ground, boxes])
 
-    def _sample_map(self, map_raster: MapRaster, ego: Boxes) -> np.ndarray:
-        """Map bits at every grid cell centre, flat [H·W]."""
-        ex, ey = ego.center_xy[0]
-        c, s = np.cos(ego.heading_rad[0]), np.sin(ego.heading_rad[0])
-        res = map_raster.resolution_m
-        ox, oy = map_raster.origin_xy
-        hgt, wid = map_raster.bits.shape
-        # World position in raster cells, as float32 (one fused expression per axis).
-        fx = self._pix_fwd * np.float32(c / res) - self._pix_left * np.float32(s / res)
-        fx += np.float32((ex - ox) / res)
-        fy = self._pix_fwd * np.float32(s / res) + self._pix_left * np.float32(c / res)
-        fy += np.float32((ey - oy) / res)
-        ix = np.clip(fx, 0, wid - 1).astype(np.intp)  # trunc == floor once clipped >= 0
-        iy = np.clip(fy, 0, hgt - 1).astype(np.intp)
-        iy *= wid
-        iy += ix
-        return map_raster.bits.ravel().take(iy)
-
     def _to_ego_frame(self, ego: Boxes, actors: Boxes) -> tuple[Boxes, np.ndarray]:
         """Actors in the ego frame (x forward, y left) without those that cannot be seen,
         and the indices of the kept ones."""
