@@ -175,20 +175,28 @@ def test_report_files_and_reproducibility(runs, tmp_path) -> None:
     ).read_bytes()
     report = (out1 / "report.md").read_text()
     assert "np.random.seed(3)" in report and HASH in report
-    assert "iqn_s0: no metrics.csv, so no learning curve" in report
+    assert "iqn_s0: no metrics.csv, so no in-training evaluation on its curve" in report
     assert "**1.000 ± 0.000**" in report
     meta = json.loads((out1 / "meta.json").read_text())
     assert meta["seed"] == 3 and meta["holdout_hash"] == HASH and len(meta["runs"]) == 4
 
 
-def test_learning_curves_from_metrics_csv(runs, tmp_path) -> None:
+def test_sample_efficiency_curves_in_the_report(runs, tmp_path) -> None:
     for i, run in enumerate(sorted(runs.iterdir())):
-        pd.DataFrame({"env_steps": [0, 100, 200], "episode_return": [0.0, 1.0 + i, 2.0]}).to_csv(
+        evals = [{"kind": "eval", "step": 100, "success": int(e < i)} for e in range(6)]
+        pd.DataFrame([{"kind": "train", "step": 50, "success": 0}, *evals]).to_csv(
             run / "metrics.csv", index=False
         )
+        (run / "meta.json").write_text(json.dumps({"total_steps": 200}))
     make_report(runs, tmp_path / "rep", seed=0, reps=20)
     assert (tmp_path / "rep/figures/learning_curves.png").stat().st_size > 1000
-    assert "no metrics.csv" not in (tmp_path / "rep/report.md").read_text()
+    report = (tmp_path / "rep/report.md").read_text()
+    assert "no metrics.csv" not in report and "np.random.seed(0)` before each point" in report
+    curve = pd.read_csv(tmp_path / "rep/tables/sample_efficiency.csv").set_index(["row", "source"])
+    # Runs in name order iqn_s0, iqn_s1, pr_s0, pr_s1 succeed in 0, 1, 2, 3 of 6 episodes.
+    np.testing.assert_allclose(curve.loc[("IQN", "periodic"), "mean"], (0 + 1 / 6) / 2)
+    np.testing.assert_allclose(curve.loc[("Pr-IQN QD ✓ 0.2 ✗", "periodic"), "mean"], 5 / 12)
+    assert list(curve.loc[("IQN", "snapshot"), ["budget", "seeds", "episodes_max"]]) == [200, 2, 16]
 
 
 def test_errors_are_one_line(tmp_path, runs) -> None:

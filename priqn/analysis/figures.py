@@ -17,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from priqn.analysis.claims import ClaimResult  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
@@ -60,7 +61,9 @@ def legend_above(ax: plt.Axes, handles: list, title: str, ncol: int) -> None:
     )
 
 
-def _colors(labels: list[str]) -> dict[str, tuple]:
+def row_colors(labels: list[str]) -> dict[str, tuple]:
+    """One colour per row, by its place in ``labels`` (the report's row order), so a row
+    has the same colour in every figure of a report."""
     cmap = plt.get_cmap("tab10" if len(labels) <= 10 else "tab20")
     return {label: cmap(i % cmap.N) for i, label in enumerate(labels)}
 
@@ -86,7 +89,7 @@ def probability_of_improvement_figure(result: RliableResult, max_pairs: int = 24
     intervals = {
         k: np.array([lo, hi]) for k, lo, hi in zip(keys, pairs["lo"], pairs["hi"], strict=True)
     }
-    colors = _colors(list(result.scores))
+    colors = row_colors(list(result.scores))
     fig, ax = plt.subplots(figsize=(6.5, 0.45 * len(keys) + 1.2))
     plot_utils.plot_probability_of_improvement(
         estimates,
@@ -125,7 +128,7 @@ def aggregates_figure(results: dict[str, RliableResult]) -> plt.Figure:
         {k: np.array(v) for k, v in intervals.items()},
         metric_names=names,
         algorithms=labels,
-        colors=_colors(labels),
+        colors=row_colors(labels),
         xlabel="score (success rate / route progress, 95% stratified-bootstrap CI)",
         subfigure_width=3.0,
         row_height=0.45,
@@ -156,7 +159,7 @@ def performance_profile_figure(result: RliableResult) -> plt.Figure:
         profiles,
         taus,
         performance_profile_cis=cis,
-        colors=_colors(labels),
+        colors=row_colors(labels),
         xlabel=f"{SCORE_METRICS.get(result.metric, result.metric)} per (run, task) τ",
         ylabel="Fraction of runs with score > τ",
         ax=ax,
@@ -167,41 +170,122 @@ def performance_profile_figure(result: RliableResult) -> plt.Figure:
     return fig
 
 
-def learning_curves_figure(curves: pd.DataFrame, order: list[str]) -> plt.Figure:
-    """Training curves per policy: mean over training seeds, band = min..max across seeds.
+def _episodes_text(curve: pd.DataFrame, source: str) -> str:
+    """``"6"`` or ``"162–540"``: episodes behind one seed's score at ``source``'s points."""
+    mine = curve[curve["source"] == source]
+    lo, hi = int(mine["episodes_min"].min()), int(mine["episodes_max"].max())
+    return f"{lo}" if lo == hi else f"{lo}–{hi}"
 
-    Each seed's curve is interpolated onto the union of its policy's step values.
-    """
-    fig, ax = plt.subplots(figsize=(6.5, 4.0))
-    colors = _colors(order)
-    if len(curves):
-        curves = curves[curves["y_name"] == curves["y_name"].iloc[0]]
-    for label in order:
-        part = curves[curves["label"] == label]
-        if part.empty:
-            continue
-        grid = np.unique(part["x"].to_numpy())
-        ys = []
-        for _, seed_part in part.groupby("train_seed", sort=True):
-            s = seed_part.sort_values("x")
-            ys.append(np.interp(grid, s["x"].to_numpy(), s["y"].to_numpy()))
-        ys_SX = np.stack(ys)
-        n = len(ys)
-        ax.plot(
-            grid,
-            ys_SX.mean(axis=0),
-            color=colors[label],
-            label=f"{label} ({n} seed{'s' * (n > 1)})",
+
+def _draw_efficiency_row(
+    ax: plt.Axes, part: pd.DataFrame, color: Any, label: str, dodge: float
+) -> None:
+    """One row of :func:`sample_efficiency_figure`: the in-training points as a line with
+    its interval band, the full evaluations as dodged markers with error bars."""
+    from priqn.analysis.curves import PERIODIC, SNAPSHOT
+
+    line = part[part["source"] == PERIODIC]
+    if len(line):
+        ax.plot(line["budget"], line["mean"], color=color, lw=1.4, label=label)
+        ax.fill_between(line["budget"], line["lo"], line["hi"], color=color, alpha=0.15, lw=0)
+    dots = part[part["source"] == SNAPSHOT]
+    if len(dots):
+        mean = dots["mean"].to_numpy(float)
+        yerr = np.stack([mean - dots["lo"].to_numpy(float), dots["hi"].to_numpy(float) - mean])
+        ax.errorbar(
+            dots["budget"].to_numpy(float) + dodge,
+            mean,
+            yerr=np.nan_to_num(yerr),
+            fmt="o",
+            color=color,
+            ms=4.5,
+            mec="black",
+            mew=0.5,
+            elinewidth=1.2,
+            capsize=2.5,
+            label=None if len(line) else label,
         )
-        if n > 1:
-            ax.fill_between(
-                grid, ys_SX.min(axis=0), ys_SX.max(axis=0), color=colors[label], alpha=0.2
+
+
+def sample_efficiency_figure(
+    curve: pd.DataFrame,
+    panel_rows: Sequence[tuple[str, list[str]]],
+    colors: Mapping[str, Any],
+    reference: str | None = None,
+) -> plt.Figure:
+    """Sample-efficiency curves (:mod:`priqn.analysis.curves`): hold-out success against
+    training decisions, one panel per ``(title, rows)``, legends outside the axes.
+
+    Line and band: the in-training evaluations (mean over seeds, 95 % stratified-bootstrap
+    interval over seeds); markers with error bars (dodged sideways per row): the full
+    hold-out evaluations of the final policy and of kept snapshots. ``reference`` (e.g.
+    IQN): its in-training line, dotted, in every panel that does not hold it.
+    """
+    from priqn.analysis.curves import PERIODIC, SNAPSHOT, seed_counts
+
+    n = len(panel_rows)
+    fig, axes = plt.subplots(
+        n,
+        1,
+        figsize=(8.0, 0.9 + 2.3 * n),
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+        layout="constrained",
+    )
+    budgets = curve["budget"].to_numpy(float)
+    span = float(budgets.max() - budgets.min()) or float(budgets.max()) or 1.0
+    for ax, (title, rows) in zip(axes[:, 0], panel_rows, strict=True):
+        if reference is not None and reference not in rows:
+            ref = curve[(curve["row"] == reference) & (curve["source"] == PERIODIC)]
+            ax.plot(
+                ref["budget"],
+                ref["mean"],
+                color=colors[reference],
+                lw=1.0,
+                ls=":",
+                label=f"{reference} (for reference)",
             )
-    ax.set_xlabel(str(curves["x_name"].iloc[0]) if len(curves) else "step")
-    ax.set_ylabel(str(curves["y_name"].iloc[0]) if len(curves) else "")
-    ax.grid(True, alpha=0.25)
-    ax.legend(fontsize="small")
-    ax.set_title("Learning curves (mean over seeds, band = min..max)", fontsize="medium")
+        for i, row in enumerate(rows):
+            dodge = (i - (len(rows) - 1) / 2) * 0.02 * span
+            label = f"{row} ({seed_counts(curve, row)})"
+            _draw_efficiency_row(ax, curve[curve["row"] == row], colors[row], label, dodge)
+        ax.set_title(title, fontsize=9, loc="left")
+        ax.set_ylim(-0.03, 1.03)
+        ax.grid(True, color="0.9")
+        ax.set_ylabel("hold-out success", fontsize=8)
+        ax.tick_params(labelsize=8)
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
+    axes[-1, 0].set_xlabel("training decisions")
+    axes[-1, 0].xaxis.set_major_formatter(
+        FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0")
+    )
+    handles = [
+        plt.Line2D(
+            [],
+            [],
+            color="0.3",
+            lw=1.4,
+            label=(
+                f"in-training evaluation ({_episodes_text(curve, PERIODIC)} episodes per seed): "
+                "mean over seeds, band = 95 % bootstrap CI over seeds"
+            ),
+        ),
+        plt.Line2D(
+            [],
+            [],
+            color="0.3",
+            marker="o",
+            mec="black",
+            mew=0.5,
+            ls="",
+            label=(
+                f"full hold-out evaluation ({_episodes_text(curve, SNAPSHOT)} episodes per seed) "
+                "of the final policy / kept snapshots: mean, 95 % CI"
+            ),
+        ),
+    ]
+    fig.legend(handles=handles, loc="outside upper center", fontsize=7, frameon=False)
     return fig
 
 

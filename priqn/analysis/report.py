@@ -13,6 +13,8 @@
     out_dir/figures/{probability_of_improvement,iqm_optimality_gap,
                      performance_profile,learning_curves,
                      outcomes_by_command,seeds}.{png,pdf}
+                                      learning_curves: the sample-efficiency curves
+    out_dir/tables/sample_efficiency.csv  their numbers (priqn.analysis.curves)
     out_dir/figures/claims.{png,pdf}  the claims' success-rate comparisons, when measured
     out_dir/tables/generalisation_<hash>.{md,csv}  per set of other nets the runs were
                                       evaluated on (``priqn evaluate --nets``), when any
@@ -241,11 +243,10 @@ def compute_statistics(
 
 
 def draw_figures(
-    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics
+    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics, reps: int, seed: int
 ) -> tuple[dict[str, Any], Any, list[str]]:
-    """Every figure by file stem, the learning curves' table and their notes."""
+    """Every figure by file stem, the sample-efficiency table and its notes."""
     from priqn.analysis import figures
-    from priqn.analysis.load import find_run_dirs, load_learning_curves
 
     out: dict[str, Any] = {}
     if stats.rliable:
@@ -259,14 +260,48 @@ def draw_figures(
     )
     if stats.claims_checked:
         out["claims"] = figures.claims_figure(stats.claims)
-    curves, notes = load_learning_curves(find_run_dirs(inputs.runs_root), inputs.evaluation)
-    if len(curves):
-        out["learning_curves"] = figures.learning_curves_figure(curves, tabs.order)
-    return {k: v for k, v in out.items() if v is not None}, curves, notes
+    curve, notes = sample_efficiency_of(inputs, tabs, reps, seed)
+    if len(curve):
+        out["learning_curves"] = efficiency_figure(curve, tabs)
+    return {k: v for k, v in out.items() if v is not None}, curve, notes
 
 
-def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics) -> None:
-    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable and claims CSVs."""
+def sample_efficiency_of(
+    inputs: ReportInputs, tabs: ReportTables, reps: int, seed: int
+) -> tuple[Any, list[str]]:
+    """The sample-efficiency table (:func:`priqn.analysis.curves.sample_efficiency`) of
+    every run's own policy (controls share their run's training: no curve of their own)."""
+    from priqn.analysis import curves
+
+    cells = [
+        (r.label, r.train_seed, r.path)
+        for r in inputs.evaluation.runs
+        if r.eval_dir == RunFolder.EVAL
+    ]
+    points, notes = curves.curve_points(cells)
+    rank = {label: i for i, label in enumerate(tabs.order)}
+    points = points.sort_values("row", key=lambda s: s.map(rank), kind="mergesort")
+    return curves.sample_efficiency(points, reps, seed), notes
+
+
+def efficiency_figure(curve: Any, tabs: ReportTables) -> Any:
+    """The sample-efficiency figure: baselines and Pr-IQN variants in panels of at most 4
+    rows, IQN dotted in the panels without it, each row in its colour of every figure."""
+    from priqn.analysis import curves, figures, tables
+
+    rows = [label for label in tabs.order if label in set(curve["row"])]
+    agents = {label: tabs.table2.configs[label][0] for label in rows}
+    panel_rows = curves.panels(rows, curves.row_kinds(agents))
+    reference = tables.reference_label(tabs.table2.configs)
+    reference = reference if reference in rows else None
+    return figures.sample_efficiency_figure(
+        curve, panel_rows, figures.row_colors(tabs.order), reference
+    )
+
+
+def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: Any) -> None:
+    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable, claims and
+    sample-efficiency CSVs."""
     import pandas as pd
 
     from priqn.analysis import claims, tables
@@ -295,6 +330,8 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics) -> None
             atomic_write_text(tdir / f"{stem}.csv", table.to_csv(**csv_kw))
     if stats.claims_checked:
         atomic_write_text(tdir / "claims.csv", claims.to_frame(stats.claims).to_csv(**csv_kw))
+    if len(curve):
+        atomic_write_text(tdir / "sample_efficiency.csv", curve.to_csv(**csv_kw))
 
 
 def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> list[str]:
@@ -350,6 +387,36 @@ def _row_notes(inputs: ReportInputs, tabs: ReportTables) -> list[str]:
             "",
         ]
     return md
+
+
+def _curves_section(has_curves: bool, seed: int, reps: int) -> list[str]:
+    """The "Sample-efficiency curves" section (:mod:`priqn.analysis.curves`)."""
+    if not has_curves:
+        return [
+            "## Sample-efficiency curves",
+            "",
+            "No run has an in-training evaluation or a full evaluation with a known "
+            "budget; no curves.",
+            "",
+        ]
+    return [
+        "## Sample-efficiency curves",
+        "",
+        "Hold-out success against training decisions, per row: the mean over training "
+        "seeds with a 95 % percentile stratified-bootstrap interval over seeds "
+        f"(`np.random.seed({seed})` before each point's rliable call, {reps} replications). "
+        "Two estimators, drawn apart: the line and its band are the in-training "
+        "evaluations (a few hold-out episodes per seed, logged in `metrics.csv`); the "
+        "markers with error bars are full hold-out evaluations (the final policy's "
+        "`eval/`, kept snapshots' `eval-at<N>/`; a seed's success averaged over the "
+        "densities). The mean, not the IQM: with few seeds the IQM trims no seed, and a "
+        "rate over a few episodes takes few values (docs/evaluation.md). Numbers: "
+        "`tables/sample_efficiency.csv`.",
+        "",
+        "![Sample-efficiency curves](figures/learning_curves.png) "
+        "([pdf](figures/learning_curves.pdf))",
+        "",
+    ]
 
 
 def _inputs_section(inputs: ReportInputs) -> list[str]:
@@ -452,14 +519,7 @@ def report_markdown(
             else []
         ),
         *_rliable_section(inputs, tabs.order, stats),
-        "## Learning curves",
-        "",
-        (
-            "![Learning curves](figures/learning_curves.png) ([pdf](figures/learning_curves.pdf))"
-            if has_curves
-            else "No usable metrics.csv in any run; no learning curves."
-        ),
-        "",
+        *_curves_section(has_curves, seed, reps),
         *_inputs_section(inputs),
     ]
     if inputs.notes:
@@ -494,10 +554,10 @@ def make_report(
     inputs = load_inputs(runs_root, partial, min_seeds, tuple(references))
     tabs = build_tables(inputs)
     stats = compute_statistics(inputs, tabs.order, reps, seed)
-    figs, curves, curve_notes = draw_figures(inputs, tabs, stats)
+    figs, curve, curve_notes = draw_figures(inputs, tabs, stats, reps, seed)
     inputs.notes.extend(curve_notes)
 
-    write_tables(out, tabs, stats)
+    write_tables(out, tabs, stats, curve)
     for name, fig in figs.items():
         figures.save_figure(fig, out / "figures", name)
     cmd = (
@@ -505,9 +565,7 @@ def make_report(
         or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
     )
     report = out / "report.md"
-    atomic_write_text(
-        report, report_markdown(inputs, tabs, stats, len(curves) > 0, cmd, seed, reps)
-    )
+    atomic_write_text(report, report_markdown(inputs, tabs, stats, len(curve) > 0, cmd, seed, reps))
     evaluation = inputs.evaluation
     atomic_write_json(
         out / "meta.json",

@@ -2,8 +2,9 @@
 
 :func:`write_report` writes, deterministically (the same committed cells give the same
 bytes): ``report.md`` (verdicts, each look, per-density success, the next cells, every
-cell), ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` and ``figures/headline``
-(per-seed success of each row) and ``figures/looks`` (each comparison look by look). The
+cell), ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` / ``sample_efficiency.csv`` and
+``figures/headline`` (per-seed success of each row), ``figures/looks`` (each comparison
+look by look) and ``figures/sample_efficiency`` (:mod:`priqn.analysis.curves`). The
 design and the decisions are :mod:`priqn.analysis.sequential`'s; nothing here decides.
 """
 
@@ -30,6 +31,10 @@ from priqn.analysis.sequential import (
 from priqn.experiment import cell_dir_name
 from priqn.runs import RunFolder
 
+CURVE_SEED = 0
+"""``np.random.seed`` before each rliable call of the sample-efficiency curves (recorded)."""
+CURVE_REPS = 2000
+"""Bootstrap replications of the sample-efficiency curves' intervals."""
 PAPER_TRAINING_DECISIONS = 2_000_000
 """The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
 
@@ -236,6 +241,34 @@ def looks_figure(exp: Any, result: Replay) -> Any:
     return fig
 
 
+def sample_efficiency(exp: Any, scores: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """The sample-efficiency table (:func:`priqn.analysis.curves.sample_efficiency`) of
+    the cells the report counts (``scores``), one curve per row group
+    (:attr:`priqn.experiment.PolicySpec.group_name`), and its notes."""
+    from priqn.analysis import curves
+
+    group = {p.name: p.group_name for p in exp.policies}
+    cells = [(group[r.policy], int(r.seed), Path(r.run_dir)) for r in scores.itertuples()]
+    points, notes = curves.curve_points(cells)
+    rank = {g: i for i, g in enumerate(dict.fromkeys(group.values()))}
+    points = points.sort_values("row", key=lambda s: s.map(rank), kind="mergesort")
+    return curves.sample_efficiency(points, CURVE_REPS, CURVE_SEED), notes
+
+
+def efficiency_figure(exp: Any, curve: pd.DataFrame) -> Any:
+    """The sample-efficiency figure: baselines and Pr-IQN variants in their own panels,
+    one colour per row group (file order), the first baseline dotted where it is absent."""
+    from priqn.analysis import curves
+    from priqn.analysis.figures import row_colors, sample_efficiency_figure
+
+    agents = {p.group_name: p.agent for p in exp.policies}
+    rows = [g for g in agents if g in set(curve["row"])]
+    reference = next((g for g in rows if agents[g] == "iqn"), None)
+    return sample_efficiency_figure(
+        curve, curves.panels(rows, curves.row_kinds(agents)), row_colors(list(agents)), reference
+    )
+
+
 def _needed(x: float) -> str:
     """A look's boundary in points, or why the look could not reject."""
     return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
@@ -274,8 +307,34 @@ def _density_lines(frame: pd.DataFrame, steps: int | None) -> list[str]:
     return [*lines, ""]
 
 
-def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str) -> str:
-    """``report.md`` of a sequential experiment."""
+def _curves_lines(has_curves: bool) -> list[str]:
+    """The report's sample-efficiency section (descriptive)."""
+    if not has_curves:
+        return []
+    return [
+        "## Sample efficiency (descriptive)",
+        "",
+        "Hold-out success against training decisions, per row: the mean over the row's "
+        "counted seeds with a 95 % percentile stratified-bootstrap interval over seeds "
+        f"(`np.random.seed({CURVE_SEED})` before each point's rliable call, {CURVE_REPS} "
+        "replications). The line and band are the in-training evaluations (a few hold-out "
+        "episodes per seed, the legend says how many; from `metrics.csv`); the markers with error "
+        "bars are the full hold-out evaluations (`eval/` of the final policy and "
+        "`eval-at<N>/` of kept snapshots; a seed's success averaged over the densities, "
+        "the endpoint above). Two estimators of different precision: never read one "
+        "against the other. Numbers: `tables/sample_efficiency.csv`.",
+        "",
+        "![sample efficiency](figures/sample_efficiency.png) "
+        "([pdf](figures/sample_efficiency.pdf))",
+        "",
+    ]
+
+
+def report_markdown(
+    exp: Any, scores: pd.DataFrame, result: Replay, command: str, has_curves: bool = False
+) -> str:
+    """``report.md`` of a sequential experiment; ``has_curves``: with its sample-efficiency
+    section."""
     seq, e = exp.sequential, exp.experiment
     policies = [p.name for p in exp.policies]
     counts = scores.groupby("policy")["seed"].nunique()
@@ -368,6 +427,7 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
             "",
         ]
     lines += _density_lines(density_frame(exp, scores), e.steps)
+    lines += _curves_lines(has_curves)
     nxt = next_cells(exp, result, scores)
     lines += [
         "## Next",
@@ -378,6 +438,13 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         + ", ".join(cell_dir_name(p, s) for p, s in nxt)
         + f" (`priqn sweep {e.name} --code <frozen worktree>`).",
         "",
+    ]
+    return "\n".join(lines + _cells_lines(scores, has_curves))
+
+
+def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
+    """The report's "Cells" section (every counted cell) and its list of files."""
+    return [
         "## Cells",
         "",
         "| row | seed | success (endpoint) | episodes | commit | run folder |",
@@ -389,11 +456,15 @@ def report_markdown(exp: Any, scores: pd.DataFrame, result: Replay, command: str
         ],
         "",
         "Files: `tables/scores.csv`, `tables/looks.csv`, `tables/density.csv`, "
-        "`figures/headline.{png,pdf}`, "
+        + (
+            "`tables/sample_efficiency.csv`, `figures/sample_efficiency.{png,pdf}`, "
+            if has_curves
+            else ""
+        )
+        + "`figures/headline.{png,pdf}`, "
         "`figures/looks.{png,pdf}` (from the first look on), `meta.json`.",
         "",
     ]
-    return "\n".join(lines)
 
 
 def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> Path:
@@ -415,8 +486,12 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     monitoring = looks_figure(exp, result)
     if monitoring is not None:
         save_figure(monitoring, out / "figures", "looks")
+    curve, curve_notes = sample_efficiency(exp, scores)
+    if len(curve):
+        atomic_write_text(out / "tables" / "sample_efficiency.csv", curve.to_csv(**csv_kw))
+        save_figure(efficiency_figure(exp, curve), out / "figures", "sample_efficiency")
     report = out / "report.md"
-    atomic_write_text(report, report_markdown(exp, scores, result, command))
+    atomic_write_text(report, report_markdown(exp, scores, result, command, len(curve) > 0))
     atomic_write_json(
         out / "meta.json",
         {
@@ -427,6 +502,11 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
             "verdicts": {c.name: verdict(exp, result, c) for c in exp.sequential.comparisons},
             "finished": result.finished,
             "cells": len(scores),
+            **(
+                {"curves": {"seed": CURVE_SEED, "reps": CURVE_REPS, "notes": curve_notes}}
+                if len(curve)
+                else {}
+            ),
         },
     )
     return report
