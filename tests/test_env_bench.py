@@ -24,6 +24,11 @@ def test_bench_env_cli_smoke(tmp_path: Path) -> None:
     assert row["ratio"] == min(row["ratio_runs"])  # the run with the median_low ratio
     env = row["env"]
     assert env["risk_us_per_step"] > 0 and env["parts_ms"]["risk_ms"] > 0
+    # The sensors timed beside their reference on the same states, outputs equal.
+    assert env["sensors_ref_ms"] > 0 and env["sensors_mismatches"] == 0
+    assert env["parts_ms"]["sensors_ms"] > 0 and "median of pairs" in proc.stdout
+    vs = env["sensors_vs_ref"]
+    assert vs["mean_ratio"] > 0 and vs["median_ratio"] > 0 and vs["ref_median_ms"] > 0
     assert env["reset_ms"] > 0 and set(env["episode"]) == {
         "count",
         "decisions",
@@ -87,3 +92,45 @@ def test_bench_train_bf16_times_each_agent_twice_in_one_command() -> None:
     assert all(r["updates_per_s"] > 0 and r["obs_px"] == 64 for r in rows)
     plain = updates_per_second("default", ["iqn"], 4, 0.05, "cpu", rounds=1)
     assert [r["bf16"] for r in plain] == [False]
+
+
+def test_bench_counts_sensor_mismatches_and_keeps_the_reference_out_of_the_step() -> None:
+    """The wrapper that times the reference sensors beside the new ones notices a difference."""
+    import numpy as np
+
+    from priqn.bench.env import _with_reference
+    from priqn.env.geometry import Boxes, MapRaster
+    from priqn.env.sensors import SensorConfig, Sensors, synthetic_crossroads
+
+    sensors = Sensors(SensorConfig(size_px=32))
+    polys, marks, _ = synthetic_crossroads()
+    raster = MapRaster.from_roadmap_arrays(polys, marks, 0.2, sensors.cfg.marking_width_m)
+    ego = Boxes.make([1.75, -15.0], np.pi / 2, 4.5, 1.8, 1.5)
+    actors = Boxes.make([[1.75, -5.0]], np.pi / 2, 4.5, 1.8, 1.5)
+    totals = {"sensors_ms": 0.0, "sensors_ref_ms": 0.0, "sensors_mismatches": 0,
+              "excluded_s": 0.0, "sensors_pairs": []}  # fmt: skip
+    observe = _with_reference(sensors, [True], totals)
+    bev, lidar = observe(raster, ego, actors, np.zeros(1))
+    assert totals["sensors_mismatches"] == 0 and len(totals["sensors_pairs"]) == 1
+    assert totals["excluded_s"] >= totals["sensors_ref_ms"] > 0
+    real = sensors.observe
+    sensors.observe = lambda *a: (np.zeros_like(bev), lidar)  # a wrong BEV
+    observe = _with_reference(sensors, [True], totals)
+    observe(raster, ego, actors, np.zeros(1))
+    assert totals["sensors_mismatches"] == 1
+    sensors.observe = real
+    outside = _with_reference(sensors, [False], totals)  # resets: not timed, not compared
+    outside(raster, ego, actors, np.zeros(1))
+    assert len(totals["sensors_pairs"]) == 2
+
+
+def test_bench_env_without_the_reference_sensors(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    cmd = [sys.executable, "-m", "priqn.cli", "bench", "env", "--family", "tjunction",
+           "--densities", "0.5", "--decisions", "10", "--max-workers", "0", "--obs-size", "32",
+           "--repeats", "1", "--no-sensors-ref", "--json", str(out)]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    env = json.loads(out.read_text())["density"]["0.5"]["env"]
+    assert env["sensors_ref_ms"] == 0 and env["parts_ms"]["sensors_ms"] > 0
+    assert "(not timed)" in proc.stdout
