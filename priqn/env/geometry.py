@@ -28,6 +28,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from priqn.errors import PriqnError
+from priqn.sim.roadmap import heading_rad_from_sumo, sumo_angle_deg
 
 # --------------------------------------------------------------------------- SUMO poses
 
@@ -37,14 +38,14 @@ def sumo_from_center(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Centre pose → SUMO's ``(front-bumper xy [..., 2], angle_deg [...])`` for ``moveToXY``.
 
-    SUMO's angle is in degrees clockwise from north: ``(90 − heading°) mod 360``; its
-    position is the front bumper, ``length/2`` ahead of the centre along the heading.
+    SUMO's angle is in degrees clockwise from north (:func:`~priqn.sim.roadmap.sumo_angle_deg`);
+    its position is the front bumper, ``length/2`` ahead of the centre along the heading.
     """
     c = np.asarray(center_xy, dtype=float)
     h = np.asarray(heading_rad, dtype=float)
     half = 0.5 * np.asarray(length_m, dtype=float)
     front = c + np.stack([np.cos(h), np.sin(h)], axis=-1) * half[..., None]
-    return front, np.mod(90.0 - np.degrees(h), 360.0)
+    return front, sumo_angle_deg(h)
 
 
 def center_from_sumo(
@@ -52,7 +53,7 @@ def center_from_sumo(
 ) -> tuple[np.ndarray, np.ndarray]:
     """SUMO's ``(front-bumper xy, angle_deg)`` → ``(centre xy [..., 2], heading_rad [...])``."""
     f = np.asarray(front_xy, dtype=float)
-    h = np.radians(90.0 - np.asarray(angle_deg, dtype=float))
+    h = heading_rad_from_sumo(angle_deg)
     half = 0.5 * np.asarray(length_m, dtype=float)
     return f - np.stack([np.cos(h), np.sin(h)], axis=-1) * half[..., None], h
 

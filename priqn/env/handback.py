@@ -23,6 +23,7 @@ import numpy as np
 
 from priqn.env import planner
 from priqn.env.reads import EgoState
+from priqn.sim.roadmap import heading_rad_from_sumo
 
 S_WINDOW_M = (5.0, 30.0)
 """A pose is projected on the route's reference line within this arc length [m] behind and
@@ -50,7 +51,7 @@ class Pose:
 def read_pose(sim: ModuleType, vehicle_id: str, length_m: float) -> Pose:
     """The pose of ``vehicle_id`` after the last SUMO step (SUMO gives its front bumper)."""
     fx, fy = sim.vehicle.getPosition(vehicle_id)
-    heading = float(np.radians(90.0 - sim.vehicle.getAngle(vehicle_id)))
+    heading = float(heading_rad_from_sumo(sim.vehicle.getAngle(vehicle_id)))
     return Pose(
         float(fx - 0.5 * length_m * np.cos(heading)),
         float(fy - 0.5 * length_m * np.sin(heading)),

@@ -208,9 +208,7 @@ def decode_actors(raw_per_step: Sequence[dict[str, dict[int, Any]]], ego_id: str
     if not rows:
         return StepActors(Actors.empty(), offsets_k)
     vals = np.array(rows)
-    heading = np.radians(90.0 - vals[:, 2])
-    half = 0.5 * vals[:, 4]
-    centre = vals[:, 0:2] - half[:, None] * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    centre, heading = geometry.center_from_sumo(vals[:, 0:2], vals[:, 2], vals[:, 4])
     height = np.full(len(rows), ACTOR_HEIGHT_M)
     boxes = geometry.Boxes(centre, heading, vals[:, 4], vals[:, 5], height)
     return StepActors(Actors(boxes, vals[:, 3]), offsets_k)

@@ -28,6 +28,7 @@ from types import ModuleType
 import numpy as np
 
 from priqn.errors import PriqnError
+from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
 
 NPC_PREFIX = "npc."
@@ -219,8 +220,10 @@ class Traffic:
             heading = _lane_heading(sim, site.lane_id, pos)
             nx, ny = -np.sin(heading), np.cos(heading)  # left normal
             fx, fy = x + lat * nx, y + lat * ny
+            # In [0, 360); until issue 36 this was 90 - degrees(heading) without the mod, which
+            # SUMO's moveToXY wraps into [0, 360) itself: the simulation is the same either way.
             sim.vehicle.moveToXY(
-                vid, site.edge_id, site.lane_index, fx, fy, 90.0 - np.rad2deg(heading), 1
+                vid, site.edge_id, site.lane_index, fx, fy, sumo_angle_deg(heading), 1
             )
             sim.vehicle.setSpeed(vid, 0.0)
             cx, cy = fx - np.cos(heading) * length / 2.0, fy - np.sin(heading) * length / 2.0

@@ -6,7 +6,11 @@ Coordinates and angles (everything in this module):
   from :mod:`priqn.sim.netgen` keep the junction centre at ``(0, 0)``.
 - A *heading* is in radians, counter-clockwise from +x (``atan2(dy, dx)``). SUMO's
   vehicle *angle* is in degrees, clockwise from north: ``angle = (90 - degrees(heading)) mod 360``
-  (:func:`sumo_angle_deg`), which ``vehicle.moveToXY`` expects.
+  (:func:`sumo_angle_deg`), which ``vehicle.moveToXY`` expects; back again,
+  ``heading = radians(90 - angle)`` (:func:`heading_rad_from_sumo`). Every conversion
+  between the two goes through these two functions.
+- Angle differences are wrapped by :func:`wrap_deg` (to ``(-180, 180]``) and
+  :func:`wrap_rad` (to ``[-pi, pi]``).
 - ``s`` is arc length along a route's reference line in metres, starting at the
   first point of the approach lane. Positive lateral offset ``d`` is to the left.
 - Polygons are ``float64 [P, 2]`` arrays of ``(x, y)``, open (first point not repeated).
@@ -317,8 +321,36 @@ class RoadMap:
 
 
 def sumo_angle_deg(heading_rad: float | np.ndarray) -> float | np.ndarray:
-    """Heading (rad, CCW from +x) → SUMO angle (deg, clockwise from north) in [0, 360)."""
+    """Heading (rad, CCW from +x) → SUMO angle (deg, clockwise from north) in [0, 360).
+
+    East (heading 0) is 90°, north (π/2) 0°, west (π) 270°, south (−π/2) 180°.
+    """
     return np.mod(90.0 - np.degrees(heading_rad), 360.0)
+
+
+def heading_rad_from_sumo(angle_deg: float | np.ndarray) -> float | np.ndarray:
+    """SUMO angle (deg, clockwise from north) → heading (rad, CCW from +x), float64.
+
+    ``radians(90 - angle)``, not wrapped: SUMO's angles in [0, 360) give headings in
+    (-3π/2, π/2] (north 0° → π/2, east 90° → 0, south 180° → −π/2, west 270° → −π).
+    The inverse of :func:`sumo_angle_deg` up to whole turns.
+    """
+    return np.radians(90.0 - np.asarray(angle_deg, dtype=float))
+
+
+def wrap_deg(angle_deg: float) -> float:
+    """``angle_deg`` wrapped to (-180, 180] [deg]: 190 → -170, -180 → 180, 540 → 180."""
+    wrapped = (angle_deg + 180.0) % 360.0 - 180.0
+    return 180.0 if wrapped == -180.0 else wrapped
+
+
+def wrap_rad(angle_rad: float | np.ndarray) -> float | np.ndarray:
+    """``angle_rad`` wrapped to [-π, π] [rad], as the angle of ``exp(i·angle)``.
+
+    Odd multiples of π keep their sign (π → π, −π → −π): the rounding of ``exp`` decides,
+    so this is for differences compared by size (``abs``), not for a canonical angle.
+    """
+    return np.angle(np.exp(1j * angle_rad))
 
 
 def arc_length(xy: np.ndarray) -> np.ndarray:
@@ -676,10 +708,7 @@ def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tupl
             npc.append((edge.getID(), to_edge.getID()))
             in_shape = np.asarray(_car_lanes(edge)[0].getShape(), float)
             out_shape = np.asarray(_car_lanes(to_edge)[0].getShape(), float)
-            turn = math.degrees(_heading_at_start(out_shape) - _heading_at_end(in_shape))
-            turn = (turn + 180.0) % 360.0 - 180.0
-            if turn == -180.0:
-                turn = 180.0
+            turn = wrap_deg(math.degrees(_heading_at_start(out_shape) - _heading_at_end(in_shape)))
             command = _command(turn)
             # Left turns from the leftmost lane, others from the rightmost (SUMO's lane 0).
             pick = max if command == "left" else min
