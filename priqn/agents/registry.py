@@ -3,9 +3,14 @@
 | agent | heads | reward rule | acting rule | target rule |
 |---|---|---|---|---|
 | ``iqn`` | 1 | weighted-sum | argmax | own-argmax |
-| ``ensemble-iqn`` | 5 | weighted-sum | argmax-mean-of-heads | own-argmax |
-| ``ma-iqn`` | 5 (one per objective) | per-objective | argmax-sum-of-heads | own-argmax |
-| ``pr-iqn`` | 5 (one per objective) | per-objective | leaf-uniform | optimal-subset (``train_preorder``) or own-argmax |
+| ``ensemble-iqn`` | ``ensemble_heads`` (5) | weighted-sum | argmax-mean-of-heads | own-argmax |
+| ``ma-iqn`` | O (one per objective) | per-objective | argmax-sum-of-heads | own-argmax |
+| ``pr-iqn`` | O (one per objective) | per-objective | leaf-uniform | optimal-subset (``train_preorder``) or own-argmax |
+
+Shape suffixes as in :mod:`priqn.agents.network` (``B`` batch, ``H`` heads, ``K`` quantiles,
+``A`` actions), plus ``O``: the run's objectives (``env.objectives``, five by default, six
+with ``right_of_way``), the length of the reward vector. :mod:`priqn.preorder` calls the
+same axis ``N``; inside ``priqn.agents`` ``N`` is the learner's τ samples.
 """
 
 from __future__ import annotations
@@ -86,7 +91,7 @@ class Agent:
     """Acting and target selection of one named agent (no network, no optimiser).
 
     ``act(quantiles_BHKA, u_B)`` → actions ``[B]``; ``target_actions(next_BHKA)`` →
-    ``[B, H]``; ``head_rewards(rewards_B5)`` → ``[B, H]``. Quantiles are on the fixed grid.
+    ``[B, H]``; ``head_rewards(rewards_BO)`` → ``[B, H]``. Quantiles are on the fixed grid.
     """
 
     def __init__(
@@ -107,25 +112,33 @@ class Agent:
         self._act = rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule")
         self._target = rules.lookup(rules.TARGET_RULES, spec.target_rule, "target rule")
         weights = cfg.reward_weights or scheme_weights(cfg.reward_scheme, objectives=objectives)
-        self.reward_weights_5 = torch.tensor(weights, dtype=torch.float32)
+        self.reward_weights_O = torch.tensor(weights, dtype=torch.float32)
+        """``[O]`` weighted-sum weights, one per objective (the reward rule and acting use them)."""
 
     @property
     def num_heads(self) -> int:
         return self.spec.num_heads
 
-    def head_rewards(self, rewards_B5: torch.Tensor) -> torch.Tensor:
-        w = self.reward_weights_5.to(rewards_B5.device, rewards_B5.dtype)
-        return self._reward(rewards_B5, w, self.num_heads)
+    @property
+    def reward_weights_5(self) -> torch.Tensor:
+        """Old name of :attr:`reward_weights_O` (it is ``[O]``, not ``[5]``); kept until
+        ``agents/policy.py``, ``inspector.py`` and the tests read the new one."""
+        return self.reward_weights_O
 
-    def head_discounts(self, discount_B5: torch.Tensor) -> torch.Tensor:
+    def head_rewards(self, rewards_BO: torch.Tensor) -> torch.Tensor:
+        """Reward per head ``[B, H]`` from the reward vectors ``rewards_BO`` (the reward rule)."""
+        w = self.reward_weights_O.to(rewards_BO.device, rewards_BO.dtype)
+        return self._reward(rewards_BO, w, self.num_heads)
+
+    def head_discounts(self, discount_BO: torch.Tensor) -> torch.Tensor:
         """Bootstrap discount per head ``[B, H]``: γ_h^m for per-objective heads; a
         weighted-sum head has one γ (config validation keeps the objectives' equal)."""
         if self.spec.reward_rule == "per-objective":
-            return discount_B5
-        return discount_B5[:, :1].expand(-1, self.num_heads)
+            return discount_BO
+        return discount_BO[:, :1].expand(-1, self.num_heads)
 
     def act(self, quantiles_BHKA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
-        w = self.reward_weights_5.to(quantiles_BHKA.device, quantiles_BHKA.dtype)
+        w = self.reward_weights_O.to(quantiles_BHKA.device, quantiles_BHKA.dtype)
         return self._act(quantiles_BHKA, self.subsets, u_B, w)
 
     def state_dict(self) -> dict[str, Any]:

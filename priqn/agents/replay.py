@@ -42,10 +42,10 @@ class ReplayBuffer:
         self.rows = int(capacity) // self.num_envs
         self.n_step = int(n_step)
         self.num_objectives = int(num_objectives)
-        """N: length of the reward vector (the run's objectives)."""
-        # γ per objective [N] (a number applies to all): the n-step sum discounts each
+        """O: length of the reward vector (the run's objectives)."""
+        # γ per objective [O] (a number applies to all): the n-step sum discounts each
         # reward component with its own γ_i and the bootstrap discount is γ_i^m.
-        self.gamma_5 = np.broadcast_to(
+        self.gamma_O = np.broadcast_to(
             np.asarray(gamma, dtype=np.float64), (self.num_objectives,)
         ).copy()
         E, R = self.num_envs, self.rows
@@ -130,8 +130,8 @@ class ReplayBuffer:
         """``batch_size`` n-step transitions, uniform over stored ones.
 
         Returns numpy arrays: ``obs`` / ``next_obs`` (dicts of ``[B, ...]``), ``action [B]``,
-        ``reward [B, 5]`` (n-step discounted sum), ``discount [B, 5]`` (γ_i^m per objective,
-        0 if terminated).
+        ``reward [B, O]`` (n-step discounted sum), ``discount [B, O]`` (γ_i^m per objective,
+        0 if terminated); ``O`` = ``num_objectives``.
         """
         lo = np.maximum(self.written - self.rows, 0)
         avail = self.written - lo
@@ -180,7 +180,7 @@ class ReplayBuffer:
             end = alive & self.ended[e, r]
             done |= end & self.terminated[e, r]
             nxt = np.where(end, p + k + 1, nxt)
-            disc = np.where(alive[:, None], disc * self.gamma_5, disc)
+            disc = np.where(alive[:, None], disc * self.gamma_O, disc)
             alive &= ~end
         r0, r1 = p % self.rows, nxt % self.rows
         return {
