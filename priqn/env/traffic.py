@@ -220,8 +220,8 @@ class Traffic:
             heading = _lane_heading(sim, site.lane_id, pos)
             nx, ny = -np.sin(heading), np.cos(heading)  # left normal
             fx, fy = x + lat * nx, y + lat * ny
-            # In [0, 360); until issue 36 this was 90 - degrees(heading) without the mod, which
-            # SUMO's moveToXY wraps into [0, 360) itself: the simulation is the same either way.
+            # In [0, 360); until issue 36 this angle was not taken mod 360, but SUMO's moveToXY
+            # wraps it into [0, 360) itself: the simulation is the same either way.
             sim.vehicle.moveToXY(
                 vid, site.edge_id, site.lane_index, fx, fy, sumo_angle_deg(heading), 1
             )
