@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import priqn.sweep.backends as backends
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, ResourceSpec
 from priqn.io import atomic_write_json
-from priqn.sweep import backends
 from priqn.sweep.backends import Backend, LocalBackend, RayBackend
 from priqn.sweep.cells import Cell, expand
 from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
