@@ -186,11 +186,9 @@ class Sensors:
         self._g_rk = (ray_i * len(self._tan_el) + np.tile(beam_k, cfg.lidar_rays))[inside]
         self._g_range = np.tile(ring, cfg.lidar_rays)[inside]
         self._g_cell = (np.floor(row[inside]) * n + np.floor(col[inside])).astype(np.intp)
-        # Ground returns per grid cell with nothing in the way, and the ground return (if
-        # any) of each (ray, beam): an observation then only subtracts the blocked ones.
+        # Ground returns per grid cell with nothing in the way: an observation then only
+        # subtracts the blocked ones.
         self._g_count = np.bincount(self._g_cell, minlength=n * n)
-        self._rk_to_g = np.full(cfg.lidar_rays * len(self._tan_el), -1, np.intp)
-        self._rk_to_g[self._g_rk] = np.arange(len(self._g_rk))
         # The fast LiDAR counts on a canvas one cell wider on every side ("padded", flat
         # index (row + 1)·(n + 2) + col + 1): whatever falls off the grid is clipped onto
         # the border, which is cut off at the end. Per (ray, beam): the padded cell of its

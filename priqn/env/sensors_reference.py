@@ -3,7 +3,8 @@
 :class:`ReferenceSensors` is :class:`~priqn.env.sensors.Sensors` with the internals it had
 before issue 38 (BEV footprints as a ``[M, K, K]`` test with ``np.nonzero`` over three
 axes, LiDAR claims as ``[hits, beams]`` boolean matrices with a cumulative sum per beam,
-one lookup per map channel). It is kept, unchanged and slower, for two reasons:
+one lookup per map channel; the map sampling, unchanged, is inherited). It is kept,
+unchanged and slower, for two reasons:
 
 * ``tests/test_sensors.py`` compares the fast path to it byte for byte on synthetic
   scenes and on real env states at every density: the observations, and with them every
@@ -21,11 +22,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from priqn.env.geometry import DRIVABLE, Boxes, MapRaster, boxes_corners
-from priqn.env.sensors import Sensors
+from priqn.env.sensors import SensorConfig, Sensors
 
 
 class ReferenceSensors(Sensors):
     """:class:`Sensors` computed the pre-issue-38 way (same config, same outputs, slower)."""
+
+    def __init__(self, cfg: SensorConfig | None = None) -> None:
+        super().__init__(cfg)
+        # The ground return (index into the precomputed ones, -1 if none) of each (ray, beam).
+        self._rk_to_g = np.full(self.cfg.lidar_rays * len(self._tan_el), -1, np.intp)
+        self._rk_to_g[self._g_rk] = np.arange(len(self._g_rk))
 
     def lidar_points(self, map_raster: MapRaster, ego: Boxes, actors: Boxes) -> np.ndarray:
         """The synthesised point cloud ``[N, 3]`` (fwd, left, height) in the ego frame (m).
