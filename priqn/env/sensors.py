@@ -29,6 +29,9 @@ with ``res = extent_m / size_px`` metres per cell.
   face returns from the ground at its ring distance ``h / tan(−elevation)``, and only on
   the drivable area (off-road surfaces return nothing: the net knows none). Not
   modelled: roofs, ground clearance, noise, intensity.
+
+The first implementation is kept as :class:`priqn.env.sensors_reference.ReferenceSensors`:
+the tests and ``priqn bench env`` check byte for byte that this one gives the same grids.
 """
 
 from __future__ import annotations
