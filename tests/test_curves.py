@@ -161,3 +161,15 @@ def test_panels_cut_long_kinds_into_balanced_chunks() -> None:
         ("P (3/3)", 3),
     ]
     assert sum((r for _, r in got), []) == rows
+
+
+def test_a_figure_of_full_evaluations_only(tmp_path: Path) -> None:
+    """Runs without in-training evaluations (e.g. a short run): markers only, one style entry."""
+    cells = [("IQN", s, _cell(tmp_path, f"r{s}", "IQN", IQN, s, 20)) for s in (0, 1)]
+    points, notes = curves.curve_points(cells)
+    assert set(points["source"]) == {curves.SNAPSHOT} and len(notes) == 2
+    curve = curves.sample_efficiency(points, reps=50, seed=0)
+    fig = sample_efficiency_figure(curve, [("Baselines", ["IQN"])], row_colors(["IQN"]), "IQN")
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["IQN (2 seeds)"]
+    styles = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert len(styles) == 1 and styles[0].startswith("full hold-out evaluation (16 episodes")

@@ -258,33 +258,24 @@ def sample_efficiency_figure(
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
     axes[-1, 0].set_xlabel("training decisions")
     axes[-1, 0].xaxis.set_major_formatter(
-        FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0")
+        FuncFormatter(lambda x, _: f"{x / 1000:g}k" if abs(x) >= 1000 else f"{x:g}")
     )
-    handles = [
-        plt.Line2D(
-            [],
-            [],
-            color="0.3",
-            lw=1.4,
-            label=(
-                f"in-training evaluation ({_episodes_text(curve, PERIODIC)} episodes per seed): "
-                "mean over seeds, band = 95 % bootstrap CI over seeds"
-            ),
-        ),
-        plt.Line2D(
-            [],
-            [],
-            color="0.3",
-            marker="o",
-            mec="black",
-            mew=0.5,
-            ls="",
-            label=(
-                f"full hold-out evaluation ({_episodes_text(curve, SNAPSHOT)} episodes per seed) "
-                "of the final policy / kept snapshots: mean, 95 % CI"
-            ),
-        ),
-    ]
+    sources = set(curve["source"])  # a style's legend entry only where it is drawn
+    handles = []
+    if PERIODIC in sources:
+        text = (
+            f"in-training evaluation ({_episodes_text(curve, PERIODIC)} episodes per seed): "
+            "mean over seeds, band = 95 % bootstrap CI over seeds"
+        )
+        handles.append(plt.Line2D([], [], color="0.3", lw=1.4, label=text))
+    if SNAPSHOT in sources:
+        text = (
+            f"full hold-out evaluation ({_episodes_text(curve, SNAPSHOT)} episodes per seed) "
+            "of the final policy / kept snapshots: mean, 95 % CI"
+        )
+        handles.append(
+            plt.Line2D([], [], color="0.3", marker="o", mec="black", mew=0.5, ls="", label=text)
+        )
     fig.legend(handles=handles, loc="outside upper center", fontsize=7, frameon=False)
     return fig
 
