@@ -10,17 +10,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from priqn.analysis import claims, inference
+from priqn.analysis import claims_report, inference
 from priqn.analysis.claims import (
     CLAIMS,
-    IQN,
-    PAPER_ROWS,
-    PR_IQN_STAR,
     Claim,
     Comparison,
     evaluate_claims,
     seed_scores,
 )
+from priqn.analysis.paper import IQN, PAPER_ROWS, PR_IQN_STAR, pr_iqn
 from priqn.errors import PriqnError
 
 STAR, BASE = PR_IQN_STAR.render(), IQN.render()
@@ -299,7 +297,7 @@ def test_pending_when_rows_or_seeds_are_missing() -> None:
 
 
 def test_equivalence_claim() -> None:
-    partial = claims.pr_iqn("qd", True, 0.2, True).render()
+    partial = pr_iqn("qd", True, 0.2, True).render()
     close = pd.concat(
         [
             episodes(STAR, lambda s, r, d: 0.5, seeds=range(5)),
@@ -324,13 +322,13 @@ def test_markdown_and_frame() -> None:
         ]
     )
     results = evaluate_claims(table, seed=3)
-    md = claims.to_markdown(results, seed=3)
+    md = claims_report.to_markdown(results, seed=3)
     assert f"{STAR} − IQN, SR, endpoint | +50.0 [+50.0, +50.0], 5 vs 5 | 0.00794 / 0.0317" in md
     assert "claim: **reproduced**" in md and "default_rng(3)" in md
     assert f"| {STAR} − IQN, SR, d 0.75 | +16.6 | +50.0 [+50.0, +50.0] |" in md
     assert "Not checked here (rows not in this report): star-vs-ensemble" in md
-    frame = claims.to_frame(results)
-    assert list(frame.columns) == list(claims.FRAME_COLUMNS)
+    frame = claims_report.to_frame(results)
+    assert list(frame.columns) == list(claims_report.FRAME_COLUMNS)
     star = frame[frame["claim"] == "star-vs-iqn"]
     assert list(star["role"]) == ["primary", "descriptive", "descriptive", "descriptive"]
     assert list(star["density"].isna()) == [True, False, False, False]
@@ -345,7 +343,7 @@ def test_markdown_and_frame() -> None:
 def test_control_rows_of_the_claims_are_the_labels_evaluation_writes() -> None:
     """The acting-control claims name rows as `priqn evaluate --acting near-greedy` labels
     them (Policy.near_greedy -> labels.near_greedy), and the label reads back from a CSV row."""
-    from priqn.analysis.claims import ENSEMBLE
+    from priqn.analysis.paper import ENSEMBLE
     from priqn.labels import PolicyLabel, near_greedy
 
     rows = {

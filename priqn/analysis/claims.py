@@ -1,4 +1,8 @@
-"""The paper's claims as data, and the verdict rule: seeds as replicates, Holm per family.
+"""The paper's claims (and our questions) as data, and the verdict rule: seeds as
+replicates, Holm per family.
+
+The paper's numbers come from :mod:`priqn.analysis.paper`; the report's claims section
+(Markdown, ``tables/claims.csv``) is :mod:`priqn.analysis.claims_report`.
 
 Each :class:`Claim` is a set of directed comparisons between Table II rows ("row A has a
 higher success rate than row B") or an equivalence ("A and B are within ±margin"). Every
@@ -42,7 +46,7 @@ it), and the band exceeded the paper's own +2.5 / +3.3-point effects.
 from __future__ import annotations
 
 import dataclasses
-import math
+from collections.abc import Iterable
 from fractions import Fraction
 from typing import Literal
 
@@ -50,6 +54,20 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference
+from priqn.analysis.paper import (
+    ENSEMBLE,
+    IQN,
+    MA_IQN,
+    PAPER_DENSITIES,
+    PAPER_ROWS,
+    PR_IQN_STAR,
+    TEXT_STAR_OVER_ENSEMBLE,
+    TEXT_STAR_OVER_IQN,
+    TEXT_TRAINING_PREORDER_GAIN,
+    paper_difference,
+    pr_iqn,
+    table_gains,
+)
 from priqn.errors import PriqnError
 from priqn.labels import PolicyLabel, near_greedy
 
@@ -61,71 +79,6 @@ FAMILIES: tuple[str, ...] = ("paper", "ours")
 """Claim families; Holm runs within each."""
 DENSITIES_ALL: float | None = None
 """``Comparison.density`` value meaning "averaged over every evaluated density"."""
-
-IQN = PolicyLabel("iqn")
-ENSEMBLE = PolicyLabel("ensemble-iqn")
-MA_IQN = PolicyLabel("ma-iqn")
-
-
-def pr_iqn(
-    comparator: str = "qd",
-    train_preorder: bool = True,
-    eps: float = 0.2,
-    partial_order: bool = False,
-    extra: tuple[str, ...] = (),
-) -> PolicyLabel:
-    """A Pr-IQN row; the defaults are the paper's best configuration, Pr-IQN*."""
-    return PolicyLabel("pr-iqn", comparator, train_preorder, eps, partial_order, extra)
-
-
-PR_IQN_STAR = pr_iqn()
-
-PAPER_ROWS: tuple[PolicyLabel, ...] = (
-    IQN,
-    ENSEMBLE,
-    MA_IQN,
-    pr_iqn("mv", True, 0.4),
-    pr_iqn("cvar", True, 0.4),
-    pr_iqn("qd", False, 0.4),
-    pr_iqn("qd", True, 0.4),
-    pr_iqn("qd", False, 0.2),
-    PR_IQN_STAR,
-    pr_iqn("qd", False, 0.2, True),
-    pr_iqn("qd", True, 0.2, True),
-)
-"""The paper's 11 Table II rows."""
-
-PAPER_SUCCESS: dict[str, tuple[float, float, float]] = {
-    row.render(): sr
-    for row, sr in zip(
-        PAPER_ROWS,
-        (
-            (0.737, 0.513, 0.434),
-            (0.704, 0.532, 0.498),
-            (0.594, 0.374, 0.391),
-            (0.635, 0.400, 0.365),
-            (0.518, 0.275, 0.224),
-            (0.722, 0.567, 0.463),
-            (0.763, 0.580, 0.455),
-            (0.816, 0.646, 0.612),
-            (0.816, 0.679, 0.637),
-            (0.692, 0.514, 0.503),
-            (0.797, 0.630, 0.642),
-        ),
-        strict=True,
-    )
-}
-"""The paper's Table II success rates at densities 0.5 / 0.75 / 1.0, per row label."""
-
-PAPER_DENSITIES: tuple[float, float, float] = (0.5, 0.75, 1.0)
-"""The traffic densities of the paper's Table II columns (the order of PAPER_SUCCESS)."""
-
-
-def paper_difference(first: PolicyLabel, second: PolicyLabel) -> float:
-    """The paper's success-rate difference first − second on the endpoint (mean over its
-    three densities), from Table II, rounded to 0.1 points."""
-    a, b = PAPER_SUCCESS[first.render()], PAPER_SUCCESS[second.render()]
-    return round(sum(a) / 3 - sum(b) / 3, 3)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,14 +137,14 @@ class Claim:
 
 def _endpoint_and_densities(first: PolicyLabel, second: PolicyLabel) -> dict:
     """``comparisons`` (the endpoint) and ``by_density`` (descriptive) of a success-rate
-    claim ``first > second``, every paper difference from Table II (:data:`PAPER_SUCCESS`).
+    claim ``first > second``, every paper difference from Table II
+    (:data:`priqn.analysis.paper.PAPER_SUCCESS`).
 
     The paper's text rounds some per-density gains differently from its Table II (Pr-IQN*
     over IQN at 0.5: +7.7 in the text, +7.9 in the table; over Ensemble-IQN: +11.0 and
     +11.2): the claims use the table throughout and quote the text in ``Claim.paper``.
     """
-    a, b = PAPER_SUCCESS[first.render()], PAPER_SUCCESS[second.render()]
-    paper_at = tuple(round(x - y, 3) for x, y in zip(a, b, strict=True))
+    paper_at = table_gains(first, second)
     return {
         "comparisons": (Comparison(first, second, paper=paper_difference(first, second)),),
         "by_density": tuple(
@@ -217,6 +170,20 @@ def _acting_control(key: str, how: str, eps: float) -> Claim:
     )
 
 
+def _points(diffs: Iterable[float]) -> str:
+    """Success-rate differences as the paper's text writes them: ``+7.9 / +16.6 / −1.9``."""
+    return " / ".join(f"{100 * d:+.1f}".replace("-", "−") for d in diffs)
+
+
+def _table_and_text(first: PolicyLabel, second: PolicyLabel, text: tuple[float, ...]) -> str:
+    """``Claim.paper`` of a gain Sec. V quotes per density: Table II's, then the text's."""
+    return (
+        f"Table II: {_points(table_gains(first, second))} points at 0.5 / 0.75 / 1.0, "
+        f"mean {_points([paper_difference(first, second)])} "
+        f"(the text: {_points(text)}, mean {_points([sum(text) / len(text)])}"
+    )
+
+
 def _success(first: PolicyLabel, second: PolicyLabel) -> Comparison:
     """A primary success-rate comparison with the paper's Table II difference."""
     return Comparison(first, second, paper=paper_difference(first, second))
@@ -226,16 +193,15 @@ CLAIMS: tuple[Claim, ...] = (
     Claim(
         "star-vs-iqn",
         "Pr-IQN* has a higher success rate than IQN",
-        "Table II: +7.9 / +16.6 / +20.3 points at 0.5 / 0.75 / 1.0, mean +14.9 "
-        "(the text: +7.7 / +16.6 / +20.3, mean +14.9)",
+        _table_and_text(PR_IQN_STAR, IQN, TEXT_STAR_OVER_IQN) + ")",
         "better",
         **_endpoint_and_densities(PR_IQN_STAR, IQN),
     ),
     Claim(
         "star-vs-ensemble",
         "Pr-IQN* has a higher success rate than Ensemble-IQN",
-        "Table II: +11.2 / +14.7 / +13.9 points at 0.5 / 0.75 / 1.0, mean +13.3 "
-        "(the text: +11.0 / +14.7 / +13.9, mean +13.2, which headline.toml uses)",
+        _table_and_text(PR_IQN_STAR, ENSEMBLE, TEXT_STAR_OVER_ENSEMBLE)
+        + ", which headline.toml uses)",
         "better",
         **_endpoint_and_densities(PR_IQN_STAR, ENSEMBLE),
     ),
@@ -276,14 +242,15 @@ CLAIMS: tuple[Claim, ...] = (
     Claim(
         "training-preorder",
         "The training preorder helps (QD ε 0.2, total order)",
-        "+3.3 / +2.5 points at 0.75 / 1.0 (+0.0 at 0.5)",
+        f"{_points(TEXT_TRAINING_PREORDER_GAIN.values())} points at 0.75 / 1.0 "
+        f"({_points(table_gains(PR_IQN_STAR, pr_iqn('qd', False, 0.2))[:1])} at 0.5)",
         "better",
         **_endpoint_and_densities(PR_IQN_STAR, pr_iqn("qd", False, 0.2)),
     ),
     Claim(
         "partial-trained",
         "With the training preorder, the partial order is comparable to the total order",
-        "comparable (−1.9 / −4.9 / +0.5 points)",
+        f"comparable ({_points(table_gains(pr_iqn('qd', True, 0.2, True), PR_IQN_STAR))} points)",
         "equivalent",
         (_success(pr_iqn("qd", True, 0.2, True), PR_IQN_STAR),),
         # The paper calls the untrained partial order's 12.2-point drop an effect; a
@@ -466,69 +433,20 @@ def evaluate_claims(
     gives each comparison and claim its verdict. ``seed`` seeds the Monte-Carlo
     permutation draws (exact tests, at up to 10,000 splits, use none).
     """
-    seeds = episodes.groupby("label")["train_seed"].nunique()
-    measured: dict[str, tuple[list[ComparisonResult], list[ComparisonResult]]] = {}
-    out: dict[str, ClaimResult] = {}
-    for claim in claims:
-        pending = _pending(claim, episodes, seeds)
-        if pending is not None:
-            out[claim.key] = pending
-            continue
-        primary = [_describe(c, episodes) for c in claim.comparisons]
-        if any(r is None for r in primary):
-            out[claim.key] = ClaimResult(claim, "pending", "no episodes of a compared row")
-            continue
-        by_density = [r for r in (_describe(c, episodes) for c in claim.by_density) if r]
-        measured[claim.key] = (primary, by_density)  # type: ignore[assignment]
+    measured, out = _measure(claims, episodes)
     rng = np.random.default_rng(seed)
     decided: dict[str, list[ComparisonResult]] = {}
     for family in FAMILIES:
-        keys = [c.key for c in claims if c.key in measured and c.family == family]
-        items = [(k, r) for k in keys for r in measured[k][0]]
+        items = [
+            (claim, r)
+            for claim in claims
+            if claim.key in measured and claim.family == family
+            for r in measured[claim.key][0]
+        ]
         if not items:
             continue
-        scores = [
-            tuple(
-                seed_scores(episodes, row.render(), r.comparison.metric, None)
-                for row in (r.comparison.first, r.comparison.second)
-            )
-            for _, r in items
-        ]
-        tests = [inference.seed_test(a, b, rng) for a, b in scores]
-        p_raw = [t[0] for t in tests]
-        p_holm = inference.holm(p_raw)
-        levels = inference.holm_levels(p_raw, ALPHA)
-        claim_of = {c.key: c for c in claims}
-        tost_raw = [
-            inference.tost_p(a, b, claim_of[k].margin) if claim_of[k].kind == "equivalent" else None
-            for (k, _), (a, b) in zip(items, scores, strict=True)
-        ]
-        n_tost = sum(t is not None for t in tost_raw)
-        alpha_each = ALPHA / len(items)
-        for i, ((key, r), (a, b)) in enumerate(zip(items, scores, strict=True)):
-            claim, c = claim_of[key], r.comparison
-            tost = None if tost_raw[i] is None else min(1.0, tost_raw[i] * n_tost)
-            hi_family = inference.upper_bound(a, b, alpha_each)
-            decided.setdefault(key, []).append(
-                dataclasses.replace(
-                    r,
-                    p=p_raw[i],
-                    p_permutation=tests[i][1],
-                    p_welch=tests[i][2],
-                    p_holm=p_holm[i],
-                    min_p=inference.min_attainable_p(a.size, b.size),
-                    alpha_holm=levels[i],
-                    hi_family=hi_family,
-                    tost_p_holm=tost,
-                    mdd=inference.min_detectable_difference(a, b, levels[i]),
-                    seeds_needed=None
-                    if c.paper is None or c.paper == 0
-                    else inference.seeds_needed(a, b, c.paper, levels[i]),
-                    word=inference.verdict_word(
-                        claim.kind, r.diff, hi_family, p_holm[i], ALPHA, c.paper, tost
-                    ),
-                )
-            )
+        for (claim, _), result in zip(items, _decide_family(items, episodes, rng), strict=True):
+            decided.setdefault(claim.key, []).append(result)
     for claim in claims:
         if claim.key in decided:
             results = tuple(decided[claim.key])
@@ -542,170 +460,82 @@ def evaluate_claims(
     return [out[c.key] for c in claims]
 
 
-def _fmt(value: float, metric: str) -> str:
-    """Success rates in points (+7.7), returns as they are (+0.42)."""
-    if math.isinf(value):
-        return "∞"
-    if metric == "success":
-        return f"{100 * value:+.1f}"
-    return f"{value:+.2f}"
+Measured = dict[str, tuple[list[ComparisonResult], list[ComparisonResult]]]
+"""Per claim key: its primary and its per-density comparisons, described (no tests yet)."""
 
 
-def _p(value: Fraction | float | None) -> str:
-    return "–" if value is None else f"{float(value):.3g}"
-
-
-def _where(c: Comparison) -> str:
-    at = "endpoint" if c.density is None else f"d {c.density:g}"
-    metric = "SR" if c.metric == "success" else c.metric.removeprefix("return_")
-    return f"{c.first.render()} − {c.second.render()}, {metric}, {at}"
-
-
-def to_markdown(results: list[ClaimResult], seed: int) -> str:
-    """The claims section of the report: one table of the primary comparisons, one of the
-    descriptive per-density differences; claims with rows missing named below."""
-    lines = [
-        "| claim | paper | comparison (endpoint) | ours: difference [95% CI], seeds | p raw / Holm "
-        "(min p) | MDD | seeds for paper's | verdict |",
-        "|:--|:--|:--|:--|:--|--:|--:|:--|",
-    ]
-    for r in results:
-        if r.missing:
+def _measure(
+    claims: tuple[Claim, ...], episodes: pd.DataFrame
+) -> tuple[Measured, dict[str, ClaimResult]]:
+    """Every claim either measured (difference and interval of each comparison) or pending
+    (a :class:`ClaimResult` saying why)."""
+    seeds = episodes.groupby("label")["train_seed"].nunique()
+    measured: Measured = {}
+    pending_results: dict[str, ClaimResult] = {}
+    for claim in claims:
+        pending = _pending(claim, episodes, seeds)
+        if pending is not None:
+            pending_results[claim.key] = pending
             continue
-        if r.verdict == "pending":
-            lines.append(f"| {r.claim.text} | {r.claim.paper} | pending: {r.why} | | | | | |")
+        primary = [_describe(c, episodes) for c in claim.comparisons]
+        if any(r is None for r in primary):
+            why = "no episodes of a compared row"
+            pending_results[claim.key] = ClaimResult(claim, "pending", why)
             continue
-        for i, x in enumerate(r.results):
-            c, m = x.comparison, x.comparison.metric
-            head = (r.claim.text, r.claim.paper) if i == 0 else ("", "")
-            verdict = f"{x.word}" + (f"; claim: **{r.verdict}**" if i == len(r.results) - 1 else "")
-            lines.append(
-                f"| {head[0]} | {head[1]} | {_where(c)} | {_fmt(x.diff, m)} [{_fmt(x.lo, m)}, "
-                f"{_fmt(x.hi, m)}], {x.n_first} vs {x.n_second} | {_p(x.p)} / {_p(x.p_holm)} "
-                f"({_p(x.min_p)}) | {_fmt(x.mdd, m) if x.mdd is not None else '–'} | "
-                f"{'–' if x.seeds_needed is None else x.seeds_needed} | {verdict} |"
-            )
-    lines += [
-        "",
-        "Endpoint: the metric averaged over the evaluation densities, one score per training "
-        "seed. Differences in success-rate points (returns in their own units); 95 % Welch t "
-        "intervals over training seeds; p: the larger of an exact two-sided permutation test "
-        f"over seeds (Monte Carlo above {inference.EXACT_SPLITS:,} splits, "
-        f"`numpy.random.default_rng({seed})`) and Welch's t test (tables/claims.csv has both), "
-        "Holm-adjusted within its family (the paper's claims; ours); min p: the smallest p "
-        "the test can give at these seeds. MDD: the minimum detectable difference at 80 % "
-        "power and the comparison's Holm level (∞: the test cannot reach it at these seeds); "
-        "seeds for paper's: seeds per row to see the paper's difference at the measured "
-        f"spread. Verdicts (`priqn/analysis/inference.py`, α = {ALPHA:g} per family): "
-        "reproduced / contradicted = significant after Holm in / against the claimed "
-        "direction; paper's effect ruled out = not significant and the one-sided upper bound "
-        "at α / m (Bonferroni over the family's m comparisons, so it holds for all of them at "
-        "once) below the paper's difference; equivalent = Holm-adjusted TOST within the claim's "
-        f"margin; otherwise inconclusive. Pending: a row missing or with fewer than {MIN_SEEDS} "
-        "training seeds.",
-        "",
-    ]
-    lines += _density_table(results)
-    unchecked = [r.claim.key for r in results if r.missing]
-    if unchecked:
-        lines += [f"Not checked here (rows not in this report): {', '.join(unchecked)}.", ""]
-    return "\n".join(lines)
+        by_density = [r for r in (_describe(c, episodes) for c in claim.by_density) if r]
+        measured[claim.key] = (primary, by_density)  # type: ignore[assignment]
+    return measured, pending_results
 
 
-def _density_table(results: list[ClaimResult]) -> list[str]:
-    """Markdown lines: the descriptive per-density differences (no verdicts)."""
-    rows = [x for r in results for x in r.by_density]
-    if not rows:
-        return []
-    lines = [
-        "Per density, descriptive only (the densities of a training seed move together, "
-        "so these are not independent tests and decide nothing):",
-        "",
-        "| comparison | paper | difference [95% CI] |",
-        "|:--|--:|:--|",
-    ]
-    for x in rows:
-        c, m = x.comparison, x.comparison.metric
-        paper = "–" if c.paper is None else _fmt(c.paper, m)
-        lines.append(
-            f"| {_where(c)} | {paper} | {_fmt(x.diff, m)} [{_fmt(x.lo, m)}, {_fmt(x.hi, m)}] |"
+def _decide_family(
+    items: list[tuple[Claim, ComparisonResult]],
+    episodes: pd.DataFrame,
+    rng: np.random.Generator,
+) -> list[ComparisonResult]:
+    """The family's primary comparisons ``items`` (claim, described comparison), in order,
+    with their tests, Holm adjustment, family-wide bounds, power and verdict words.
+
+    The permutation tests draw from ``rng`` in the order of ``items``."""
+    scores = [
+        tuple(
+            seed_scores(episodes, row.render(), r.comparison.metric, None)
+            for row in (r.comparison.first, r.comparison.second)
         )
-    return [*lines, ""]
-
-
-FRAME_COLUMNS: tuple[str, ...] = (
-    "claim",
-    "family",
-    "verdict",
-    "why",
-    "role",
-    "first",
-    "second",
-    "metric",
-    "density",
-    "paper",
-    "diff",
-    "ci_lo",
-    "ci_hi",
-    "n_first",
-    "n_second",
-    "p_permutation",
-    "p_welch",
-    "p",
-    "p_holm",
-    "min_p",
-    "alpha_holm",
-    "hi_family",
-    "tost_p_holm",
-    "mdd",
-    "seeds_needed",
-    "word",
-)
-"""Columns of ``tables/claims.csv``."""
-
-
-def to_frame(results: list[ClaimResult]) -> pd.DataFrame:
-    """One row per comparison: ``role`` primary (decides) or descriptive (per density);
-    pending claims: one row with the reason."""
-    rows = []
-    for r in results:
-        base = {
-            "claim": r.claim.key,
-            "family": r.claim.family,
-            "verdict": r.verdict,
-            "why": r.why,
-        }
-        if not r.results:
-            rows.append(base)
-        for role, items in (("primary", r.results), ("descriptive", r.by_density)):
-            for x in items:
-                c = x.comparison
-                rows.append(
-                    {
-                        **base,
-                        "role": role,
-                        "first": c.first.render(),
-                        "second": c.second.render(),
-                        "metric": c.metric,
-                        "density": c.density,
-                        "paper": c.paper,
-                        "diff": x.diff,
-                        "ci_lo": x.lo,
-                        "ci_hi": x.hi,
-                        "n_first": x.n_first,
-                        "n_second": x.n_second,
-                        "p_permutation": None if x.p is None else float(x.p_permutation),
-                        "p_welch": x.p_welch,
-                        "p": None if x.p is None else float(x.p),
-                        "p_holm": None if x.p_holm is None else float(x.p_holm),
-                        "min_p": None if x.min_p is None else float(x.min_p),
-                        "alpha_holm": x.alpha_holm,
-                        "hi_family": x.hi_family,
-                        "tost_p_holm": x.tost_p_holm,
-                        "mdd": x.mdd,
-                        "seeds_needed": x.seeds_needed,
-                        "word": x.word,
-                    }
-                )
-    frame = pd.DataFrame(rows, columns=list(FRAME_COLUMNS))
-    return frame.astype({"seeds_needed": "Int64", "n_first": "Int64", "n_second": "Int64"})
+        for _, r in items
+    ]
+    tests = [inference.seed_test(a, b, rng) for a, b in scores]
+    p_raw = [t[0] for t in tests]
+    p_holm = inference.holm(p_raw)
+    levels = inference.holm_levels(p_raw, ALPHA)
+    tost_raw = [
+        inference.tost_p(a, b, claim.margin) if claim.kind == "equivalent" else None
+        for (claim, _), (a, b) in zip(items, scores, strict=True)
+    ]
+    n_tost = sum(t is not None for t in tost_raw)
+    alpha_each = ALPHA / len(items)
+    out = []
+    for i, ((claim, r), (a, b)) in enumerate(zip(items, scores, strict=True)):
+        c = r.comparison
+        tost = None if tost_raw[i] is None else min(1.0, tost_raw[i] * n_tost)
+        hi_family = inference.upper_bound(a, b, alpha_each)
+        out.append(
+            dataclasses.replace(
+                r,
+                p=p_raw[i],
+                p_permutation=tests[i][1],
+                p_welch=tests[i][2],
+                p_holm=p_holm[i],
+                min_p=inference.min_attainable_p(a.size, b.size),
+                alpha_holm=levels[i],
+                hi_family=hi_family,
+                tost_p_holm=tost,
+                mdd=inference.min_detectable_difference(a, b, levels[i]),
+                seeds_needed=None
+                if c.paper is None or c.paper == 0
+                else inference.seeds_needed(a, b, c.paper, levels[i]),
+                word=inference.verdict_word(
+                    claim.kind, r.diff, hi_family, p_holm[i], ALPHA, c.paper, tost
+                ),
+            )
+        )
+    return out

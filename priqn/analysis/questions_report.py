@@ -194,6 +194,19 @@ def report_markdown(
         "",
         f"{e.description}",
         "",
+        *_verdict_lines(comparisons),
+        *_question_lines(exp, looks),
+        *_budget_lines(budgets),
+        *_change_lines(changes),
+        "![per-seed endpoints](figures/questions.png)",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
+    """The "Verdicts" section: one row per comparison (``comparisons.csv``), and its key."""
+    lines = [
         "## Verdicts",
         "",
         "| question | comparison | budget | seeds (a / b) | a − b [points] | Welch 95 % | MDD | paper | looks | verdict |",
@@ -211,7 +224,8 @@ def report_markdown(
             f"| {_pts(r.difference)} | [{_pts(r.lo)}, {_pts(r.hi)}] | {mdd} | {paper} "
             f"| {r.looks} | **{r.verdict}** |"
         )
-    lines += [
+    return [
+        *lines,
         "",
         "Points: percentage points of the endpoint (success rate, or violation rate where "
         "the question's endpoint is violations: there a positive difference means a violates "
@@ -220,9 +234,12 @@ def report_markdown(
         "smallest |difference| a fixed two-sided Welch test at the question's α would see "
         "with 80 % power at the seeds reached and their spread.",
         "",
-        "## Questions",
-        "",
     ]
+
+
+def _question_lines(exp: Experiment, looks: pd.DataFrame) -> list[str]:
+    """The "Questions" section: each question's pre-registered design and looks taken."""
+    lines = ["## Questions", ""]
     for q in exp.questions:
         mine = looks[looks["question"] == q.name]
         lines += [
@@ -231,50 +248,109 @@ def report_markdown(
             f"- **Question**: {q.question}",
             f"- **Endpoint**: per training seed, {ENDPOINT_TEXT[q.endpoint]} on the hold-out "
             f"episodes, averaged over the densities {exp.evaluate.get('densities')}.",
-            f"- **Budget**: {q.budget} decisions per cell ({e.preset} preset).",
+            f"- **Budget**: {q.budget} decisions per cell ({exp.experiment.preset} preset).",
             f"- **Seeds** in look order: {list(q.seeds)}; looks at {list(q.interims)}; "
             f"α = {q.alpha:g} (two-sided), β = {q.beta:g}, {q.permutations} permutations, "
             f"seed {q.seed}; commits allowed: {', '.join(c[:12] for c in q.code_commits) or 'any'}.",
             f"- **Looks taken**: {len(mine['look'].unique()) if len(mine) else 0}.",
             "",
         ]
-    if len(budgets):
-        lines += [
-            "## Every budget the cells reach (descriptive)",
-            "",
-            "Mean over the seeds complete at that budget (the budget question's seeds).",
-            "",
-            "| group | budget | seeds | success | violations |",
-            "|---|---|---|---|---|",
-        ]
-        summary = budgets.groupby(["group", "budget"]).agg(
-            seeds=("train_seed", "nunique"),
-            success=("success", "mean"),
-            violation=("violation", "mean"),
+    return lines
+
+
+def _budget_lines(budgets: pd.DataFrame) -> list[str]:
+    """Each group's endpoints at every budget its cells reach (none: no lines)."""
+    if not len(budgets):
+        return []
+    lines = [
+        "## Every budget the cells reach (descriptive)",
+        "",
+        "Mean over the seeds complete at that budget (the budget question's seeds).",
+        "",
+        "| group | budget | seeds | success | violations |",
+        "|---|---|---|---|---|",
+    ]
+    summary = budgets.groupby(["group", "budget"]).agg(
+        seeds=("train_seed", "nunique"),
+        success=("success", "mean"),
+        violation=("violation", "mean"),
+    )
+    for (group, budget), r in summary.iterrows():
+        lines.append(
+            f"| {group} | {budget // 1000}k | {r.seeds} | {r.success:.3f} | {r.violation:.3f} |"
         )
-        for (group, budget), r in summary.iterrows():
-            lines.append(
-                f"| {group} | {budget // 1000}k | {r.seeds} | {r.success:.3f} | {r.violation:.3f} |"
-            )
-        lines.append("")
-    if len(changes):
-        lines += [
-            "## Change of the difference with the budget (descriptive)",
-            "",
-            "Per seed, each group's change of the endpoint from the smaller budget; then the "
-            "difference of the mean changes (a − b) with its Welch 95 % interval.",
-            "",
-            "| comparison | endpoint | from | to | seeds | change [points] | Welch 95 % |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for r in changes.itertuples():
-            lines.append(
-                f"| {r.comparison} | {r.endpoint} | {r._3 // 1000}k | {r.to // 1000}k | {r.seeds} "
-                f"| {_pts(r.change)} | [{_pts(r.lo)}, {_pts(r.hi)}] |"
-            )
-        lines.append("")
-    lines += ["![per-seed endpoints](figures/questions.png)", ""]
-    return "\n".join(lines)
+    return [*lines, ""]
+
+
+def _change_lines(changes: pd.DataFrame) -> list[str]:
+    """How each difference changes between budgets over the same seeds (none: no lines)."""
+    if not len(changes):
+        return []
+    lines = [
+        "## Change of the difference with the budget (descriptive)",
+        "",
+        "Per seed, each group's change of the endpoint from the smaller budget; then the "
+        "difference of the mean changes (a − b) with its Welch 95 % interval.",
+        "",
+        "| comparison | endpoint | from | to | seeds | change [points] | Welch 95 % |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in changes.itertuples():
+        lines.append(
+            f"| {r.comparison} | {r.endpoint} | {r._3 // 1000}k | {r.to // 1000}k | {r.seeds} "
+            f"| {_pts(r.change)} | [{_pts(r.lo)}, {_pts(r.hi)}] |"
+        )
+    return [*lines, ""]
+
+
+LOOK_COLUMNS = [
+    "question",
+    "look",
+    "comparison",
+    "seeds_a",
+    "seeds_b",
+    "difference",
+    "decision",
+    "alpha_spent",
+    "needed",
+]
+"""Columns of ``tables/looks.csv``: one row per question, look and comparison."""
+
+
+def _look_rows(question: SequentialSpec, result: Replay) -> list[dict[str, Any]]:
+    """One ``tables/looks.csv`` row per look and comparison of ``question``."""
+    return [
+        {
+            "question": question.name,
+            "look": look.k,
+            "comparison": c.name,
+            "seeds_a": c.n_a,
+            "seeds_b": c.n_b,
+            "difference": c.diff,
+            "decision": c.decision,
+            "alpha_spent": look.level_spent.get(c.family),
+            "needed": look.needed.get(c.family, math.nan),
+        }
+        for look in result.looks
+        for c in look.comparisons
+    ]
+
+
+def _budget_tables(
+    exp: Experiment, question: SequentialSpec
+) -> tuple[pd.DataFrame, list[pd.DataFrame]] | None:
+    """``question``'s budget frame and its comparisons' change frames, when one of its
+    groups reaches more than one budget (else None)."""
+    groups = (r.name for r in questions.view(question).policies)
+    if not any(len(budgets_of(exp, g)) > 1 for g in groups):
+        return None
+    frame = budget_frame(exp, question)
+    changes = [
+        change_frame(frame, c.a, c.b, endpoint).assign(comparison=c.name, endpoint=endpoint)
+        for c in question.comparisons
+        for endpoint in questions.ENDPOINT_FLAGS
+    ]
+    return frame.assign(question=question.name), changes
 
 
 def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
@@ -289,43 +365,13 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
         scores, result = questions.replay(exp, q)
         scores_by_q[q.name] = scores
         comparison_rows += _comparison_rows(exp, q, scores, result)
-        for look in result.looks:
-            for c in look.comparisons:
-                look_rows.append(
-                    {
-                        "question": q.name,
-                        "look": look.k,
-                        "comparison": c.name,
-                        "seeds_a": c.n_a,
-                        "seeds_b": c.n_b,
-                        "difference": c.diff,
-                        "decision": c.decision,
-                        "alpha_spent": look.level_spent.get(c.family),
-                        "needed": look.needed.get(c.family, math.nan),
-                    }  # fmt: skip
-                )
-        if any(len(budgets_of(exp, g)) > 1 for g in (r.name for r in questions.view(q).policies)):
-            frame = budget_frame(exp, q)
-            budget_frames.append(frame.assign(question=q.name))
-            for c in q.comparisons:
-                for endpoint in questions.ENDPOINT_FLAGS:
-                    ch = change_frame(frame, c.a, c.b, endpoint)
-                    change_frames.append(ch.assign(comparison=c.name, endpoint=endpoint))
+        look_rows += _look_rows(q, result)
+        by_budget = _budget_tables(exp, q)
+        if by_budget is not None:
+            budget_frames.append(by_budget[0])
+            change_frames += by_budget[1]
     comparisons = pd.DataFrame(comparison_rows)
-    looks = pd.DataFrame(
-        look_rows,
-        columns=[
-            "question",
-            "look",
-            "comparison",
-            "seeds_a",
-            "seeds_b",
-            "difference",
-            "decision",
-            "alpha_spent",
-            "needed",
-        ],
-    )
+    looks = pd.DataFrame(look_rows, columns=LOOK_COLUMNS)
     budgets = pd.concat(budget_frames, ignore_index=True) if budget_frames else pd.DataFrame()
     budgets = (
         budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets

@@ -304,7 +304,7 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: 
     sample-efficiency CSVs."""
     import pandas as pd
 
-    from priqn.analysis import claims, tables
+    from priqn.analysis import claims_report, tables
 
     tdir = out / "tables"
     for name, table in (("table2", tabs.table2), ("table1", tabs.table1)):
@@ -329,7 +329,8 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: 
             atomic_write_text(tdir / f"{stem}.md", table_markdown(table))
             atomic_write_text(tdir / f"{stem}.csv", table.to_csv(**csv_kw))
     if stats.claims_checked:
-        atomic_write_text(tdir / "claims.csv", claims.to_frame(stats.claims).to_csv(**csv_kw))
+        frame = claims_report.to_frame(stats.claims)
+        atomic_write_text(tdir / "claims.csv", frame.to_csv(**csv_kw))
     if len(curve):
         atomic_write_text(tdir / "sample_efficiency.csv", curve.to_csv(**csv_kw))
 
@@ -446,7 +447,30 @@ def report_markdown(
     reps: int,
 ) -> str:
     """``report.md``: everything at a glance, in reading order."""
-    from priqn.analysis import claims, tables
+    md = [
+        *_header_section(inputs, tabs, stats, cmd, seed, reps),
+        *_tables_section(tabs),
+        *([_generalisation_section(tabs)] if tabs.generalisation else []),
+        *(_claims_section(stats, seed) if stats.claims_checked else []),
+        *_rliable_section(inputs, tabs.order, stats),
+        *_curves_section(has_curves, seed, reps),
+        *_inputs_section(inputs),
+    ]
+    if inputs.notes:
+        md += ["## Notes", "", *[f"- {n}" for n in inputs.notes], ""]
+    md += ["Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.", ""]
+    return "\n".join(md)
+
+
+def _header_section(
+    inputs: ReportInputs,
+    tabs: ReportTables,
+    stats: ReportStatistics,
+    cmd: str,
+    seed: int,
+    reps: int,
+) -> list[str]:
+    """The title, what made the report, and how: hold-out set, evaluation, statistics."""
     from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
 
     evaluation, ec = inputs.evaluation, inputs.evaluation.eval_config
@@ -456,7 +480,7 @@ def report_markdown(
         n_runs, n_tasks = len(next(iter(sr.scores.values()))), len(sr.tasks)
         axes = f"e.g. {n_runs} runs × {n_tasks} tasks for {tabs.order[0]}. "
     partial = evaluation.left_out
-    md = [
+    return [
         "# priqn evaluation report" + (" (partial)" if partial else ""),
         "",
         *(
@@ -488,6 +512,14 @@ def report_markdown(
             else "no best / second marks (too few training seeds; see rliable)."
         ),
         "",
+    ]
+
+
+def _tables_section(tabs: ReportTables) -> list[str]:
+    """Table II, how episodes end, and Table I, each with its figure."""
+    from priqn.analysis import tables
+
+    return [
         "## Table II — driving metrics",
         "",
         tables.to_markdown(tabs.table2),
@@ -506,26 +538,20 @@ def report_markdown(
         "## Table I — objective returns",
         "",
         tables.to_markdown(tabs.table1),
-        *([_generalisation_section(tabs)] if tabs.generalisation else []),
-        *(
-            [
-                "## The paper's claims",
-                "",
-                claims.to_markdown(stats.claims, seed),
-                "![The claims](figures/claims.png) ([pdf](figures/claims.pdf))",
-                "",
-            ]
-            if stats.claims_checked
-            else []
-        ),
-        *_rliable_section(inputs, tabs.order, stats),
-        *_curves_section(has_curves, seed, reps),
-        *_inputs_section(inputs),
     ]
-    if inputs.notes:
-        md += ["## Notes", "", *[f"- {n}" for n in inputs.notes], ""]
-    md += ["Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.", ""]
-    return "\n".join(md)
+
+
+def _claims_section(stats: ReportStatistics, seed: int) -> list[str]:
+    """The "The paper's claims" section (:mod:`priqn.analysis.claims_report`)."""
+    from priqn.analysis import claims_report
+
+    return [
+        "## The paper's claims",
+        "",
+        claims_report.to_markdown(stats.claims, seed),
+        "![The claims](figures/claims.png) ([pdf](figures/claims.pdf))",
+        "",
+    ]
 
 
 def make_report(
@@ -548,7 +574,6 @@ def make_report(
     (:mod:`priqn.analysis.reference`); none leaves the report as it was.
     """
     from priqn.analysis import figures
-    from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
 
     out, runs_root = Path(out_dir), Path(runs_dir)
     inputs = load_inputs(runs_root, partial, min_seeds, tuple(references))
@@ -566,58 +591,70 @@ def make_report(
     )
     report = out / "report.md"
     atomic_write_text(report, report_markdown(inputs, tabs, stats, len(curve) > 0, cmd, seed, reps))
-    evaluation = inputs.evaluation
-    atomic_write_json(
-        out / "meta.json",
-        {
-            "command": cmd,
-            "seed": seed,
-            "bootstrap_reps": reps,
-            "min_seeds": min_seeds,
-            "run_axis": list(RUN_AXIS),
-            "task_axis": list(TASK_AXIS),
-            "holdout_hash": evaluation.holdout_hash,
-            "eval_config": evaluation.eval_config,
-            "runs": [
-                {
-                    "name": r.name,
-                    "label": r.label,
-                    "train_seed": r.train_seed,
-                    "holdout_hash": r.holdout_hash,
-                }
-                for r in evaluation.runs
-            ],
-            "policies": tabs.order,
-            "left_out": list(evaluation.left_out),
-            "notes": inputs.notes,
-            **(
-                {
-                    "generalisation": [
-                        {
-                            "nets_hash": g.nets_hash,
-                            "nets": list(g.nets),
-                            "eval_config": g.eval_config,
-                            "runs": [r.name for r in g.runs],
-                        }
-                        for g, _ in tabs.generalisation
-                    ]
-                }
-                if tabs.generalisation
-                else {}
-            ),
-            **(
-                {
-                    "references": [
-                        {"folder": r.name, "label": r.label, "holdout_hash": r.holdout_hash}
-                        for r in inputs.references.runs
-                    ]
-                }
-                if inputs.references is not None
-                else {}
-            ),
-        },
-    )
+    meta = _meta(inputs, tabs, cmd, seed, reps, min_seeds)
+    atomic_write_json(out / "meta.json", meta)
     return report
+
+
+def _meta(
+    inputs: ReportInputs,
+    tabs: ReportTables,
+    cmd: str,
+    seed: int,
+    reps: int,
+    min_seeds: int | None,
+) -> dict[str, Any]:
+    """``meta.json``: how the report was made and from which runs."""
+    from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
+
+    evaluation = inputs.evaluation
+    return {
+        "command": cmd,
+        "seed": seed,
+        "bootstrap_reps": reps,
+        "min_seeds": min_seeds,
+        "run_axis": list(RUN_AXIS),
+        "task_axis": list(TASK_AXIS),
+        "holdout_hash": evaluation.holdout_hash,
+        "eval_config": evaluation.eval_config,
+        "runs": [
+            {
+                "name": r.name,
+                "label": r.label,
+                "train_seed": r.train_seed,
+                "holdout_hash": r.holdout_hash,
+            }
+            for r in evaluation.runs
+        ],
+        "policies": tabs.order,
+        "left_out": list(evaluation.left_out),
+        "notes": inputs.notes,
+        **(
+            {
+                "generalisation": [
+                    {
+                        "nets_hash": g.nets_hash,
+                        "nets": list(g.nets),
+                        "eval_config": g.eval_config,
+                        "runs": [r.name for r in g.runs],
+                    }
+                    for g, _ in tabs.generalisation
+                ]
+            }
+            if tabs.generalisation
+            else {}
+        ),
+        **(
+            {
+                "references": [
+                    {"folder": r.name, "label": r.label, "holdout_hash": r.holdout_hash}
+                    for r in inputs.references.runs
+                ]
+            }
+            if inputs.references is not None
+            else {}
+        ),
+    }
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

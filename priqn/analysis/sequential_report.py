@@ -44,7 +44,7 @@ def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
     density, the hold-out success over the row's scored cells — mean and 95 % t interval
     over training seeds — beside the paper's Table II value for the row's label, if it has
     one. Columns: policy, density, seeds, mean, lo, hi, paper. ``tables/density.csv``."""
-    from priqn.analysis.claims import PAPER_DENSITIES, PAPER_SUCCESS
+    from priqn.analysis.paper import PAPER_DENSITIES, PAPER_SUCCESS
 
     rows = []
     for policy in [p.name for p in exp.policies]:
@@ -335,11 +335,21 @@ def report_markdown(
 ) -> str:
     """``report.md`` of a sequential experiment; ``has_curves``: with its sample-efficiency
     section."""
-    seq, e = exp.sequential, exp.experiment
-    policies = [p.name for p in exp.policies]
-    counts = scores.groupby("policy")["seed"].nunique()
-    last = result.looks[-1] if result.looks else None
     lines = [
+        *_design_lines(exp, command),
+        *_verdict_lines(exp, scores, result),
+        *_looks_lines(exp, scores, result),
+        *_density_lines(density_frame(exp, scores), exp.experiment.steps),
+        *_curves_lines(has_curves),
+        *_next_lines(exp, scores, result),
+    ]
+    return "\n".join(lines + _cells_lines(scores, has_curves))
+
+
+def _design_lines(exp: Any, command: str) -> list[str]:
+    """The title, what made the report, and the pre-registered design in five bullets."""
+    seq, e = exp.sequential, exp.experiment
+    return [
         f"# {e.name}: pre-registered sequential experiment",
         "",
         f"Made by `{command}` from the cells' run folders and the design in `{exp.path.name}` "
@@ -358,12 +368,20 @@ def report_markdown(
         f"- **Budget**: {e.steps} decisions per cell ({e.preset} preset); every verdict holds "
         "at this budget only.",
         "",
+    ]
+
+
+def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+    """The "Verdicts" section: one row per comparison at the last look, and how to read it."""
+    counts = scores.groupby("policy")["seed"].nunique()
+    last = result.looks[-1] if result.looks else None
+    lines = [
         "## Verdicts" if result.finished else "## Verdicts so far",
         "",
         "| comparison | family | paper | estimate [95% CI], points | seeds | AdaStop | verdict |",
         "|:--|:--|--:|:--|:--|:--|:--|",
     ]
-    for c in seq.comparisons:
+    for c in exp.sequential.comparisons:
         row = None if last is None else next(x for x in last.comparisons if x.name == c.name)
         paper = "–" if c.paper_difference is None else _pts(c.paper_difference)
         if row is None:
@@ -378,7 +396,8 @@ def report_markdown(
             f"| {c.name} | {c.family} | {paper} | {est} | {seeds} | {decided} | "
             f"**{verdict(exp, result, c)}** |"
         )
-    lines += [
+    return [
+        *lines,
         "",
         "Intervals are Welch t 95 % over training seeds, descriptive (not adjusted for the "
         "looks); the decisions are AdaStop's, which control each family's error over all "
@@ -388,9 +407,12 @@ def report_markdown(
         "",
         "![per-seed success](figures/headline.png) ([pdf](figures/headline.pdf))",
         "",
-        "## Looks",
-        "",
     ]
+
+
+def _looks_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+    """The "Looks" section: per look, the seeds, the α spent and each comparison's decision."""
+    lines = ["## Looks", ""]
     if result.looks:
         lines += [
             "Each comparison look by look: a dot outside its look's grey band is decided "
@@ -400,8 +422,10 @@ def report_markdown(
             "",
         ]
     if not result.looks:
+        counts = scores.groupby("policy")["seed"].nunique()
+        policies = [p.name for p in exp.policies]
         lines += [
-            f"No look yet: the first needs {seq.interims[0]} seeds of every row "
+            f"No look yet: the first needs {exp.sequential.interims[0]} seeds of every row "
             f"({', '.join(f'{p}: {int(counts.get(p, 0))}' for p in policies)}).",
             "",
         ]
@@ -426,20 +450,22 @@ def report_markdown(
             ],
             "",
         ]
-    lines += _density_lines(density_frame(exp, scores), e.steps)
-    lines += _curves_lines(has_curves)
+    return lines
+
+
+def _next_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+    """The "Next" section: finished, or the cells the next look needs."""
     nxt = next_cells(exp, result, scores)
-    lines += [
+    return [
         "## Next",
         "",
         "The design is finished: every comparison is decided or the last look is taken."
         if result.finished
         else f"Look {result.next_look} needs {len(nxt)} more cell(s): "
         + ", ".join(cell_dir_name(p, s) for p, s in nxt)
-        + f" (`priqn sweep {e.name} --code <frozen worktree>`).",
+        + f" (`priqn sweep {exp.experiment.name} --code <frozen worktree>`).",
         "",
     ]
-    return "\n".join(lines + _cells_lines(scores, has_curves))
 
 
 def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
