@@ -1,8 +1,10 @@
-"""The agents' facts that torch-free code needs: configs, specs, comparator and preset names.
+"""The agents' facts that torch-free code needs: configs, the agent interface, option names.
 
 ``AgentConfig`` / ``NetworkConfig`` / ``LearnerConfig`` (the ``[agent]``, ``[network]`` and
-``[learner]`` tables of a TrainConfig), what each agent is (:data:`AGENT_SPECS`: display
-name, heads, rule names) and the names of the Pr-IQN options. It lives outside
+``[learner]`` tables of a TrainConfig); the agent interface (:class:`AgentSpec`: display
+name, heads and the three rule functions; :func:`resolve_agent` finds the declaration an
+``agent.name`` names: shipped, ``package.module:NAME`` or entry point ``priqn.agents``)
+and the names of the Pr-IQN options. It lives outside
 :mod:`priqn.agents` so that :mod:`priqn.preorder`, :mod:`priqn.labels`, the sweep's
 experiment files and the analysis can read these facts without importing torch or the
 agents package (which itself imports the preorder and the labels).
@@ -11,8 +13,12 @@ agents package (which itself imports the preorder and the labels).
 from __future__ import annotations
 
 import dataclasses
+import functools
+import importlib
 from collections.abc import Callable
+from typing import Any, Protocol
 
+from priqn.errors import PriqnError
 from priqn.objectives import NUM_OBJECTIVES
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
@@ -31,7 +37,7 @@ class AgentConfig:
     """Which agent, and the options of the preordered one."""
 
     name: str = "pr-iqn"
-    """Agent: iqn, ensemble-iqn, ma-iqn or pr-iqn."""
+    """Agent: iqn, ensemble-iqn, ma-iqn, pr-iqn, your own as 'package.module:NAME', or an installed entry point of group priqn.agents (docs/your-own-agent.md)."""
     comparator: str = "qd"
     """Pr-IQN comparator for one objective: qd (quantile dominance, the paper), mv (mean-variance), cvar, or fsd (ε-first-order stochastic dominance)."""
     normalisation: str = "zscore"
@@ -178,64 +184,212 @@ class LearnerConfig:
         return (float(self.gamma),) * num_objectives
 
 
+# ----------------------------------------------------------------------------- the agent interface
+# An agent is one IQN learner (network, τ sampling, quantile Huber loss, Adam) with H
+# heads and three rules; docs/your-own-agent.md. Tensors are torch tensors (typed Any
+# here: this module stays torch-free), named by shape as in priqn.agents.network.
+
+
+class RewardRule(Protocol):
+    """What each head learns: ``rule(rewards_BO, weights_O, num_heads) -> rewards_BH``.
+
+    ``rewards_BO``: the reward vectors (the run's O objectives, ``env.objectives`` order);
+    ``weights_O``: the weighted-sum weights (``agent.reward_weights`` or the scheme's)."""
+
+    def __call__(self, rewards_BO: Any, weights_O: Any, num_heads: int) -> Any: ...
+
+
+class ActingRule(Protocol):
+    """Fixed-grid quantiles of the current states → one action each (int64 ``[B]``):
+    ``rule(quantiles_BHKA, subsets, u_B, weights_O)``. ``subsets``: ``quantiles_BNKA ->
+    OptimalSubsets`` (``per_objective [B, N, A]``, ``leaf [B, A]``) for an agent that
+    ``uses_preorder``, else None; ``u_B`` ∈ [0, 1): one uniform draw per state, the only
+    randomness a rule may use."""
+
+    def __call__(self, quantiles_BHKA: Any, subsets: Any, u_B: Any, weights_O: Any) -> Any: ...
+
+
+class TargetRule(Protocol):
+    """Fixed-grid quantiles of the next states → the action each head bootstraps from
+    (int64 ``[B, H]``): ``rule(next_quantiles_BHKA, subsets)``."""
+
+    def __call__(self, next_quantiles_BHKA: Any, subsets: Any) -> Any: ...
+
+
+class ScalarValue(Protocol):
+    """The scalar return distribution a greedy acting rule ranks actions by:
+    ``value(quantiles_BHKA, weights_O) -> values_BKA`` (its mean's argmax is the rule's action)."""
+
+    def __call__(self, quantiles_BHKA: Any, weights_O: Any) -> Any: ...
+
+
+def rule_name(rule: Any) -> str:
+    """A rule's name in logs, docs and comparisons: the ``rule_name`` priqn's own rules carry
+    (``argmax``, ``optimal-subset``), else ``module:qualified name``."""
+    name = getattr(rule, "rule_name", None)
+    if isinstance(name, str):
+        return name
+    return f"{getattr(rule, '__module__', '?')}:{getattr(rule, '__qualname__', repr(rule))}"
+
+
 @dataclasses.dataclass(frozen=True)
 class AgentSpec:
-    """What one agent is: its heads, its three rule names and how tables name it."""
+    """What one agent is: its heads, its three rules (the functions themselves) and how
+    tables name it. priqn builds every agent, shipped or plug-in, from one of these
+    (:mod:`priqn.agents.build`); docs/your-own-agent.md."""
 
     display_name: str
     """Name in tables and labels (``IQN``, ``Pr-IQN``)."""
     num_heads: int
-    """Quantile heads of the network."""
-    reward_rule: str
-    """How rewards reach the heads (``priqn.agents.rules``)."""
-    acting_rule: str
-    """How an action is chosen from the heads."""
-    target_rule: str
-    """Which next action each head bootstraps from."""
+    """Quantile heads H of the network."""
+    reward: RewardRule
+    """How rewards reach the heads (:class:`RewardRule`)."""
+    act: ActingRule
+    """How an action is chosen from the heads (:class:`ActingRule`)."""
+    target: TargetRule
+    """Which next action each head bootstraps from (:class:`TargetRule`)."""
+    per_objective_heads: bool = False
+    """Head h learns objective h alone and bootstraps with its γ_h (needs H = O); False:
+    the heads learn returns that mix objectives, so the run needs one γ for all."""
+    uses_preorder: bool = False
+    """Acts on optimal subsets of ``agent.preorder``: the agent's rules get a ``subsets``
+    function (Algorithm 1 with ``agent.comparator``, ``eps``, ``normalisation``), and
+    labels and run names show those options."""
+    scalar_value: ScalarValue | None = None
+    """The scalar return distribution :attr:`act` ranks actions by, for the near-greedy
+    control (docs/evaluation.md); None: the control does not apply."""
     own_taus: bool = False
     """Each head draws its own τ samples in the loss (Ensemble-IQN), not one shared set."""
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.num_heads, int) or self.num_heads < 1:
+            raise PriqnError(f"agent {self.display_name!r}: num_heads must be a positive integer")
+        for field in ("reward", "act", "target"):
+            if not callable(getattr(self, field)):
+                raise PriqnError(f"agent {self.display_name!r}: {field} must be a function")
+
     @property
-    def uses_preorder(self) -> bool:
-        """Acts on optimal subsets of a preorder (the Pr-IQN options apply)."""
-        return self.acting_rule == "leaf-uniform"
+    def reward_rule(self) -> str:
+        """:func:`rule_name` of :attr:`reward` (``weighted-sum``, ``per-objective``)."""
+        return rule_name(self.reward)
+
+    @property
+    def acting_rule(self) -> str:
+        """:func:`rule_name` of :attr:`act` (``argmax``, ``leaf-uniform``, ...)."""
+        return rule_name(self.act)
+
+    @property
+    def target_rule(self) -> str:
+        """:func:`rule_name` of :attr:`target` (``own-argmax``, ``optimal-subset``)."""
+        return rule_name(self.target)
 
 
-AGENT_SPECS: dict[str, Callable[..., AgentSpec]] = {
-    "iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec("IQN", 1, "weighted-sum", "argmax", "own-argmax"),
-    "ensemble-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
-        "Ensemble",
-        c.ensemble_heads,
-        "weighted-sum",
-        "argmax-mean-of-heads",
-        "own-argmax",
-        own_taus=True,
-    ),
-    "ma-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
-        "MA-IQN", n, "per-objective", "argmax-sum-of-heads", "own-argmax"
-    ),
-    "pr-iqn": lambda c, n=NUM_OBJECTIVES: AgentSpec(
-        "Pr-IQN",
-        n,
-        "per-objective",
-        "leaf-uniform",
-        "optimal-subset" if c.train_preorder else "own-argmax",
-    ),
+AgentDeclaration = AgentSpec | Callable[[AgentConfig, int], AgentSpec]
+"""What ``agent.name`` names: an :class:`AgentSpec`, or ``fn(agent_cfg, num_objectives)``
+returning one (heads and rules may follow the config and the run's objective count)."""
+
+ENTRY_POINT_GROUP = "priqn.agents"
+"""Entry-point group under which other packages register agent declarations."""
+
+SHIPPED_AGENTS: dict[str, str] = {
+    "iqn": "priqn.agents.shipped:iqn",
+    "ensemble-iqn": "priqn.agents.shipped:ensemble_iqn",
+    "ma-iqn": "priqn.agents.shipped:ma_iqn",
+    "pr-iqn": "priqn.agents.shipped:pr_iqn",
 }
-"""Agent name → its :class:`AgentSpec` given the config and the number of objectives."""
+"""The agents priqn ships: name → its declaration, by path (written like an entry point,
+and a path rather than an import so this module stays torch-free:
+``priqn/agents/shipped.py``). Table order."""
+
+AGENT_SPECS = SHIPPED_AGENTS
+"""Old name of :data:`SHIPPED_AGENTS` (read by ``experiment.py`` and ``analysis/tables.py``)."""
+
+
+def resolve_agent(name: str, where: str = "agent.name") -> AgentDeclaration:
+    """The declaration ``agent.name`` names, resolved in this order: a shipped name
+    (:data:`SHIPPED_AGENTS`), ``package.module:NAME`` (your module), or an entry point of
+    group ``priqn.agents`` (an installed package). Unknown names are one line listing the
+    known ones."""
+    if not isinstance(name, str) or not name:
+        raise PriqnError(f"{where}: expected an agent name or 'package.module:NAME', got {name!r}")
+    if name in SHIPPED_AGENTS:
+        obj = import_path(SHIPPED_AGENTS[name], where)
+    elif ":" in name:
+        obj = import_path(name, where)
+    else:
+        eps = _entry_points()
+        if name not in eps:
+            raise PriqnError(
+                f"{where}: unknown agent {name!r} (valid: {', '.join([*SHIPPED_AGENTS, *sorted(eps)])}; "
+                "or 'package.module:NAME' naming a priqn.agent_config.AgentSpec)"
+            )
+        try:
+            obj = eps[name].load()
+        except Exception as exc:  # a broken plug-in: one line naming it
+            raise PriqnError(f"{where}: entry point {name!r} failed to load ({exc})") from None
+    if not (isinstance(obj, AgentSpec) or callable(obj)):
+        raise PriqnError(
+            f"{where}: {name!r} is a {type(obj).__name__}, expected an AgentSpec or a function "
+            "(agent_cfg, num_objectives) -> AgentSpec"
+        )
+    return obj
+
+
+def resolve_spec(cfg: AgentConfig, num_objectives: int = NUM_OBJECTIVES) -> AgentSpec:
+    """The :class:`AgentSpec` of ``cfg.name`` under ``cfg`` for a run with
+    ``num_objectives`` objectives (:func:`resolve_agent`; one-line errors)."""
+    declared = resolve_agent(cfg.name)
+    spec = declared if isinstance(declared, AgentSpec) else declared(cfg, num_objectives)
+    if not isinstance(spec, AgentSpec):
+        raise PriqnError(
+            f"agent.name: {cfg.name!r} gave a {type(spec).__name__}, expected an AgentSpec"
+        )
+    if spec.per_objective_heads and spec.num_heads != num_objectives:
+        raise PriqnError(
+            f"agent.name: {cfg.name!r} has per-objective heads but {spec.num_heads} heads "
+            f"for {num_objectives} objectives"
+        )
+    return spec
+
+
+def agent_spec(
+    name: str, cfg: AgentConfig | None = None, num_objectives: int = NUM_OBJECTIVES
+) -> AgentSpec | None:
+    """The spec of agent ``name`` (under ``cfg``, else the defaults) for labels and tables,
+    which read agent names from data files: shipped names and installed entry points
+    only. None for unknown names and for ``package.module:NAME`` paths (reading a CSV or
+    JSON never imports a module it names; such an agent's tables show its path)."""
+    if ":" in name or (name not in SHIPPED_AGENTS and name not in _entry_points()):
+        return None
+    return resolve_spec(cfg or AgentConfig(name=name), num_objectives)
 
 
 def has_scalar_value(name: str) -> bool:
     """Agent ``name`` acts greedily on one scalar value (IQN, Ensemble-IQN, MA-IQN), so the
     near-greedy acting-randomness control applies to it (docs/evaluation.md)."""
     spec = agent_spec(name)
-    return spec is not None and not spec.uses_preorder
+    return spec is not None and spec.scalar_value is not None
 
 
-def agent_spec(
-    name: str, cfg: AgentConfig | None = None, num_objectives: int = NUM_OBJECTIVES
-) -> AgentSpec | None:
-    """The spec of agent ``name`` (under ``cfg``, else the defaults) for a run with
-    ``num_objectives`` objectives; None if unknown."""
-    make = AGENT_SPECS.get(name)
-    return None if make is None else make(cfg or AgentConfig(name=name), num_objectives)
+@functools.cache
+def _entry_points() -> dict[str, Any]:
+    """Installed declarations of group ``priqn.agents``, by name (read once per process)."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def import_path(path: str, where: str) -> Any:
+    """The object ``"package.module:NAME"`` names (one-line errors naming ``where``)."""
+    module, sep, attr = path.partition(":")
+    if not sep or not module or not attr:
+        raise PriqnError(f"{where}: expected 'package.module:NAME', got {path!r}")
+    try:
+        obj: Any = importlib.import_module(module)
+    except ImportError as exc:
+        raise PriqnError(f"{where}: cannot import {module!r} for {path!r} ({exc})") from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise PriqnError(f"{where}: module {module!r} has no {attr!r}")
+        obj = getattr(obj, part)
+    return obj

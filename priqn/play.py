@@ -99,17 +99,15 @@ def load_policy(run_dir: Path) -> Any:
         raise PriqnError(f"{run_dir}: the policy failed to load ({first})") from exc
 
 
-def subset_text(policy: Any) -> tuple[str, dict[str, str]]:
-    """|S_r| of each preorder level and of the leaf at the last acting call (Pr-IQN), as a
-    label and as ego parameters; ('', {}) for agents without a preorder."""
-    subsets = policy.agent.subsets
-    if subsets is None or policy.near_greedy_eps is not None:
+def subset_text(policy: Any, decision: Any) -> tuple[str, dict[str, str]]:
+    """|S_r| of each preorder level and of the leaf in ``decision`` (the policy's
+    :class:`~priqn.agents.policy.Decision` for one state; Pr-IQN), as a label and as ego
+    parameters; ('', {}) for agents without a preorder."""
+    sizes_BS = decision.subset_sizes_BS
+    if sizes_BS is None or decision.subsets_BLA is None:
         return "", {}
-    per_objective = subsets.last.per_objective[0].cpu().numpy()
-    leaf = subsets.last.leaf[0].cpu().numpy()
-    names = subsets.preorder.objectives
-    sizes = {name: int(per_objective[n].sum()) for n, name in enumerate(names)}
-    sizes["leaf"] = int(leaf.sum())
+    names = policy.subset_size_names
+    sizes = {name: int(size) for name, size in zip(names, sizes_BS[0], strict=True)}
     text = "|S| " + " ".join(f"{name} {size}" for name, size in sizes.items())
     return text, {f"priqn.subset.{name}": str(size) for name, size in sizes.items()}
 
@@ -149,9 +147,10 @@ def play_episodes(
                 view.screenshot(frames_dir / f"{frame:04d}.png")
                 frame += 1
             batch = {k: np.asarray(v)[None] for k, v in obs.items()}
-            action = int(policy.act(batch, rng)[0])  # the same acting call as evaluate
+            decision = policy.decide(batch, rng)  # the same acting call as evaluate
+            action = int(decision.actions_B[0])
             if view is not None:
-                view.note, view.params = subset_text(policy)
+                view.note, view.params = subset_text(policy, decision)
             obs, _, terminated, truncated, info = env.step(action)
             steps += 1
             done = bool(terminated or truncated)

@@ -229,10 +229,14 @@ class RunFolder:
         if isinstance(objectives, list):
             for entry in objectives:
                 self._refuse_module_from_the_folder(entry)
+        agent = data.get("agent") if isinstance(data, Mapping) else None
+        if isinstance(agent, Mapping):  # a plug-in agent's 'package.module:NAME'
+            self._refuse_module_from_the_folder(agent.get("name"), "agent.name")
         return from_dict(TrainConfig, data, where=str(self.config_path))
 
-    def _refuse_module_from_the_folder(self, entry: Any) -> None:
-        """A ``package.module:NAME`` objective of config.toml whose package would be found
+    def _refuse_module_from_the_folder(self, entry: Any, field: str = "env.objectives") -> None:
+        """A ``package.module:NAME`` entry of config.toml (an objective of ``env.objectives``,
+        or ``agent.name``) whose package would be found
         in this run folder (or a folder holding it, e.g. a namespace package ``results``
         when Python runs from the checkout) is refused before anything is imported: a run
         folder is data, never code. Located with ``find_spec`` of the top-level name,
@@ -255,8 +259,8 @@ class RunFolder:
             origin is not None and origin.is_relative_to(folder)
         ):
             raise PriqnError(
-                f"{self.config_path}: env.objectives names {entry!r}, whose package {top!r} "
-                "would be imported from the run folder itself; priqn imports objectives only "
+                f"{self.config_path}: {field} names {entry!r}, whose package {top!r} "
+                "would be imported from the run folder itself; priqn imports plug-ins only "
                 "from installed packages or your own modules, never from a run folder (data)"
             )
 
@@ -487,14 +491,8 @@ class RunFolder:
         from policy.pt, which is all a committed result folder keeps. ``snapshot`` N > 0:
         the policy kept at N decisions (``snapshots/policy-at<N>.pt``) instead.
         """
-        from priqn.agents.policy import Policy
-        from priqn.agents.registry import make_agent
-        from priqn.train_config import (
-            build_network,
-            observation_space,
-            policy_labels,
-            select_device,
-        )
+        from priqn.agents.build import build_agent, build_network, build_policy
+        from priqn.train_config import observation_space, policy_labels, select_device
 
         cfg = self.config()
         latest, final = self.latest_checkpoint, self.policy_path
@@ -518,14 +516,14 @@ class RunFolder:
                 f"({', '.join(state.objectives)}) but {self.CONFIG} lists ({', '.join(names)}); "
                 "restore the run's config.toml or train again"
             )
-        agent = make_agent(cfg.agent.name, cfg.agent_config, names)
+        agent = build_agent(cfg)
         space = observation_space(state.obs_shapes)
         network = build_network(cfg, space, int(state.num_actions), seed=0, agent=agent)
         checkpoint.restore(lambda: network.load_state_dict(state.online), source, remedy)
         network.eval()
         checkpoint.restore(lambda: agent.load_state_dict(state.agent), source, remedy)  # scale
         labels = policy_labels(cfg, agent)
-        return Policy(network, agent, cfg.learner.num_quantiles, dev, cfg.env, labels)
+        return build_policy(cfg, agent, network, dev, cfg.env, labels)
 
     def _load_snapshot(self, budget: int, keep_at: tuple[int, ...], device: Any) -> PolicyState:
         """The :class:`PolicyState` kept at ``budget``, checked against meta.json's SHA-256."""

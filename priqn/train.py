@@ -43,9 +43,7 @@ from priqn.train_config import (
     PRESETS,
     ExplorationConfig,
     TrainConfig,
-    build_network,
     default_run_name,
-    obs_spec,
     policy_labels,
     resolve_config,
     select_device,
@@ -170,14 +168,14 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     when the budget is spent, ``failed`` (with the error) otherwise.
     """
     from priqn import provenance
-    from priqn.agents.registry import make_agent
+    from priqn.agents.build import build_agent
 
     run = RunFolder(run_dir)
     was_complete = resume and run.recorded_status() == Status.COMPLETE
     # Everything that can refuse the run comes before its folder is touched.
     origin = provenance.gather(cfg)
     # The session's one agent, for the run's objectives.
-    agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
+    agent = build_agent(cfg)
     run.prepare(cfg, resume, force, origin, policy_labels(cfg, agent))
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
@@ -252,8 +250,8 @@ class Trainer:
     def __init__(
         self, cfg: TrainConfig, agent: Any, envs: Any, seeds: Mapping[str, int], device: Any
     ) -> None:
-        from priqn.agents.learner import Learner
-        from priqn.agents.policy import Policy, SubsetSizeMeans
+        from priqn.agents.build import build_learner, build_policy, obs_spec
+        from priqn.agents.policy import SubsetSizeMeans
         from priqn.agents.replay import ReplayBuffer
 
         self.cfg, self.num_envs, self.weights = cfg, cfg.num_envs, cfg.reward_weights
@@ -265,9 +263,8 @@ class Trainer:
             k: (list(obs_space[k].shape), str(obs_space[k].dtype), float(np.max(obs_space[k].high)))
             for k in obs_spec(obs_space)
         }
-        network = build_network(cfg, obs_space, self.num_actions, seeds["torch_init"], agent)
-        self.learner = Learner(network, agent, cfg.learner, device, tau_seed=seeds["tau"])
-        self.policy = Policy(self.learner.online, agent, cfg.learner.num_quantiles, device)
+        self.learner = build_learner(cfg, agent, obs_space, self.num_actions, device, seeds)
+        self.policy = build_policy(cfg, agent, self.learner.online, device)
         self.replay = ReplayBuffer(
             obs_spec(obs_space),
             self.num_envs,

@@ -3,8 +3,9 @@
 ``resolve_config`` layers a preset TOML (``priqn/presets/train_<name>.toml``), a config
 file, the ``priqn train`` flags and ``--set`` overrides into one :class:`TrainConfig`;
 ``derive_seeds`` gives every child seed; ``default_run_name`` and ``policy_labels``
-name the run; ``build_network`` builds its network. Torch is imported only by the
-functions that build something.
+name the run. Agents, networks, learners and policies are built in one place,
+:mod:`priqn.agents.build` (``build_network`` here is its entry for ``priqn bench
+train``). Torch is imported only by the functions that build something.
 """
 
 from __future__ import annotations
@@ -17,12 +18,12 @@ from typing import Any
 import numpy as np
 
 from priqn.agent_config import (
-    AGENT_SPECS,
     PREORDER_PRESETS,
     AgentConfig,
     LearnerConfig,
     NetworkConfig,
     agent_spec,
+    resolve_spec,
 )
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, from_dict, load_toml, to_dict
@@ -173,12 +174,15 @@ class TrainConfig:
         n = len(self.env.objectives)
         self.agent.check_lengths(tuple(self.env.objectives))
         self.learner.gammas(n)  # one γ or one per objective
-        spec = AGENT_SPECS.get(self.agent.name)  # unknown names: one line in _validate_names
-        scalar_heads = spec is not None and spec(self.agent, n).reward_rule == "weighted-sum"
-        if scalar_heads and len(set(self.gammas)) > 1:
+        try:
+            mixed_heads = not resolve_spec(self.agent, n).per_objective_heads
+        except PriqnError:  # unknown names: one line in _validate_names
+            mixed_heads = False
+        if mixed_heads and len(set(self.gammas)) > 1:
             raise ValueError(
-                f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward, "
-                "so it needs one discount (per-objective values are for ma-iqn and pr-iqn)"
+                f"learner.gamma: agent {self.agent.name!r} learns one weighted-sum reward (its "
+                "heads mix objectives), so it needs one discount (per-objective values are for "
+                "agents with per-objective heads: ma-iqn, pr-iqn)"
             )
 
     @property
@@ -317,10 +321,10 @@ def policy_labels(cfg: TrainConfig, agent: Any = None) -> dict[str, Any]:
     """Table II labels of a run (:class:`priqn.labels.PolicyLabel` row) plus ``train_seed``.
 
     ``agent``: the run's agent when already built (else it is built here)."""
-    from priqn.agents.registry import make_agent
+    from priqn.agents.build import build_agent
 
     if agent is None:
-        agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
+        agent = build_agent(cfg)
     labels = agent.labels
     labels["train_seed"] = cfg.seed
     return labels
@@ -336,7 +340,7 @@ def default_run_name(cfg: TrainConfig) -> str:
     pool = cfg.env.family
     if cfg.env.nets:  # own nets: named after the first one
         pool = Path(cfg.env.nets[0]).name.removesuffix(".net.xml")
-    parts = [pool, cfg.agent.name]
+    parts = [pool, cfg.agent.name.rpartition(":")[2]]  # a plug-in path: its NAME
     spec = agent_spec(cfg.agent.name, cfg.agent)
     if spec is not None and spec.uses_preorder:
         eps = cfg.agent.eps
@@ -362,43 +366,14 @@ def select_device(name: str) -> Any:
     return torch.device(name)
 
 
-def obs_spec(space: Any) -> dict[str, tuple[tuple[int, ...], Any]]:
-    from priqn.agents.network import OBS_KEYS
-
-    missing = [k for k in OBS_KEYS if k not in space.spaces]
-    if missing:
-        raise PriqnError(f"observation space lacks {missing} (ARCHITECTURE.md Environment)")
-    return {k: (tuple(space[k].shape), space[k].dtype) for k in OBS_KEYS}
-
-
-def obs_scales(space: Any) -> dict[str, float]:
-    """1 / the Box's ``high`` of each uint8 grid, so the network sees [0, 1]."""
-    return {k: 1.0 / max(1.0, float(np.max(space[k].high))) for k in ("bev", "lidar")}
-
-
 def build_network(
     cfg: TrainConfig, obs_space: Any, num_actions: int, seed: int, agent: Any = None
 ) -> Any:
-    """The run's QuantileNetwork, initialised from ``seed`` (global torch RNG untouched);
-    ``agent``: the run's agent when already built (it gives the number of heads)."""
-    import torch
+    """:func:`priqn.agents.build.build_network` (``agent``: the run's agent when already
+    built, else it is built here)."""
+    from priqn.agents import build
 
-    from priqn.agents.network import QuantileNetwork
-    from priqn.agents.registry import make_agent
-
-    if agent is None:
-        agent = make_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
-    heads = agent.num_heads
-    spec = obs_spec(obs_space)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        return QuantileNetwork(
-            {k: s for k, (s, _) in spec.items()},
-            obs_scales(obs_space),
-            num_actions,
-            heads,
-            cfg.network,
-        )
+    return build.build_network(cfg, obs_space, num_actions, seed, agent or build.build_agent(cfg))
 
 
 def observation_space(shapes: Mapping[str, Any]) -> Any:

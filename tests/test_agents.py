@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from priqn.agent_config import AgentConfig, LearnerConfig, NetworkConfig
+from priqn import agent_config
+from priqn.agent_config import AgentConfig, AgentSpec, LearnerConfig, NetworkConfig
 from priqn.agents import rules
 from priqn.agents.learner import Learner
 from priqn.agents.network import QuantileNetwork, tau_grid
@@ -123,7 +124,8 @@ def test_scalar_value_ranks_like_the_greedy_rule(name):
     the argmax of its mean is the greedy action, so ε = 0 acts greedily."""
     agent = make_agent(name)
     q = torch.randn(64, agent.num_heads, K, A, generator=torch.Generator().manual_seed(3))
-    values = rules.SCALAR_VALUES[agent.spec.acting_rule](q, agent.reward_weights_5)
+    values = rules.SCALAR_VALUES[agent.spec.acting_rule](q, agent.reward_weights_O)
+    assert agent.spec.scalar_value is rules.SCALAR_VALUES[agent.spec.acting_rule]
     greedy = agent.act(q, torch.zeros(64))
     assert torch.equal(values.mean(dim=1).argmax(dim=1), greedy)
     subset = rules.near_greedy_subsets(values, 0.0).leaf
@@ -178,7 +180,9 @@ def test_registry_builds_each_agent(name):
 
 def test_registry_errors_are_one_line():
     with pytest.raises(
-        PriqnError, match=r"unknown agent 'dqn' \(valid: ensemble-iqn, iqn, ma-iqn, pr-iqn\)"
+        PriqnError,
+        match=r"^agent.name: unknown agent 'dqn' \(valid: iqn, ensemble-iqn, ma-iqn, pr-iqn; "
+        r"or 'package.module:NAME'",
     ):
         make_agent("dqn")
     with pytest.raises(PriqnError, match=r"agent.comparator: unknown comparator 'wd'"):
@@ -460,7 +464,103 @@ def test_act_with_subsets_returns_the_subsets_the_rule_acted_on():
     q = torch.randn(4, 5, 8, A)
     agent = make_agent("pr-iqn")
     u = torch.rand(4)
-    actions, out = rules.act_with_subsets(rules.act_leaf_uniform, q, agent.subsets, u)
+    w = agent.reward_weights_O
+    actions, out = rules.act_with_subsets(rules.act_leaf_uniform, q, agent.subsets, u, w)
     assert torch.equal(actions, agent.act(q, u)) and torch.equal(out.leaf, agent.subsets(q).leaf)
-    actions, out = rules.act_with_subsets(rules.act_argmax, q[:, :1], None, u)
+    actions, out = rules.act_with_subsets(rules.act_argmax, q[:, :1], None, u, w)
     assert out is None and torch.equal(actions, q[:, 0].mean(1).argmax(1))
+
+
+# ------------------------------------------------------------------------------ the agent interface
+
+
+@pytest.mark.parametrize("name", sorted(AGENT_SPECS))
+def test_shipped_specs_hold_their_rule_functions(name):
+    """A spec holds its rules themselves; their names are the registries' keys (docs, logs)."""
+    spec = make_agent(name).spec
+    assert spec.reward is rules.REWARD_RULES[spec.reward_rule]
+    assert spec.act is rules.ACTING_RULES[spec.acting_rule]
+    assert spec.target is rules.TARGET_RULES[spec.target_rule]
+    assert spec.per_objective_heads == (spec.reward_rule == "per-objective")
+    assert spec.uses_preorder == (spec.acting_rule == "leaf-uniform")
+    assert (spec.scalar_value is None) == spec.uses_preorder
+    assert agent_config.has_scalar_value(name) == (not spec.uses_preorder)
+
+
+def test_the_learner_gets_the_target_subsets_as_a_return_value():
+    """The target rule's subsets come back from the call (no ``last`` side channel): their
+    sizes are the learner's subset_size/* statistics, and only when they were used."""
+    batch = random_batch(np.random.default_rng(0), 6, discount=0.9)
+    cfg = LearnerConfig(num_tau_samples=4, num_tau_prime_samples=4, num_quantiles=4)
+    for train_preorder, logged in ((True, True), (False, False)):
+        agent = make_agent("pr-iqn", AgentConfig(train_preorder=train_preorder))
+        assert not hasattr(agent.subsets, "last")
+        q = torch.randn(4, 5, K, A)
+        actions, used = agent.target_actions_and_subsets(q)
+        assert torch.equal(actions, agent.target_actions(q))
+        assert (used is not None) == logged
+        if used is not None:
+            assert torch.equal(used.per_objective, agent.subsets(q).per_objective)
+        stats = Learner(small_net(5), agent, cfg, torch.device("cpu"), tau_seed=0).update(batch)
+        assert any(k.startswith("subset_size/") for k in stats) == logged
+
+
+class _Entry:
+    """An installed entry point, as importlib.metadata gives it."""
+
+    def __init__(self, value: object) -> None:
+        self.value = value
+
+    def load(self) -> object:
+        if isinstance(self.value, Exception):
+            raise self.value
+        return self.value
+
+
+def test_agents_from_a_path_and_from_an_entry_point(monkeypatch):
+    from tests import agent_example
+
+    spec = agent_config.resolve_spec(AgentConfig(name="tests.agent_example:SHIELDED_IQN"))
+    assert spec is agent_example.SHIELDED_IQN and spec.acting_rule.endswith(":act_shielded")
+    assert rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule") is spec.act
+    # Tables read names from data files: a path is never imported from there.
+    assert agent_config.agent_spec("tests.agent_example:SHIELDED_IQN") is None
+    entries = {"shielded": _Entry(agent_example.SHIELDED_IQN), "broken": _Entry(ImportError("x"))}
+    monkeypatch.setattr(agent_config, "_entry_points", lambda: entries)
+    assert agent_config.agent_spec("shielded").display_name == "Shielded-IQN"
+    assert make_agent("shielded").num_heads == 2
+    with pytest.raises(
+        PriqnError, match=r"valid: iqn, ensemble-iqn, ma-iqn, pr-iqn, broken, shielded;"
+    ):
+        make_agent("dqn")
+    with pytest.raises(
+        PriqnError, match=r"^agent.name: entry point 'broken' failed to load \(x\)$"
+    ):
+        make_agent("broken")
+    with pytest.raises(
+        PriqnError, match=r"^agent.name: module 'tests.agent_example' has no 'NOPE'$"
+    ):
+        make_agent("tests.agent_example:NOPE")
+    with pytest.raises(PriqnError, match=r"is a float, expected an AgentSpec or a function"):
+        make_agent("tests.agent_example:SHIELD_MARGIN")
+
+
+def test_a_declaration_that_breaks_the_interface_is_one_line():
+    with pytest.raises(PriqnError, match=r"^agent 'X': num_heads must be a positive integer$"):
+        AgentSpec("X", 0, rules.reward_weighted_sum, rules.act_argmax, rules.target_own_argmax)
+    with pytest.raises(PriqnError, match=r"^agent 'X': act must be a function$"):
+        AgentSpec("X", 1, rules.reward_weighted_sum, "argmax", rules.target_own_argmax)  # type: ignore[arg-type]
+
+
+def test_the_shipped_declarations_and_their_rules_import_without_torch():
+    """Labels and tables resolve shipped agents torch-free (priqn/agents/shipped.py and rules.py)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from priqn.agent_config import agent_spec, has_scalar_value; "
+        "assert agent_spec('pr-iqn').display_name == 'Pr-IQN' and has_scalar_value('iqn'); "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]

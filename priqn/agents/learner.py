@@ -152,17 +152,18 @@ class Learner:
     def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats.
 
-        ``discount`` is ``[B, 5]`` (γ_i^m per objective, as the replay gives it) or ``[B]``
-        (the same for every objective).
+        ``reward`` is ``[B, O]`` (the run's O objectives); ``discount`` is ``[B, O]``
+        (γ_i^m per objective, as the replay gives it) or ``[B]`` (the same for every
+        objective).
         """
         cfg, dev = self.cfg, self.device
         obs = to_tensors(batch["obs"], dev)
         next_obs = to_tensors(batch["next_obs"], dev)
         action_B = torch.as_tensor(batch["action"], device=dev)
-        reward_B5 = torch.as_tensor(batch["reward"], device=dev)
-        discount_B5 = torch.as_tensor(batch["discount"], device=dev)
-        if discount_B5.ndim == 1:  # one discount for every objective
-            discount_B5 = discount_B5[:, None].expand(-1, reward_B5.shape[1])
+        reward_BO = torch.as_tensor(batch["reward"], device=dev)
+        discount_BO = torch.as_tensor(batch["discount"], device=dev)
+        if discount_BO.ndim == 1:  # one discount for every objective
+            discount_BO = discount_BO[:, None].expand(-1, reward_BO.shape[1])
         B, H = action_B.shape[0], self.agent.num_heads
         N, Np, K = cfg.num_tau_samples, cfg.num_tau_prime_samples, cfg.num_quantiles
         # τ groups: one shared set for every head, or one per head (Ensemble-IQN's heads
@@ -183,11 +184,12 @@ class Learner:
             subsets = self.agent.subsets
             if subsets is not None:
                 subsets.observe(next_grid_BHKA)  # running scale (scaled normalisation)
-            next_action_BH = self.agent.target_actions(next_grid_BHKA)
+            # The subsets the target rule bootstrapped from (None when it made none).
+            next_action_BH, target_subsets = self.agent.target_actions_and_subsets(next_grid_BHKA)
             index = next_action_BH[:, :, None, None].expand(B, H, Np, 1)
             next_BHNp = next_BHNpA.gather(3, index).squeeze(3)
-            reward_BH = self.agent.head_rewards(reward_B5)
-            discount_BH = self.agent.head_discounts(discount_B5)
+            reward_BH = self.agent.head_rewards(reward_BO)
+            discount_BH = self.agent.head_discounts(discount_BO)
             target_BHNp = reward_BH[:, :, None] + discount_BH[:, :, None] * next_BHNp
 
         loss, pred_BHN = self._run(
@@ -206,10 +208,9 @@ class Learner:
         if self.updates % cfg.target_update_interval == 0:
             self.sync_target()
         stats = {"loss": float(loss.detach()), "q_mean": float(pred_BHN.detach().mean())}
-        if subsets is not None and subsets.last is not None:
+        if target_subsets is not None:
             # How much each preorder level pruned the target batch (mean |S_r|).
-            sizes = subsets.last.sizes() if self.agent.spec.target_rule == "optimal-subset" else {}
-            stats.update({f"subset_size/{k}": v for k, v in sizes.items()})
+            stats.update({f"subset_size/{k}": v for k, v in target_subsets.sizes().items()})
         return stats
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:

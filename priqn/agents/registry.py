@@ -1,11 +1,11 @@
-"""Named agents: each is a choice of heads and three rules (docs/implementation-details.md §1).
+"""An agent built from its :class:`~priqn.agent_config.AgentSpec`: rules, weights, optimal subsets.
 
-| agent | heads | reward rule | acting rule | target rule |
-|---|---|---|---|---|
-| ``iqn`` | 1 | weighted-sum | argmax | own-argmax |
-| ``ensemble-iqn`` | ``ensemble_heads`` (5) | weighted-sum | argmax-mean-of-heads | own-argmax |
-| ``ma-iqn`` | O (one per objective) | per-objective | argmax-sum-of-heads | own-argmax |
-| ``pr-iqn`` | O (one per objective) | per-objective | leaf-uniform | optimal-subset (``train_preorder``) or own-argmax |
+:class:`Agent` applies a spec's three rules (the functions the spec holds) with the run's
+weighted-sum weights and, for an agent that ``uses_preorder``, its
+:class:`PreorderSubsets`; :func:`make_agent` builds one from an agent name and config
+(the whole construction path, network, learner and policy included, reads top to bottom
+in :mod:`priqn.agents.build`). The shipped agents are declared in
+:mod:`priqn.agents.shipped`; docs/your-own-agent.md adds one.
 
 Shape suffixes as in :mod:`priqn.agents.network` (``B`` batch, ``H`` heads, ``K`` quantiles,
 ``A`` actions), plus ``O``: the run's objectives (``env.objectives``, five by default, six
@@ -21,7 +21,8 @@ from typing import Any
 
 import torch
 
-from priqn.agent_config import AGENT_SPECS, COMPARATOR_NAMES, AgentConfig, AgentSpec
+from priqn.agent_config import AGENT_SPECS as AGENT_SPECS  # re-exported (tests, priqn.agents)
+from priqn.agent_config import COMPARATOR_NAMES, AgentConfig, AgentSpec, resolve_spec
 from priqn.agents import rules
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
@@ -43,8 +44,9 @@ class PreorderSubsets:
     """``quantiles_BNKA → OptimalSubsets`` with this agent's preorder, comparator and ε.
 
     With the scaled normalisation it owns the per-objective :class:`RunningScale`, which
-    the learner feeds (:meth:`observe`) and checkpoints (:meth:`state_dict`). ``last``
-    is the most recent result, for logging subset sizes.
+    the learner feeds (:meth:`observe`) and checkpoints (:meth:`state_dict`). Each call
+    returns its result and keeps nothing (the learner and :class:`Policy.decide` get the
+    subsets their rule used from :func:`rules.target_with_subsets` / ``act_with_subsets``).
     """
 
     def __init__(self, preorder: Any, cfg: AgentConfig) -> None:
@@ -56,7 +58,6 @@ class PreorderSubsets:
         self.scale = None
         if cfg.normalisation == "scaled":
             self.scale = RunningScale(len(preorder), cfg.scale_momentum, cfg.scale_fraction)
-        self.last: Any = None
         self.seconds = 0.0
         """Wall time spent in Algorithm 1 so far (for ``priqn bench train``) [s]."""
         self._fn = optimal_subsets
@@ -64,7 +65,7 @@ class PreorderSubsets:
     def __call__(self, quantiles_BNKA: torch.Tensor) -> Any:
         t0 = time.perf_counter()
         floor = None if self.scale is None else self.scale.floor()
-        self.last = self._fn(
+        out = self._fn(
             quantiles_BNKA,
             self.preorder,
             comparator=self.comparator,
@@ -72,7 +73,7 @@ class PreorderSubsets:
             spread_floor=floor,
         )
         self.seconds += time.perf_counter() - t0
-        return self.last
+        return out
 
     def observe(self, quantiles_BNKA: torch.Tensor) -> None:
         """Fold a batch of fixed-grid quantiles into the running scale (scaled only)."""
@@ -108,9 +109,6 @@ class Agent:
         self.cfg = cfg
         self.spec = spec
         self.subsets = subsets
-        self._reward = rules.lookup(rules.REWARD_RULES, spec.reward_rule, "reward rule")
-        self._act = rules.lookup(rules.ACTING_RULES, spec.acting_rule, "acting rule")
-        self._target = rules.lookup(rules.TARGET_RULES, spec.target_rule, "target rule")
         weights = cfg.reward_weights or scheme_weights(cfg.reward_scheme, objectives=objectives)
         self.reward_weights_O = torch.tensor(weights, dtype=torch.float32)
         """``[O]`` weighted-sum weights, one per objective (the reward rule and acting use them)."""
@@ -121,25 +119,26 @@ class Agent:
 
     @property
     def reward_weights_5(self) -> torch.Tensor:
-        """Old name of :attr:`reward_weights_O` (it is ``[O]``, not ``[5]``); kept until
-        ``agents/policy.py``, ``inspector.py`` and the tests read the new one."""
+        """Old name of :attr:`reward_weights_O` (it is ``[O]``, not ``[5]``); kept while the
+        committed ``agents/policy.py``, ``inspector.py`` and ``tests/test_objectives.py``
+        still read it (their renames are not committed yet)."""
         return self.reward_weights_O
 
     def head_rewards(self, rewards_BO: torch.Tensor) -> torch.Tensor:
         """Reward per head ``[B, H]`` from the reward vectors ``rewards_BO`` (the reward rule)."""
         w = self.reward_weights_O.to(rewards_BO.device, rewards_BO.dtype)
-        return self._reward(rewards_BO, w, self.num_heads)
+        return self.spec.reward(rewards_BO, w, self.num_heads)
 
     def head_discounts(self, discount_BO: torch.Tensor) -> torch.Tensor:
         """Bootstrap discount per head ``[B, H]``: γ_h^m for per-objective heads; a
-        weighted-sum head has one γ (config validation keeps the objectives' equal)."""
-        if self.spec.reward_rule == "per-objective":
+        head mixing objectives has one γ (config validation keeps the objectives' equal)."""
+        if self.spec.per_objective_heads:
             return discount_BO
         return discount_BO[:, :1].expand(-1, self.num_heads)
 
     def act(self, quantiles_BHKA: torch.Tensor, u_B: torch.Tensor) -> torch.Tensor:
         w = self.reward_weights_O.to(quantiles_BHKA.device, quantiles_BHKA.dtype)
-        return self._act(quantiles_BHKA, self.subsets, u_B, w)
+        return self.spec.act(quantiles_BHKA, self.subsets, u_B, w)
 
     def state_dict(self) -> dict[str, Any]:
         """Learned state outside the network (the running scale of the scaled normalisation)."""
@@ -150,7 +149,14 @@ class Agent:
             self.subsets.load_state_dict(state)
 
     def target_actions(self, next_quantiles_BHKA: torch.Tensor) -> torch.Tensor:
-        return self._target(next_quantiles_BHKA, self.subsets)
+        """The action each head bootstraps from, ``[B, H]`` (the target rule)."""
+        return self.spec.target(next_quantiles_BHKA, self.subsets)
+
+    def target_actions_and_subsets(
+        self, next_quantiles_BHKA: torch.Tensor
+    ) -> tuple[torch.Tensor, Any]:
+        """``(actions_BH, the optimal subsets the target rule used, or None)``."""
+        return rules.target_with_subsets(self.spec.target, next_quantiles_BHKA, self.subsets)
 
     @property
     def labels(self) -> dict[str, Any]:
@@ -175,7 +181,7 @@ def _resolve(
         cfg.check_lengths(tuple(objectives))
     except ValueError as exc:
         raise PriqnError(f"agent.{exc}") from None
-    spec = rules.lookup(AGENT_SPECS, name, "agent")(cfg, len(objectives))
+    spec = resolve_spec(cfg, len(objectives))
     preorder = None
     if spec.uses_preorder:
         if cfg.comparator not in COMPARATOR_NAMES:  # checked here: a one-line error before training
@@ -199,8 +205,9 @@ def make_agent(
     objectives: tuple[str, ...] = OBJECTIVES,
     **overrides: Any,
 ) -> Agent:
-    """Build the named agent (``iqn``, ``ensemble-iqn``, ``ma-iqn``, ``pr-iqn``) for a run
-    with the given objective names (per-objective heads, preorder, weights follow them).
+    """Build agent ``name`` (shipped, ``package.module:NAME`` or an entry point of group
+    ``priqn.agents``: :func:`priqn.agent_config.resolve_agent`) for a run with the given
+    objective names (per-objective heads, preorder, weights follow them).
 
     Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.
     """
