@@ -81,7 +81,7 @@ class ExperimentSpec:
     def __post_init__(self) -> None:
         if self.order not in CELL_ORDERS:
             raise ValueError(f"order: expected one of {', '.join(CELL_ORDERS)}, got {self.order!r}")
-        from priqn.evaluate import EvalConfig, control_config, evaluation_name
+        from priqn.evaluation.protocol import EvalConfig, control_config, evaluation_name
 
         for name in self.controls:
             try:
@@ -274,7 +274,7 @@ class Experiment:
     policies: tuple[PolicySpec, ...]
     """The rows of the grid, in file order."""
     evaluate: dict[str, Any] = field(default_factory=dict)
-    """EvalConfig fields (``priqn.evaluate.EvalConfig``) for every cell."""
+    """EvalConfig fields (``priqn.evaluation.protocol.EvalConfig``) for every cell."""
     resources: ResourceSpec = ResourceSpec()
     """Per-cell resource needs."""
     sequential: SequentialSpec | None = None

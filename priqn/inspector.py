@@ -2,8 +2,8 @@
 
 Re-runs a trained policy on evaluation scenes (the scene seeds of ``priqn evaluate``,
 so an inspected episode is the evaluated one) through the one rollout loop of
-``priqn evaluate`` (:func:`priqn.evaluate.rollout`, asked for quantiles and frames; one
-forward pass per decision) and writes into ``--out``:
+``priqn evaluate`` (:func:`priqn.evaluation.rollout.rollout`, asked for quantiles and
+frames; one forward pass per decision) and writes into ``--out``:
 
 - ``index.html``: one self-contained page (frames beside it in ``frames/``; no server,
   no network) with a slider and a play button. Each frame shows the BEV + LiDAR view,
@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.checks import check_acting_eps, check_density
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
 from priqn.runs import RunFolder
@@ -84,10 +85,10 @@ class InspectedDecision:
     """bool ``[N, A]``: each preorder level's optimal subset (None without a preorder)."""
     leaf_A: np.ndarray | None
     """bool ``[A]``: the set the action was sampled from (leaf or near-greedy set)."""
-    reward_5: np.ndarray
-    """``[N]``: the reward vector the decision earned."""
-    returns_5: np.ndarray
-    """``[N]``: the episode's returns up to and including this decision."""
+    reward_O: np.ndarray
+    """``[O]``: the reward vector the decision earned (O = the run's objectives)."""
+    returns_O: np.ndarray
+    """``[O]``: the episode's returns up to and including this decision."""
     frame: np.ndarray
     """RGB image of the state decided on (BEV | LiDAR)."""
 
@@ -97,7 +98,7 @@ class InspectedDecision:
 
 def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any]:
     """The evaluation scenes to inspect, and the EvalConfig they come from."""
-    from priqn.evaluate import EvalConfig, make_scenes
+    from priqn.evaluation.protocol import EvalConfig, make_scenes
     from priqn.sim.scenario import load_manifest
 
     run = RunFolder(run_dir)
@@ -141,13 +142,13 @@ def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any
 
 def rollout(policy: Any, vec_env: Any, scenes: list[Any]) -> list[InspectedDecision]:
     """Play each scene exactly as ``priqn evaluate`` does (the one rollout loop,
-    :func:`priqn.evaluate.rollout`, with quantiles and frames), recording every decision.
+    :func:`priqn.evaluation.rollout.rollout`, with quantiles and frames), recording every decision.
 
     ``vec_env`` renders (``render_mode="rgb_array"``); one forward pass per decision.
     """
     from tqdm import tqdm
 
-    from priqn.evaluate import rollout as play
+    from priqn.evaluation.rollout import rollout as play
 
     decisions: list[InspectedDecision] = []
     episode = {scene: e for e, scene in enumerate(scenes)}
@@ -217,9 +218,9 @@ def decision_rows(decisions: list[InspectedDecision], agent: Any, table: np.ndar
             "d_f_m": round(float(table[d.action, 1]), 4),
         }
         for i, o in enumerate(agent.objectives):
-            row[f"reward_{o}"] = round(float(d.reward_5[i]), 6)
+            row[f"reward_{o}"] = round(float(d.reward_O[i]), 6)
         for i, o in enumerate(agent.objectives):
-            row[f"return_{o}"] = round(float(d.returns_5[i]), 6)
+            row[f"return_{o}"] = round(float(d.returns_O[i]), 6)
         if preorder is not None:
             for n, o in enumerate(preorder.objectives):
                 row[f"size_{o}"] = int(d.subsets_NA[n].sum())
@@ -243,7 +244,7 @@ def _panel_values(d: InspectedDecision, agent: Any) -> list[tuple[str, np.ndarra
     if agent.spec.acting_rule == "argmax-mean-of-heads":
         panels.append(("acting: mean of heads", means_HA.mean(axis=0)))
     elif agent.spec.acting_rule == "argmax-sum-of-heads":
-        w = agent.reward_weights_5.cpu().numpy()
+        w = agent.reward_weights_O.cpu().numpy()
         panels.append(("acting: weighted sum", (w[:, None] * means_HA).sum(axis=0)))
     return panels
 
@@ -270,7 +271,7 @@ def frame_figure(
     ax = fig.add_subplot(grid[0, cols // 2 + 1 :])
     ax.set_axis_off()
     lines = [f"{'':<13}{'reward':>9}{'return':>9}"] + [
-        f"{o:<13}{d.reward_5[i]:>9.3f}{d.returns_5[i]:>9.2f}"
+        f"{o:<13}{d.reward_O[i]:>9.3f}{d.returns_O[i]:>9.2f}"
         for i, o in enumerate(agent.objectives)
     ]
     ax.text(0, 0.95, "\n".join(lines), family="monospace", fontsize=8, va="top")
@@ -527,11 +528,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
-    if args.density and not 0.0 < args.density <= 1.0:  # 0 = the first evaluation density
-        raise PriqnError(
-            f"--density {args.density:g}: expected a traffic density in (0, 1] "
-            "(active actors / maximum actors), e.g. 0.5"
-        )
+    if args.density:  # 0 = the first evaluation density
+        check_density(args.density, "--density")
+    if args.near_greedy is not None:
+        check_acting_eps(args.near_greedy, "--near-greedy")
     cfg = InspectConfig(
         net=args.net,
         density=args.density,

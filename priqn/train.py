@@ -528,7 +528,7 @@ class HoldoutEvaluation:
     (started before the loop, reused by every evaluation; a context manager that closes it).
 
     The scenes of an evaluation depend only on the eval seed and the step, and are
-    played by the one rollout loop (:func:`priqn.evaluate.rollout`, via ``run_scenes``).
+    played by the one rollout loop (:func:`priqn.evaluation.rollout.rollout`, via ``run_scenes``).
     """
 
     def __init__(self, cfg: TrainConfig, seed: int) -> None:
@@ -548,7 +548,8 @@ class HoldoutEvaluation:
 
     def run(self, policy: Any, step: int, weights: Sequence[float]) -> list[dict[str, Any]]:
         """metrics.csv rows (kind eval, in episode order) of evaluation.episodes episodes."""
-        from priqn.evaluate import Scene, run_scenes
+        from priqn.evaluation.protocol import Scene
+        from priqn.evaluation.rollout import run_scenes
 
         cfg = self.cfg
         rng = np.random.default_rng([self.seed, step])

@@ -34,7 +34,7 @@ DEFAULT_SCHEME: str = AgentConfig.reward_scheme
 def resolve_weights(
     weights: str | Sequence[float], objectives: Sequence[str] = OBJECTIVES
 ) -> np.ndarray:
-    """A scheme name or one number per objective → ``float64 [N]`` (one-line errors);
+    """A scheme name or one number per objective → ``float64 [O]`` (one-line errors);
     ``objectives``: the env's ``config.objectives``."""
     if isinstance(weights, str):
         return np.asarray(scheme_weights(weights, objectives=objectives), dtype=np.float64)
@@ -59,15 +59,16 @@ class ScalarizeReward(gymnasium.Wrapper):
 
     def __init__(self, env: gymnasium.Env, weights: str | Sequence[float] = DEFAULT_SCHEME) -> None:
         super().__init__(env)
-        self.weights_5 = resolve_weights(weights, _env_objectives(env))
-        low, high = _bounds(env, self.weights_5)
+        self.weights_O = resolve_weights(weights, _env_objectives(env))
+        """float64 ``[O]``: one weight per objective of the env (O = its objectives)."""
+        low, high = _bounds(env, self.weights_O)
         self.reward_range = (low, high)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
-        obs, reward_5, terminated, truncated, info = self.env.step(action)
-        reward_5 = np.asarray(reward_5, dtype=np.float64)
-        info = {**info, "reward_vector": reward_5}
-        return obs, float(reward_5 @ self.weights_5), terminated, truncated, info
+        obs, reward_O, terminated, truncated, info = self.env.step(action)
+        reward_O = np.asarray(reward_O, dtype=np.float64)
+        info = {**info, "reward_vector": reward_O}
+        return obs, float(reward_O @ self.weights_O), terminated, truncated, info
 
 
 class ScalarizeVectorReward(gymnasium.vector.VectorWrapper):
@@ -78,19 +79,20 @@ class ScalarizeVectorReward(gymnasium.vector.VectorWrapper):
     ) -> None:
         super().__init__(env)
         objectives = tuple(getattr(env.unwrapped, "objectives", OBJECTIVES))  # priqn's make_vec
-        self.weights_5 = resolve_weights(weights, objectives)
+        self.weights_O = resolve_weights(weights, objectives)
+        """float64 ``[O]``: one weight per objective of the env (O = its objectives)."""
 
     def step(self, actions: Any) -> tuple[Any, np.ndarray, Any, Any, dict[str, Any]]:
-        obs, rewards_E5, terminated, truncated, infos = self.env.step(actions)
-        rewards_E5 = np.asarray(rewards_E5, dtype=np.float64)
-        infos = {**infos, "reward_vector": rewards_E5}
-        return obs, (rewards_E5 @ self.weights_5).astype(np.float32), terminated, truncated, infos
+        obs, rewards_EO, terminated, truncated, infos = self.env.step(actions)
+        rewards_EO = np.asarray(rewards_EO, dtype=np.float64)
+        infos = {**infos, "reward_vector": rewards_EO}
+        return obs, (rewards_EO @ self.weights_O).astype(np.float32), terminated, truncated, infos
 
 
-def _bounds(env: gymnasium.Env, w_5: np.ndarray) -> tuple[float, float]:
+def _bounds(env: gymnasium.Env, w_O: np.ndarray) -> tuple[float, float]:
     """Range of the scalar reward from the env's ``reward_space`` (±inf without one)."""
     space = getattr(env.unwrapped, "reward_space", None)
     if space is None:
         return -np.inf, np.inf
     lo, hi = np.asarray(space.low, np.float64), np.asarray(space.high, np.float64)
-    return float(np.minimum(w_5 * lo, w_5 * hi).sum()), float(np.maximum(w_5 * lo, w_5 * hi).sum())
+    return float(np.minimum(w_O * lo, w_O * hi).sum()), float(np.maximum(w_O * lo, w_O * hi).sum())

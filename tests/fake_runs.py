@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from priqn.evaluate import episode_columns
+from priqn.evaluation.protocol import episode_columns
 from priqn.objectives import OBJECTIVES
 
 HASH = "a" * 64

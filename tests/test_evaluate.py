@@ -17,15 +17,9 @@ import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 from priqn.errors import PriqnError
-from priqn.evaluate import (
-    EPISODE_COLUMNS,
-    EvalConfig,
-    cell_file,
-    config_from_args,
-    configure_parser,
-    evaluate_policy,
-    make_scenes,
-)
+from priqn.evaluate import config_from_args, configure_parser
+from priqn.evaluation.protocol import EPISODE_COLUMNS, EvalConfig, make_scenes
+from priqn.evaluation.store import cell_file, evaluate_policy
 
 NETS = ["fourway_00", "tjunction_00"]
 
@@ -244,12 +238,14 @@ def test_config_from_args_and_validation(tmp_path) -> None:
 def test_acting_option_validation_flags_and_older_records() -> None:
     """``acting`` is checked and settable from the CLI; a record written before the field
     existed reads as its default ("own"), so older evaluations are not stale."""
-    from priqn.evaluate import eval_config_changes
+    from priqn.evaluation.protocol import eval_config_changes
     from priqn.runs import RunFolder
 
     with pytest.raises(ValueError, match="acting: 'random' is not one of own, near-greedy"):
         EvalConfig(acting="random")
-    with pytest.raises(ValueError, match="acting_eps: must be >= 0"):
+    with pytest.raises(
+        ValueError, match=r"^acting_eps: -0.1 is out of range; expected a tolerance >= 0"
+    ):
         EvalConfig(acting_eps=-0.1)
     parser = argparse.ArgumentParser()
     configure_parser(parser)
@@ -257,11 +253,13 @@ def test_acting_option_validation_flags_and_older_records() -> None:
         parser.parse_args(["r", "--acting", "near-greedy", "--acting-eps", "0.1"])
     )
     assert (cfg.acting, cfg.acting_eps) == ("near-greedy", 0.1)
-    with pytest.raises(PriqnError, match=r"^--acting-eps -1: expected a tolerance >= 0"):
+    with pytest.raises(
+        PriqnError, match=r"^--acting-eps: -1 is out of range; expected a tolerance >= 0"
+    ):
         config_from_args(parser.parse_args(["r", "--acting", "near-greedy", "--acting-eps", "-1"]))
 
     from priqn.config import to_dict
-    from priqn.evaluate import control_config, eval_dir_of, evaluation_name
+    from priqn.evaluation.protocol import control_config, eval_dir_of, evaluation_name
 
     old = {k: v for k, v in to_dict(CFG).items() if k not in ("acting", "acting_eps")}
     assert eval_config_changes(old, to_dict(CFG)) == ""
@@ -419,14 +417,14 @@ def test_densities_flag_out_of_range_blames_the_flag(tmp_path) -> None:
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert out.returncode == 2
-    assert "--densities 1.5: each density must be in (0, 1]" in out.stderr
+    assert "--densities: 1.5 is out of range; expected values in (0, 1]" in out.stderr
     assert "--set" not in out.stderr
 
 
 def test_rollout_yields_each_decision_once_and_the_episode_at_its_end() -> None:
     """The one rollout loop: every scene's decisions in order, numbered from 0, the
     episode's values on its last decision only; the same for any worker count."""
-    from priqn.evaluate import rollout
+    from priqn.evaluation.rollout import rollout
 
     scenes = make_scenes(CFG, NETS)[:7]
     by_workers = {}

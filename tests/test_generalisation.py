@@ -24,17 +24,15 @@ from priqn.analysis.generalisation import generalisation_table, load_generalisat
 from priqn.analysis.load import load_evaluation
 from priqn.analysis.report import make_report
 from priqn.errors import PriqnError
-from priqn.evaluate import (
+from priqn.evaluate import config_from_args, configure_parser
+from priqn.evaluation.protocol import (
     EvalConfig,
-    config_from_args,
-    configure_parser,
     eval_dir_of,
     evaluation_name,
-    evaluation_nets,
     is_nets_evaluation,
     make_scenes,
-    nets_hash,
 )
+from priqn.evaluation.targets import evaluation_nets, nets_hash
 from priqn.runs import RunFolder
 
 CROSS_NODES = (
@@ -97,14 +95,14 @@ def test_nets_flags_folder_names_and_scenes() -> None:
     # A run trained through junction B of its own net meets the hold-out nets at their own
     # junction (it used to carry env.junction there and fail), and its --nets at --junction.
     from priqn.env.intersection import EnvConfig
-    from priqn.evaluate import _evaluation_env
+    from priqn.evaluation.targets import evaluation_env
 
     trained = EnvConfig(nets=("grid.net.xml",), junction="B")
-    holdout_env = _evaluation_env(trained, EvalConfig(max_episode_steps=7), None)
+    holdout_env = evaluation_env(trained, EvalConfig(max_episode_steps=7), None)
     assert (holdout_env.nets, holdout_env.junction, holdout_env.family) == ((), "", "holdout")
     assert holdout_env.max_episode_steps == 7
     nets_meta = {"nets": [{"path": "/x/a.net.xml"}]}
-    own_env = _evaluation_env(trained, EvalConfig(nets=("x/",), junction="J"), nets_meta)
+    own_env = evaluation_env(trained, EvalConfig(nets=("x/",), junction="J"), nets_meta)
     assert (own_env.nets, own_env.junction) == (("/x/a.net.xml",), "J")
 
     # The hold-out seed rule, on the nets' own names (sorted): same indices, same seeds.

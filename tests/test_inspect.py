@@ -169,7 +169,7 @@ def test_inspect_refuses_a_bad_density_in_one_line_before_reading_the_run(
     assert main([*argv, density, "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert err.strip().splitlines() == [
-        f"priqn: error: --density {float(density):g}: expected a traffic density in (0, 1] "
-        "(active actors / maximum actors), e.g. 0.5"
+        f"priqn: error: --density: {float(density):g} is out of range; expected values in "
+        "(0, 1] (traffic density = active actors / maximum actors)"
     ]
     assert "Traceback" not in err and not (tmp_path / "x").exists()

@@ -19,7 +19,8 @@ from priqn.analysis.mechanism import (
     reliability_table,
     seed_summary,
 )
-from priqn.evaluate import RolloutStep, Scene
+from priqn.evaluation.protocol import Scene
+from priqn.evaluation.rollout import RolloutStep
 from priqn.objectives import OBJECTIVES
 
 A, K = 4, 4

@@ -19,7 +19,7 @@ from priqn.env import geometry
 from priqn.env.reads import Actors, StepActors
 from priqn.env.right_of_way import ConflictArea, conflict_areas, foe_due, violation_steps
 from priqn.errors import PriqnError
-from priqn.evaluate import EPISODE_COLUMNS, episode_columns
+from priqn.evaluation.protocol import EPISODE_COLUMNS, episode_columns
 from priqn.metrics import METRIC_COLUMNS, metric_columns
 from priqn.objectives import (
     BUILTIN_OBJECTIVES,
@@ -104,7 +104,7 @@ def test_a_run_config_follows_its_objectives():
     assert agent.num_heads == 6 and agent.subsets.preorder.objectives == SIX
     assert agent.subsets.preorder.is_chain()
     iqn = make_agent("iqn", cfg.agent_config, cfg.objective_names)
-    assert iqn.num_heads == 1 and iqn.reward_weights_5.shape == (6,)
+    assert iqn.num_heads == 1 and iqn.reward_weights_O.shape == (6,)
     # 'total' with other objectives is the chain of env.objectives in their order.
     own = resolve_config(agent="pr-iqn", overrides=[f"env.objectives={list(OWN)}"])
     po = make_agent("pr-iqn", own.agent_config, own.objective_names).subsets.preorder

@@ -22,15 +22,9 @@ from test_generalisation import NETS_HASH, write_nets_evaluation
 
 from priqn.analysis.report import make_report
 from priqn.errors import PriqnError
-from priqn.evaluate import (
-    EPISODE_COLUMNS,
-    EvalConfig,
-    ReferenceDriver,
-    configure_parser,
-    make_scenes,
-    reference_label,
-    run,
-)
+from priqn.evaluate import configure_parser, run
+from priqn.evaluation.protocol import EPISODE_COLUMNS, EvalConfig, make_scenes
+from priqn.evaluation.reference import ReferenceDriver, reference_label
 
 SUMO = reference_label("sumo")
 RANDOM = reference_label("random")

@@ -42,7 +42,7 @@ def test_scalarize_single_env_by_hand():
 
 def test_default_is_the_agents_scheme_and_bad_weights_are_one_line():
     env = ScalarizeReward(FakeEnv())
-    assert env.weights_5.tolist() == pytest.approx(scheme_weights("hln-2-task"))
+    assert env.weights_O.tolist() == pytest.approx(scheme_weights("hln-2-task"))
     with pytest.raises(PriqnError, match=r"weights: expected a scheme name or 5 finite numbers"):
         ScalarizeReward(FakeEnv(), weights=(1, 2))
     with pytest.raises(PriqnError, match=r"unknown scheme 'x'"):

@@ -12,6 +12,7 @@ import torch
 from priqn.agents import rules
 from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
+from priqn.checks import check_acting_eps
 from priqn.errors import PriqnError
 from priqn.labels import PolicyLabel, near_greedy
 
@@ -120,8 +121,7 @@ class Policy:
                 f"(iqn, ensemble-iqn, ma-iqn), not {self.agent.name!r}, which already "
                 "samples from its optimal subsets"
             )
-        if not eps >= 0:
-            raise PriqnError(f"near-greedy ε: expected a number >= 0, got {eps!r}")
+        check_acting_eps(eps, "near-greedy ε")
         control = Policy(self.network, self.agent, self.grid_K.shape[0], self.device)
         control.env_config = self.env_config
         control.labels = dict(self.labels)
@@ -143,7 +143,7 @@ class Policy:
         """
         q_BHKA = self.quantiles(obs_batch)
         u_B = torch.from_numpy(rng.random(q_BHKA.shape[0])).to(self.device)
-        w = self.agent.reward_weights_5.to(q_BHKA.device, q_BHKA.dtype)
+        w = self.agent.reward_weights_O.to(q_BHKA.device, q_BHKA.dtype)
         q_host = q_BHKA.float().cpu().numpy() if quantiles else None
         if self.near_greedy_eps is not None:
             values_BKA = rules.SCALAR_VALUES[self.agent.spec.acting_rule](q_BHKA, w)

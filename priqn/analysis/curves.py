@@ -37,7 +37,7 @@ import pandas as pd
 
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import snapshot_budget
+from priqn.evaluation.protocol import snapshot_budget
 from priqn.runs import RunFolder, Status
 
 PERIODIC = "periodic"

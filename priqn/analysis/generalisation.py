@@ -1,7 +1,7 @@
 """Generalisation: how each policy does on nets outside the hold-out set, reported apart.
 
 ``priqn evaluate RUNS --nets my_nets/`` writes each run's episodes on those nets to
-``<run>/eval-nets-<hash>/`` (:func:`priqn.evaluate.evaluation_name`). Such evaluations are
+``<run>/eval-nets-<hash>/`` (:func:`priqn.evaluation.protocol.evaluation_name`). Such evaluations are
 never part of Table II (its loader leaves them out); :func:`load_generalisation` reads
 them, groups them by nets hash (one group per set of nets: the same files, names and
 junctions) and cross-checks each group like Table II's inputs (same evaluation settings,
@@ -36,7 +36,7 @@ from priqn.analysis.load import (
 )
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import NETS_HASH_CHARS
+from priqn.evaluation.protocol import NETS_HASH_CHARS
 from priqn.io import read_json
 from priqn.runs import RunFolder
 
@@ -56,11 +56,11 @@ class NetsEvaluation:
     """Every evaluation on one set of own nets (one nets hash) found under a runs folder."""
 
     nets_hash: str
-    """SHA-256 of the nets (:func:`priqn.evaluate.nets_hash`); its first digits name the folders."""
+    """SHA-256 of the nets (:func:`priqn.evaluation.targets.nets_hash`); its first digits name the folders."""
     nets: tuple[dict[str, Any], ...]
     """The nets as ``meta.json`` records them: ``id``, ``path``, ``files`` (SHA-256), ``junction``."""
     episodes: pd.DataFrame
-    """One row per episode (``priqn.evaluate.EPISODE_COLUMNS``), one outcome each, sorted."""
+    """One row per episode (``priqn.evaluation.protocol.EPISODE_COLUMNS``), one outcome each, sorted."""
     runs: tuple[RunInfo, ...]
     """The evaluations read, sorted by name (``<run>/eval-nets-<hash>``)."""
     eval_config: dict[str, Any]

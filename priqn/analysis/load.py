@@ -18,7 +18,7 @@ import pandas as pd
 
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import episode_columns, is_nets_evaluation, snapshot_budget
+from priqn.evaluation.protocol import episode_columns, is_nets_evaluation, snapshot_budget
 from priqn.io import read_json
 from priqn.labels import CONFIG_COLUMNS, PolicyLabel, at_budget
 from priqn.objectives import OBJECTIVES, names_in_columns
@@ -64,7 +64,7 @@ class Evaluation:
     """Everything a report needs from a runs folder."""
 
     episodes: pd.DataFrame
-    """One row per episode (columns of ``priqn.evaluate.EPISODE_COLUMNS``), sorted."""
+    """One row per episode (columns of ``priqn.evaluation.protocol.EPISODE_COLUMNS``), sorted."""
     runs: tuple[RunInfo, ...]
     """The evaluated runs, sorted by name."""
     holdout_hash: str

@@ -1,7 +1,7 @@
 """``priqn mechanism``: why Pr-IQN leaves the road, measured over many episodes (descriptive).
 
 Replays evaluated Pr-IQN cells on the scenes of their own ``eval/`` (the same reset and
-acting seeds, the one rollout loop :func:`priqn.evaluate.rollout` with the quantiles
+acting seeds, the one rollout loop :func:`priqn.evaluation.rollout.rollout` with the quantiles
 recorded) and measures per training seed (docs/mechanism.md):
 
 1. **removal**: how often the top level (safety) leaves out of its optimal subset the
@@ -20,7 +20,7 @@ one per group; the reliability table below it in the markdown), ``reliability.cs
 ``mechanism.png`` (the figure) and ``decisions/<run>.csv`` (every replayed decision; a
 run whose file is there with the asked-for episodes is not replayed again).
 
-The counting works on :class:`priqn.evaluate.RolloutStep` records and needs no SUMO:
+The counting works on :class:`priqn.evaluation.rollout.RolloutStep` records and needs no SUMO:
 :func:`decision_rows` (one episode's steps → rows), :func:`seed_summary`,
 :func:`reliability_table`.
 """
@@ -82,7 +82,7 @@ def decision_rows(
     penalty: float,
     gamma: float,
 ) -> list[dict[str, Any]]:
-    """One episode's :class:`~priqn.evaluate.RolloutStep` records (in order, the last one
+    """One episode's :class:`~priqn.evaluation.rollout.RolloutStep` records (in order, the last one
     with the episode's values) → one row per decision.
 
     ``objectives``: the heads' objectives (per-objective heads); ``levels``: the L axis of
@@ -235,7 +235,7 @@ class Cell:
     episodes: Any
     """Its ``eval/episodes.csv`` (pandas)."""
     eval_config: Any
-    """The :class:`priqn.evaluate.EvalConfig` it was evaluated with."""
+    """The :class:`priqn.evaluation.protocol.EvalConfig` it was evaluated with."""
     net_ids: tuple[str, ...]
     """The hold-out nets it was evaluated on."""
 
@@ -244,7 +244,7 @@ def load_cell(path: Path) -> Cell:
     """A run folder with a complete ``eval/``: its episodes and evaluation config."""
     import pandas as pd
 
-    from priqn.evaluate import EvalConfig
+    from priqn.evaluation.protocol import EvalConfig
     from priqn.sim.scenario import manifest_hash
 
     run = RunFolder(path)
@@ -294,7 +294,9 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
     import torch
 
     from priqn.env.vector import make_vector_env
-    from priqn.evaluate import _evaluation_env, make_scenes, rollout
+    from priqn.evaluation.protocol import make_scenes
+    from priqn.evaluation.rollout import rollout
+    from priqn.evaluation.targets import evaluation_env
 
     policy = RunFolder(cell.path).load_policy(device="cpu")
     agent = policy.agent
@@ -307,7 +309,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
                 f"{what} {name}: not an objective of {cell.name} ({', '.join(levels)})"
             )
     scenes = replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
-    env_cfg = _evaluation_env(policy.env_config, cell.eval_config, None)
+    env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
     reward = env_cfg.reward
     penalty = min(reward.collision_penalty, reward.off_road_penalty)
     gamma = float(RunFolder(cell.path).config().learner.gamma)
@@ -430,7 +432,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
     import pandas as pd
     from tqdm.auto import tqdm
 
-    from priqn.evaluate import find_runs
+    from priqn.evaluation.targets import find_runs
 
     cells = [load_cell(p) for p in find_runs(paths)]
     seeds, frames = [], {}

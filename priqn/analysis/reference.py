@@ -23,7 +23,8 @@ from priqn.analysis.load import EVAL_SETTINGS, SORT_COLUMNS, Evaluation, RunInfo
 from priqn.config import config_differences, flatten
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
-from priqn.evaluate import NETS_HASH_CHARS, NETS_PREFIX, REFERENCES, SCENE_NEUTRAL_FIELDS
+from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX
+from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
 from priqn.io import read_json
 from priqn.runs import RunFolder
 
@@ -44,7 +45,7 @@ class References:
 
     @property
     def labels(self) -> list[str]:
-        """Their row labels, in the order of :data:`priqn.evaluate.REFERENCES`."""
+        """Their row labels, in the order of :data:`priqn.evaluation.reference.REFERENCES`."""
         return [r.label for r in self.runs]
 
 
@@ -65,7 +66,7 @@ def load_references(
     nets is read too, and must have that group's settings.
     """
     from priqn.analysis.generalisation import GENERALISATION_SETTINGS
-    from priqn.evaluate import reference_label
+    from priqn.evaluation.reference import reference_label
 
     if not dirs:
         return no_references()

@@ -29,22 +29,22 @@ import contextlib
 import dataclasses
 import os
 from collections.abc import Iterator, Mapping
-from numbers import Real
 from typing import Any
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from priqn.checks import check_density
 from priqn.env import geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
 from priqn.env.objective_terms import DecisionContext, EnvObjectives
 from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
-from priqn.env.traffic import Traffic, check_density
+from priqn.env.traffic import Traffic
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
-from priqn.sim.roadmap import COMMANDS, EgoRoute
+from priqn.sim.roadmap import COMMANDS, EgoRoute, wrap_rad
 from priqn.sim.session import SumoSession
 
 __all__ = ["FAMILIES", "KIN_LIMIT", "EnvConfig", "IntersectionEnv"]
@@ -170,10 +170,7 @@ class EnvConfig:
         if not self.densities:
             raise ValueError("densities: expected at least one density in (0, 1]")
         for d in self.densities:
-            if not isinstance(d, Real) or isinstance(d, bool):
-                raise ValueError(f"densities: {d!r} is not a number; expected values in (0, 1]")
-            if not 0.0 < d <= 1.0:
-                raise ValueError(f"densities: {d} is out of range; expected values in (0, 1]")
+            check_density(d, "densities", error=ValueError)
         if not self.commands:
             raise ValueError("commands: expected at least one of left, straight, right")
         for c in self.commands:
@@ -766,7 +763,7 @@ class IntersectionEnv(gymnasium.Env):
                 self._envelope,
             ),
             lateral_offset_m=traj.d[steps],
-            heading_error_rad=np.angle(np.exp(1j * (traj.heading_rad[steps] - ref_heading))),
+            heading_error_rad=wrap_rad(traj.heading_rad[steps] - ref_heading),
             end=end,
             advance_m=end.frenet.s - ep.ego.frenet.s,
             speed_mps=traj.speed_mps[steps],

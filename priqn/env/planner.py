@@ -42,6 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from priqn.sim.roadmap import wrap_rad
+
 _EPS = 1e-9
 
 
@@ -88,7 +90,7 @@ class ReferenceLine:
             chord = xy[2:] - xy[:-2]
             mid = np.arctan2(chord[:, 1], chord[:, 0])
             # Put each chord heading on the same branch as the neighbouring segments.
-            mid = seg_heading[:-1] + np.angle(np.exp(1j * (mid - seg_heading[:-1])))
+            mid = seg_heading[:-1] + wrap_rad(mid - seg_heading[:-1])
             heading[1:-1] = mid
         self.heading_P: np.ndarray = heading
         """Unwrapped heading at each vertex (rad)."""
@@ -205,7 +207,7 @@ class ReferenceLine:
         """
         s, d = self.to_frenet(np.asarray(xy, dtype=float).reshape(1, 2), s_range_m)
         s, d = float(s[0]), float(d[0])
-        dth = float(np.angle(np.exp(1j * (heading_rad - self.heading_at(s)))))
+        dth = float(wrap_rad(heading_rad - self.heading_at(s)))
         one_kd = max(1.0 - float(self.curvature_at(s)) * d, 0.05)
         cos_t = np.cos(dth)
         return FrenetState(

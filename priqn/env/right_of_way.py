@@ -38,6 +38,7 @@ import numpy as np
 
 from priqn.env import geometry
 from priqn.env.reads import StepActors
+from priqn.sim.roadmap import wrap_rad
 
 SAMPLE_STEP_M = 0.5
 """Spacing of the points of a foe link's centre line [m]."""
@@ -127,7 +128,7 @@ def foe_due(area: ConflictArea, actors: StepActors, horizon_s: float) -> np.ndar
     dist = np.hypot(*(xy[:, None, :] - area.path_xy[None]).transpose(2, 0, 1))  # [M, P]
     j = dist.argmin(axis=1)
     lateral = dist[np.arange(len(j)), j]
-    dh = np.angle(np.exp(1j * (a.boxes.heading_rad - area.path_heading_rad[j])))
+    dh = wrap_rad(a.boxes.heading_rad - area.path_heading_rad[j])
     on_link = (lateral <= area.half_width_m) & (np.abs(dh) <= MATCH_HEADING_RAD)
     sigma = area.path_s_m[j]
     front, rear = sigma + 0.5 * a.boxes.length_m, sigma - 0.5 * a.boxes.length_m

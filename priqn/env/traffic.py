@@ -27,6 +27,7 @@ from types import ModuleType
 
 import numpy as np
 
+from priqn.checks import check_density
 from priqn.errors import PriqnError
 from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
@@ -79,20 +80,6 @@ class ObstacleSite:
     """Last allowed lane position [m]."""
     width_m: float
     """Lane width [m]."""
-
-
-def check_density(density: float, where: str = "density") -> float:
-    """Validate a requested density: a number in (0, 1]."""
-    try:
-        d = float(density)
-    except (TypeError, ValueError):
-        raise PriqnError(f"{where}: expected a number in (0, 1], got {density!r}") from None
-    if not 0.0 < d <= 1.0 or not np.isfinite(d):
-        raise PriqnError(
-            f"{where}: {density!r} is out of range; density = active actors / max actors "
-            "must be in (0, 1]"
-        )
-    return d
 
 
 class Traffic:

@@ -51,7 +51,7 @@ class Cell:
     """Experiment file, named in the child's errors."""
     controls: tuple[str, ...] = ()
     """Control evaluations beside ``eval/``, by name (``near-greedy``, ``near-greedy-eps0.005``:
-    ``priqn.evaluate.control_config``); empty for Pr-IQN rows."""
+    ``priqn.evaluation.protocol.control_config``); empty for Pr-IQN rows."""
     snapshots: tuple[int, ...] = ()
     """Budgets whose kept policy is evaluated too, into ``eval-at<N>/`` (``checkpoint.keep_at``)."""
 
@@ -183,8 +183,8 @@ def build_train_config(cell: Cell) -> Any:
 
 
 def build_eval_config(cell: Cell) -> Any:
-    """The cell's :class:`priqn.evaluate.EvalConfig` from the experiment's ``[evaluate]``."""
-    from priqn.evaluate import EvalConfig
+    """The cell's :class:`priqn.evaluation.protocol.EvalConfig` from the experiment's ``[evaluate]``."""
+    from priqn.evaluation.protocol import EvalConfig
 
     return from_dict(EvalConfig, cell.evaluate, where=f"{cell.source} [evaluate]")
 
@@ -208,7 +208,7 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
         diff = config_differences(recorded, wanted, ignore=("device",))
         prefix = ""
         if not diff:
-            from priqn.evaluate import eval_config_differences
+            from priqn.evaluation.protocol import eval_config_differences
 
             recorded = RunFolder(c.run_dir).eval_meta().get("eval_config") or {}
             diff = eval_config_differences(recorded, to_dict(build_eval_config(c)))

@@ -26,7 +26,8 @@ def train_and_evaluate(cell: Cell) -> None:
     """Run one cell to completion: train (resuming an interrupted run), then evaluate
     (its own acting, then each control evaluation of a baseline cell, then each policy
     kept at a budget of ``checkpoint.keep_at``, into ``eval-at<N>/``)."""
-    from priqn.evaluate import control_config, evaluate_run
+    from priqn.evaluate import evaluate_run
+    from priqn.evaluation.protocol import control_config
     from priqn.train import train
 
     state = cell.state()

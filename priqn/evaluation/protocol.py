@@ -1,0 +1,301 @@
+"""The evaluation protocol: every trained run meets the same hold-out scenes (torch-free).
+
+A run's greedy policy plays the hold-out nets × traffic densities × ``eval_runs``
+evaluation runs, ``episodes_per_cell`` episodes per (evaluation run, net, density) cell,
+one row per episode in ``eval/episodes.csv`` (:func:`episode_columns`).
+
+Scenes are identical for every policy: the reset seed of episode ``e`` in cell
+(evaluation run ``r``, net ``n``, density ``d``) is drawn from
+``SeedSequence(EvalConfig.seed, spawn_key=(r, n, d, e))`` where ``n`` and ``d`` are
+indices into the sorted hold-out net ids and the configured densities. The
+training seed never enters. The policy's own randomness (Pr-IQN samples from its
+leaf subset) uses a generator seeded from the same key, so an episode's result does
+not depend on how many workers ran it or in which order.
+
+An evaluation's folder is named by what it evaluates (:func:`evaluation_name`):
+``eval/`` (the run's own acting on the hold-out family), ``eval-near-greedy[-eps<ε>]/``
+(the acting-randomness control), ``eval-nets-<hash>/`` (your own nets),
+``eval-at<N>/`` (a kept snapshot); the analysis reads these names back
+(:func:`snapshot_budget`, :func:`is_nets_evaluation`, :func:`control_config`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from priqn.checks import check_acting_eps, check_density
+from priqn.config import config_differences, to_dict
+from priqn.errors import PriqnError
+from priqn.labels import CONFIG_COLUMNS
+from priqn.objectives import OBJECTIVES, return_columns, subset_columns
+from priqn.runs import SNAPSHOT_PREFIX, RunFolder
+
+LABEL_KEYS: tuple[str, ...] = (*CONFIG_COLUMNS, "train_seed", "label")
+"""Keys of ``Policy.labels`` copied into every episode row."""
+
+
+def episode_columns(objectives: Sequence[str] = OBJECTIVES) -> tuple[str, ...]:
+    """Columns of ``eval/episodes.csv`` for a policy with these objective names, in order
+    (``return_<name>`` / ``subset_<name>`` follow the run's ``env.objectives``)."""
+    return (
+        "run",
+        "label",
+        *(key for key in LABEL_KEYS if key != "label"),
+        "eval_run",
+        "net",
+        "density",
+        "density_realised",
+        "success",
+        "collision",
+        "off_road",
+        "timeout",
+        "route_progress",
+        "steps",
+        *return_columns(objectives),
+        *subset_columns(objectives),
+        "holdout_hash",
+        # Beyond the contract's list: the scene's identity, so "same scenes" can be checked.
+        "episode",
+        "command",
+        "reset_seed",
+    )
+
+
+EPISODE_COLUMNS: tuple[str, ...] = episode_columns(OBJECTIVES)
+"""Columns of ``eval/episodes.csv`` with the default objectives (one row per episode)."""
+
+
+ACTINGS: tuple[str, ...] = ("own", "near-greedy")
+"""Values of ``EvalConfig.acting``; each evaluates into its own folder (:func:`eval_dir_of`)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig:
+    """How a trained run is evaluated (recorded in ``eval/meta.json``)."""
+
+    family: str = "holdout"
+    """Scenario family of the evaluation nets (never a training pool)."""
+    densities: tuple[float, ...] = (0.5, 0.75, 1.0)
+    """Requested traffic densities (active actors / maximum actors)."""
+    eval_runs: int = 3
+    """Evaluation runs per trained run (the paper: 3), each with its own scenes."""
+    episodes_per_cell: int = 6
+    """Episodes per (evaluation run, net, density) cell. Small by default so a CPU
+    evaluation of one run takes minutes; raise it for publication numbers."""
+    seed: int = 2026
+    """Evaluation seed: every scene and the policy's acting randomness derive from it
+    (never from the training seed), so every policy meets the same scenes."""
+    commands: tuple[str, ...] = ()
+    """Ego route commands cycled over the episodes of a cell ("left", "straight",
+    "right"); empty = the environment draws the command from the reset seed."""
+    num_workers: int = 2
+    """Environment worker processes (the parent process never runs SUMO)."""
+    max_episode_steps: int = 0
+    """Override of the run's episode step limit; 0 keeps the run's own."""
+    device: str = "cpu"
+    """Torch device for the policy network."""
+    acting: str = "own"
+    """How the policy acts: "own" (its agent's rule: greedy, or Pr-IQN's sample from its
+    leaf subset; written to eval/) or "near-greedy" (the acting-randomness control for
+    IQN, Ensemble-IQN and MA-IQN: uniform among the actions whose mean is within
+    acting_eps of the best; written to eval-near-greedy/, labelled as its own row)."""
+    acting_eps: float = 0.2
+    """Tolerance ε of near-greedy acting, in per-state standard deviations of the scalar
+    value's quantiles (the z-score of Pr-IQN's comparators; 0.2 is Pr-IQN*'s ε)."""
+    nets: tuple[str, ...] = ()
+    """Plain ``.net.xml`` files and/or folders of them to evaluate on instead of ``family``
+    (no manifest; docs/your-own-net.md). Written to ``eval-nets-<hash>/`` beside ``eval/``
+    (:func:`evaluation_name`), never into ``eval/``; one path or a list."""
+    junction: str = ""
+    """With ``nets``: the id of the junction to drive through ('' = each net's junction with
+    the most approaches)."""
+    snapshot: int = 0
+    """Evaluate the policy the run kept at this many decisions (``checkpoint.keep_at``)
+    instead of its final one, into ``eval-at<N>/`` beside ``eval/`` (0: the final policy)."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.nets, str):  # one path (--set nets=my_nets/)
+            object.__setattr__(self, "nets", (self.nets,) if self.nets else ())
+        if not all(isinstance(n, str) and n for n in self.nets):
+            raise ValueError(f"nets: expected .net.xml files or folders, got {list(self.nets)}")
+        object.__setattr__(self, "nets", tuple(self.nets))
+        if self.acting not in ACTINGS:
+            raise ValueError(f"acting: {self.acting!r} is not one of {', '.join(ACTINGS)}")
+        check_acting_eps(self.acting_eps, "acting_eps", error=ValueError)
+        if not self.densities:
+            raise ValueError("densities: need at least one density")
+        for d in self.densities:
+            check_density(d, "densities", error=ValueError)
+        if len(set(self.densities)) != len(self.densities):
+            raise ValueError(f"densities: duplicates in {list(self.densities)}")
+        if self.eval_runs < 1:
+            raise ValueError(f"eval_runs: must be >= 1, got {self.eval_runs}")
+        if self.episodes_per_cell < 1:
+            raise ValueError(f"episodes_per_cell: must be >= 1, got {self.episodes_per_cell}")
+        if self.num_workers < 1:
+            raise ValueError(f"num_workers: must be >= 1, got {self.num_workers}")
+        if self.snapshot < 0:
+            raise ValueError(
+                f"snapshot: expected 0 (the final policy) or a budget, got {self.snapshot}"
+            )
+        if self.max_episode_steps < 0:
+            raise ValueError(f"max_episode_steps: must be >= 0, got {self.max_episode_steps}")
+        bad = [c for c in self.commands if c not in ("left", "straight", "right")]
+        if bad:
+            raise ValueError(f"commands: {bad[0]!r} is not one of left, straight, right")
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """One evaluation episode: what the environment is reset to and the acting seed."""
+
+    eval_run: int
+    """Evaluation-run index (0-based)."""
+    net: str
+    """Net as ``"<family>/<net_id>"``."""
+    density: float
+    """Requested traffic density."""
+    episode: int
+    """Episode index within the cell."""
+    reset_seed: int
+    """Seed passed to ``env.reset``."""
+    act_seed: int
+    """Seed of the policy's acting generator for this episode."""
+    command: str | None
+    """Route command, or None to let the environment draw it."""
+
+    @property
+    def cell(self) -> tuple[int, str, float]:
+        return (self.eval_run, self.net, self.density)
+
+    def reset_options(self) -> dict[str, Any]:
+        options: dict[str, Any] = {"net": self.net, "density": self.density}
+        if self.command is not None:
+            options["command"] = self.command
+        return options
+
+
+def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
+    """All evaluation episodes in canonical order (eval run, net, density, episode).
+
+    ``net_ids`` are the hold-out nets' ids (without family); they are sorted, so the
+    scenes depend only on the set of nets, ``cfg.seed`` and the cell's indices. With
+    ``cfg.nets`` they are the nets' full names (``"<folder>/<stem>"``,
+    :func:`~priqn.evaluation.targets.evaluation_nets`) and the same rule applies.
+    """
+    scenes = []
+    for r in range(cfg.eval_runs):
+        for n, net_id in enumerate(sorted(net_ids)):
+            for d, density in enumerate(cfg.densities):
+                for e in range(cfg.episodes_per_cell):
+                    ss = np.random.SeedSequence(cfg.seed, spawn_key=(r, n, d, e))
+                    reset_seed, act_seed = (int(x) for x in ss.generate_state(2, dtype=np.uint32))
+                    command = cfg.commands[e % len(cfg.commands)] if cfg.commands else None
+                    scenes.append(
+                        Scene(
+                            r,
+                            net_id if cfg.nets else f"{cfg.family}/{net_id}",
+                            float(density),
+                            e,
+                            reset_seed,
+                            act_seed,
+                            command,
+                        )
+                    )
+    return scenes
+
+
+RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers", "nets", "junction"})
+"""EvalConfig fields that do not change any episode (may differ on resume). ``nets`` and
+``junction`` say where the files lie and what was asked; what is evaluated on (each net's
+name, SHA-256 and junction) is the evaluation's nets hash, checked on its own."""
+
+NETS_PREFIX = "nets-"
+"""Evaluations on your own nets are ``eval-nets-<hash>[-<control>]/`` (:func:`evaluation_name`)."""
+NETS_HASH_CHARS = 8
+"""Hex digits of the nets hash in an evaluation folder's name."""
+
+
+def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """Result-affecting differences of two recorded EvalConfigs (``config_differences``).
+
+    A field missing from a record written before the field existed counts as its
+    default: the evaluation behaved as the default does (``acting`` was always "own").
+    """
+    defaults = to_dict(EvalConfig())
+    return config_differences(
+        {**defaults, **old}, {**defaults, **new}, ignore=RESULT_NEUTRAL_FIELDS
+    )
+
+
+def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """``"field old -> new, ..."`` for result-affecting EvalConfig fields that differ."""
+    diff = eval_config_differences(old, new)
+    return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
+
+
+def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
+    """Name of the evaluation ``cfg`` makes: "" (the run's own, ``eval/``), ``near-greedy``
+    (a control at the default ε, ``eval-near-greedy/``) or ``near-greedy-eps<ε>``.
+
+    With ``cfg.nets``: ``nets-<first 8 hex digits of nets_hash>``
+    (:func:`~priqn.evaluation.targets.nets_hash`), then the control's name if any (``nets-1a2b3c4d-near-greedy``): an evaluation on other nets
+    never shares a folder with the hold-out one. With ``cfg.snapshot`` N: ``at<N>`` first
+    (``at60000``, ``at60000-near-greedy``).
+    """
+    if cfg.nets and not nets_hash:
+        raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
+    control = ""
+    if cfg.acting != "own":
+        control = (
+            cfg.acting
+            if cfg.acting_eps == EvalConfig.acting_eps
+            else f"{cfg.acting}-eps{cfg.acting_eps:g}"
+        )
+    snapshot = RunFolder.snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
+    nets = f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}" if cfg.nets else ""
+    return "-".join(p for p in (snapshot, nets, control) if p)
+
+
+def is_nets_evaluation(name: str) -> bool:
+    """Whether ``eval-<name>/`` is an evaluation on other nets (not part of Table II)."""
+    return snapshot_budget(name)[1].startswith(NETS_PREFIX)
+
+
+def snapshot_budget(name: str) -> tuple[int, str]:
+    """``(N, rest)`` of an evaluation name ``at<N>[-rest]`` (a kept snapshot's); ``(0, name)``
+    for the final policy's."""
+    match = re.fullmatch(rf"{SNAPSHOT_PREFIX}(\d+)(?:-(.*))?", name)
+    if match is None:
+        return 0, name
+    return int(match[1]), match[2] or ""
+
+
+def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
+    """``cfg`` acting as the control ``name`` says (inverse of :func:`evaluation_name`).
+
+    A one-line PriqnError for a name that is not ``near-greedy`` or ``near-greedy-eps<ε>``.
+    """
+    if not name:
+        return dataclasses.replace(cfg, acting="own")
+    match = re.fullmatch(r"(?P<acting>[a-z-]+?)(?:-eps(?P<eps>[0-9.e+-]+))?", name)
+    if match is None or match["acting"] not in ACTINGS or match["acting"] == "own":
+        raise PriqnError(
+            f"control {name!r}: expected near-greedy or near-greedy-eps<ε> (e.g. near-greedy-eps0.01)"
+        )
+    try:
+        eps = float(match["eps"]) if match["eps"] else EvalConfig.acting_eps
+        return dataclasses.replace(cfg, acting=match["acting"], acting_eps=eps)
+    except ValueError as exc:
+        raise PriqnError(f"control {name!r}: {exc}") from None
+
+
+def eval_dir_of(run: RunFolder, cfg: EvalConfig, nets_hash: str = "") -> Path:
+    """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/`` (:func:`evaluation_name`)."""
+    return run.evaluation_dir(evaluation_name(cfg, nets_hash))
