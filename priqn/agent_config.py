@@ -143,7 +143,7 @@ class LearnerConfig:
     autocast_bf16: bool = False
     """Run the network's forward passes in bfloat16 autocast (loss, targets and subsets stay float32); faster on CPUs with bf16 support, see docs/implementation-details.md."""
     compile: str = "auto"
-    """torch.compile the update (target forward; online forward, loss and backward; CUDA graphs on CUDA): auto (on for CUDA where Triton is installed, off on CPU, where it did not pay on this project's 2-core CPU: docs/implementation-details.md §12), on, or off (the eager update, bit for bit)."""
+    """torch.compile the update (target forward; online forward, loss and backward; CUDA graphs on CUDA): auto (eager everywhere for now: on this project's 2-core CPU it did not pay; on an H100 it gave 1.6-2.0x updates/s but failed CUDA resume/device-move tests: docs/implementation-details.md §12), on (compile; opt in on a GPU), or off (the eager update, bit for bit)."""
 
     def __post_init__(self) -> None:
         if self.compile not in COMPILE_MODES:

@@ -43,12 +43,16 @@ def _own_group(quantiles_BHTA: torch.Tensor, groups: int) -> torch.Tensor:
     return torch.diagonal(blocks, dim1=1, dim2=2).permute(0, 3, 1, 2)
 
 
-COMPILE_AUTO_DEVICES: tuple[str, ...] = ("cuda",)
-"""Device types where ``learner.compile = "auto"`` compiles the update. Not ``cpu``: on
-this project's 2-core AMD EPYC the compiled update was no faster than the eager one
-(``priqn bench train --compile``; docs/implementation-details.md §12). On CUDA an eager
-update at batch 32 is launch-bound (5-7 ms on an H200 whatever the resolution), which is
-what CUDA graphs remove (LeanRL: 2.7-6.8x on an H100 for CleanRL's updates)."""
+COMPILE_AUTO_DEVICES: tuple[str, ...] = ()
+"""Device types where ``learner.compile = "auto"`` compiles the update: none, so compiling
+is opt-in (``"on"``). Not ``cpu``: on this project's 2-core CPU the compiled update was no
+faster than the eager one. Not ``cuda`` yet, although it pays there: on an H100
+(2026-11-26, ``priqn bench train --device cuda --compile``) compiled / eager was 1.81x
+(IQN) and 1.77x (Pr-IQN) updates/s at the default preset, 2.02x and 1.62x at the paper's;
+but with CUDA graphs, ``tests/test_cuda.py``'s resume and device-move cases (several
+learners in one process) failed inside torch's cudagraph trees and the process aborted at
+exit (docs/implementation-details.md §12). One learner per process, as ``priqn train``
+runs, was not shown to fail; it was not shown end to end either."""
 
 
 def has_compiler(device: torch.device) -> bool:
