@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import importlib
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from priqn.errors import PriqnError
-from priqn.objectives import NUM_OBJECTIVES
+from priqn.objectives import NUM_OBJECTIVES, import_path
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
@@ -377,19 +376,3 @@ def _entry_points() -> dict[str, Any]:
     from importlib.metadata import entry_points
 
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def import_path(path: str, where: str) -> Any:
-    """The object ``"package.module:NAME"`` names (one-line errors naming ``where``)."""
-    module, sep, attr = path.partition(":")
-    if not sep or not module or not attr:
-        raise PriqnError(f"{where}: expected 'package.module:NAME', got {path!r}")
-    try:
-        obj: Any = importlib.import_module(module)
-    except ImportError as exc:
-        raise PriqnError(f"{where}: cannot import {module!r} for {path!r} ({exc})") from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise PriqnError(f"{where}: module {module!r} has no {attr!r}")
-        obj = getattr(obj, part)
-    return obj

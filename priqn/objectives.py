@@ -144,16 +144,18 @@ def load_callable(spec: str | Callable[..., Any], where: str) -> Callable[..., A
     """A callable, or the object ``"package.module:attribute"`` names (one-line errors)."""
     if callable(spec):
         return spec
-    obj = _import_attr(spec, where)
+    obj = import_path(spec, where)
     if not callable(obj):
         raise PriqnError(f"{where}: {spec!r} is not callable")
     return obj
 
 
-def _import_attr(spec: str, where: str) -> Any:
+def import_path(spec: str, where: str) -> Any:
+    """The object ``"package.module:NAME"`` names (one-line errors naming ``where``): the one
+    importer of plug-ins by path (objectives here, agents in :mod:`priqn.agent_config`)."""
     module, sep, attr = str(spec).partition(":")
     if not sep or not module or not attr:
-        raise PriqnError(f"{where}: expected 'package.module:name', got {spec!r}")
+        raise PriqnError(f"{where}: expected 'package.module:NAME', got {spec!r}")
     try:
         obj: Any = importlib.import_module(module)
     except ImportError as exc:
@@ -189,7 +191,7 @@ def resolve_objective(entry: str | Objective, where: str = "env.objectives") -> 
     if entry in BUILTIN_OBJECTIVES:
         return BUILTIN_OBJECTIVES[entry]
     if ":" in entry:
-        obj = _import_attr(entry, where)
+        obj = import_path(entry, where)
     else:
         eps = _entry_points()
         if entry not in eps:

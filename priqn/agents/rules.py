@@ -32,8 +32,8 @@ import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from priqn.agent_config import import_path
 from priqn.errors import PriqnError
+from priqn.objectives import import_path
 
 if TYPE_CHECKING:
     from torch import Tensor
