@@ -505,9 +505,9 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     return out / "index.html"
 
 
-def configure_parser(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="a run folder made by 'priqn train'")
-    parser.add_argument("--out", required=True, help="output folder (index.html, frames, ...)")
+def add_scene_arguments(parser: argparse.ArgumentParser, verb: str) -> None:
+    """The scene-selection flags ``priqn inspect`` and ``priqn play`` share (``verb``: the
+    word their help uses): --net, --density, --command, --seed, --eval-run, --episodes."""
     parser.add_argument("--net", default="", help="net '<family>/<net_id>' (default: first)")
     parser.add_argument(
         "--density", type=float, default=0.0, help="traffic density in (0, 1] (default: first)"
@@ -515,7 +515,30 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--command", default="", choices=["", "left", "straight", "right"])
     parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
     parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
-    parser.add_argument("--episodes", type=int, default=1, help="episodes to inspect")
+    parser.add_argument("--episodes", type=int, default=1, help=f"episodes to {verb}")
+
+
+def scene_config(args: argparse.Namespace, near_greedy_eps: float | None = None) -> InspectConfig:
+    """The :class:`InspectConfig` of :func:`add_scene_arguments`' flags, checked (one line each)."""
+    if args.episodes < 1:
+        raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
+    if args.density:  # 0 = the first evaluation density
+        check_density(args.density, "--density")
+    return InspectConfig(
+        net=args.net,
+        density=args.density,
+        command=args.command,
+        seed=args.seed,
+        eval_run=args.eval_run,
+        episodes=args.episodes,
+        near_greedy_eps=near_greedy_eps,
+    )
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", help="a run folder made by 'priqn train'")
+    parser.add_argument("--out", required=True, help="output folder (index.html, frames, ...)")
+    add_scene_arguments(parser, "inspect")
     parser.add_argument(
         "--near-greedy",
         type=float,
@@ -526,21 +549,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.episodes < 1:
-        raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
-    if args.density:  # 0 = the first evaluation density
-        check_density(args.density, "--density")
     if args.near_greedy is not None:
         check_acting_eps(args.near_greedy, "--near-greedy")
-    cfg = InspectConfig(
-        net=args.net,
-        density=args.density,
-        command=args.command,
-        seed=args.seed,
-        eval_run=args.eval_run,
-        episodes=args.episodes,
-        near_greedy_eps=args.near_greedy,
-    )
-    page = inspect_run(args.run, args.out, cfg)
+    page = inspect_run(args.run, args.out, scene_config(args, args.near_greedy))
     print(f"priqn inspect: wrote {page} (open it in a browser)")
     return 0

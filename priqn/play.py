@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from priqn.errors import PriqnError
-from priqn.inspector import InspectConfig, inspection_scenes
+from priqn.inspector import InspectConfig, add_scene_arguments, inspection_scenes, scene_config
 from priqn.runs import RunFolder
 
 ANIMATIONS = (".gif", ".mp4")
@@ -287,14 +287,7 @@ def _write_table(results: list[EpisodeResult], objectives: Any, path: Path) -> N
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="a run folder made by 'priqn train' (committed cells too)")
-    parser.add_argument("--net", default="", help="net '<family>/<net_id>' (default: first)")
-    parser.add_argument(
-        "--density", type=float, default=0.0, help="traffic density in (0, 1] (default: first)"
-    )
-    parser.add_argument("--command", default="", choices=["", "left", "straight", "right"])
-    parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's)")
-    parser.add_argument("--eval-run", type=int, default=0, help="evaluation run (0-based)")
-    parser.add_argument("--episodes", type=int, default=1, help="episodes to play")
+    add_scene_arguments(parser, "play")
     parser.add_argument(
         "--delay",
         type=float,
@@ -311,23 +304,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.episodes < 1:
-        raise PriqnError(f"--episodes: expected >= 1, got {args.episodes}")
-    if args.density and not 0.0 < args.density <= 1.0:
-        raise PriqnError(
-            f"--density {args.density:g}: expected a traffic density in (0, 1] "
-            "(active actors / maximum actors), e.g. 0.5"
-        )
+    cfg = scene_config(args)
     if args.delay is not None and not args.delay >= 0:
         raise PriqnError(f"--delay {args.delay:g}: expected a pause >= 0 ms")
-    cfg = InspectConfig(
-        net=args.net,
-        density=args.density,
-        command=args.command,
-        seed=args.seed,
-        eval_run=args.eval_run,
-        episodes=args.episodes,
-    )
     results = play_run(args.run, cfg, record=args.record, delay_ms=args.delay)
     for r in results:
         returns = ", ".join(f"{x:.3f}" for x in r.returns)
