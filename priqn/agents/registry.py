@@ -117,13 +117,6 @@ class Agent:
     def num_heads(self) -> int:
         return self.spec.num_heads
 
-    @property
-    def reward_weights_5(self) -> torch.Tensor:
-        """Old name of :attr:`reward_weights_O` (it is ``[O]``, not ``[5]``); kept while the
-        committed ``agents/policy.py``, ``inspector.py`` and ``tests/test_objectives.py``
-        still read it (their renames are not committed yet)."""
-        return self.reward_weights_O
-
     def head_rewards(self, rewards_BO: torch.Tensor) -> torch.Tensor:
         """Reward per head ``[B, H]`` from the reward vectors ``rewards_BO`` (the reward rule)."""
         w = self.reward_weights_O.to(rewards_BO.device, rewards_BO.dtype)

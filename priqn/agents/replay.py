@@ -76,7 +76,7 @@ class ReplayBuffer:
         self,
         obs: Mapping[str, np.ndarray],
         actions_E: np.ndarray,
-        rewards_E5: np.ndarray,
+        rewards_EO: np.ndarray,
         terminated_E: np.ndarray,
         truncated_E: np.ndarray,
         final_obs: Sequence[Mapping[str, np.ndarray] | None],
@@ -90,7 +90,7 @@ class ReplayBuffer:
             r = self._write_row(e, obs, e)
             end = bool(terminated_E[e] or truncated_E[e])
             self.action[e, r] = actions_E[e]
-            self.reward[e, r] = rewards_E5[e]
+            self.reward[e, r] = rewards_EO[e]
             self.starts[e, r] = True
             self.ended[e, r] = end
             self.terminated[e, r] = bool(terminated_E[e])
