@@ -10,6 +10,7 @@ give byte-identical files (tables, figure, ``report.md``, ``meta.json``).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -183,8 +184,10 @@ def report_markdown(
     budgets: pd.DataFrame,
     changes: pd.DataFrame,
     command: str,
+    efficiency: Sequence[str] = (),
 ) -> str:
-    """``report.md`` of an experiment with questions."""
+    """``report.md`` of an experiment with questions (``efficiency``: the sample-efficiency
+    section's lines, :func:`_efficiency`)."""
     e = exp.experiment
     lines = [
         f"# {e.name}: pre-registered questions",
@@ -200,6 +203,7 @@ def report_markdown(
         *_change_lines(changes),
         "![per-seed endpoints](figures/questions.png)",
         "",
+        *efficiency,
     ]
     return "\n".join(lines)
 
@@ -265,7 +269,8 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
     lines = [
         "## Every budget the cells reach (descriptive)",
         "",
-        "Mean over the seeds complete at that budget (the budget question's seeds).",
+        "Mean over the seeds complete at that budget, among the seeds of every question "
+        "whose groups reach more than one budget.",
         "",
         "| group | budget | seeds | success | violations |",
         "|---|---|---|---|---|",
@@ -277,7 +282,8 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
     )
     for (group, budget), r in summary.iterrows():
         lines.append(
-            f"| {group} | {budget // 1000}k | {r.seeds} | {r.success:.3f} | {r.violation:.3f} |"
+            f"| {group} | {budget // 1000}k | {int(r.seeds)} | {r.success:.3f} "
+            f"| {r.violation:.3f} |"
         )
     return [*lines, ""]
 
@@ -353,6 +359,45 @@ def _budget_tables(
     return frame.assign(question=question.name), changes
 
 
+def _efficiency(exp: Experiment, out: Path) -> list[str]:
+    """The sample-efficiency curves of every complete cell's group (periodic evaluations
+    and full evaluations at each budget, kept snapshots included): table, figure and the
+    report's lines; none while no cell is complete."""
+    from priqn.analysis import curves, sequential_report
+    from priqn.analysis.figures import save_figure
+    from priqn.io import atomic_write_text
+
+    cells = [
+        (group, seed, run)
+        for group, seed, run in curves.experiment_cells(exp)
+        if RunFolder(run).recorded_status() == Status.COMPLETE
+    ]
+    points, notes = curves.curve_points(cells)
+    if points.empty:
+        return []
+    curve = curves.sample_efficiency(
+        points, sequential_report.CURVE_REPS, sequential_report.CURVE_SEED
+    )
+    table = curve.to_csv(index=False, float_format="%.10g", lineterminator="\n")
+    atomic_write_text(out / "tables" / "sample_efficiency.csv", table)
+    save_figure(
+        sequential_report.efficiency_figure(exp, curve), out / "figures", "sample_efficiency"
+    )
+    return [
+        "## Sample efficiency (descriptive)",
+        "",
+        "Hold-out success against training decisions, one curve per group over its complete "
+        "cells: lines are the in-training evaluations (6 episodes a point), markers the full "
+        "evaluations (162 episodes) at each budget a cell reaches, kept snapshots included; "
+        f"mean over training seeds with a 95 % stratified-bootstrap band "
+        f"({sequential_report.CURVE_REPS} replications, seed {sequential_report.CURVE_SEED}).",
+        *([""] + [f"- {n}" for n in notes] if notes else []),
+        "",
+        "![sample efficiency](figures/sample_efficiency.png)",
+        "",
+    ]
+
+
 def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
     """Write the questions' report into ``out_dir``; returns ``report.md``."""
     from priqn.analysis.figures import save_figure
@@ -389,8 +434,10 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     atomic_write_text(out / "tables" / "budgets.csv", budgets.to_csv(**csv_kw))
     atomic_write_text(out / "tables" / "budget_changes.csv", changes.to_csv(**csv_kw))
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
+    efficiency = _efficiency(exp, out)
     report = out / "report.md"
-    atomic_write_text(report, report_markdown(exp, comparisons, looks, budgets, changes, command))
+    text = report_markdown(exp, comparisons, looks, budgets, changes, command, efficiency)
+    atomic_write_text(report, text)
     atomic_write_json(
         out / "meta.json",
         {
