@@ -167,11 +167,6 @@ class LearnerConfig:
         if self.kappa <= 0 or self.lr <= 0:
             raise ValueError("kappa and lr: expected positive numbers")
 
-    @property
-    def gamma_5(self) -> tuple[float, ...]:
-        """γ per objective of the default list (:func:`gammas` for any list)."""
-        return self.gammas(NUM_OBJECTIVES)
-
     def gammas(self, num_objectives: int) -> tuple[float, ...]:
         """γ per objective of a run with ``num_objectives`` objectives (declared order)."""
         if isinstance(self.gamma, tuple):

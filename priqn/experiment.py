@@ -420,7 +420,37 @@ def load_experiment(
         raise PriqnError(f"{p} [experiment].steps: expected a positive integer, got {exp.steps}")
     _check_overrides(exp.set, f"{p} [experiment].set")
 
-    raw_policies = data.get("policy", [])
+    policies = _load_policies(data.get("policy", []), exp, p)
+
+    evaluate = data.get("evaluate", {})
+    if not isinstance(evaluate, dict):
+        raise PriqnError(f"{p} [evaluate]: expected a table of EvalConfig fields")
+    res_data = dict(data.get("resources", {}))
+    for key, value in (("cpus_per_cell", cpus_per_cell), ("gpus_per_cell", gpus_per_cell)):
+        if value is not None:
+            res_data[key] = value
+    resources = from_dict(ResourceSpec, res_data, where=f"{p} [resources]")
+    if resources.cpus_per_cell <= 0 or resources.gpus_per_cell < 0:
+        raise PriqnError(
+            f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
+            f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
+        )
+    sequential = None
+    if "sequential" in data:
+        sequential = _load_sequential(data["sequential"], exp, policies, p)
+    # Absolute, so Ray workers (whose working directory differs) write to the same place.
+    exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
+    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
+    if "question" in data:
+        if sequential is not None:
+            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
+        out = dataclasses.replace(out, questions=_load_questions(data["question"], out))
+    return out
+
+
+def _load_policies(raw_policies: Any, exp: ExperimentSpec, p: Path) -> list[PolicySpec]:
+    """Parse and check the ``[[policy]]`` rows (names, agents, Pr-IQN options, each row's
+    seeds / budget / snapshots / reused cells, groups); one line per mistake."""
     if not isinstance(raw_policies, list) or not raw_policies:
         raise PriqnError(f"{p}: expected one or more [[policy]] tables (name, agent, options)")
     policies = []
@@ -462,31 +492,7 @@ def load_experiment(
         _check_row(pol, exp, where)
         policies.append(pol)
     _check_groups(policies, p)
-
-    evaluate = data.get("evaluate", {})
-    if not isinstance(evaluate, dict):
-        raise PriqnError(f"{p} [evaluate]: expected a table of EvalConfig fields")
-    res_data = dict(data.get("resources", {}))
-    for key, value in (("cpus_per_cell", cpus_per_cell), ("gpus_per_cell", gpus_per_cell)):
-        if value is not None:
-            res_data[key] = value
-    resources = from_dict(ResourceSpec, res_data, where=f"{p} [resources]")
-    if resources.cpus_per_cell <= 0 or resources.gpus_per_cell < 0:
-        raise PriqnError(
-            f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
-            f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
-        )
-    sequential = None
-    if "sequential" in data:
-        sequential = _load_sequential(data["sequential"], exp, policies, p)
-    # Absolute, so Ray workers (whose working directory differs) write to the same place.
-    exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
-    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
-    if "question" in data:
-        if sequential is not None:
-            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
-        out = dataclasses.replace(out, questions=_load_questions(data["question"], out))
-    return out
+    return policies
 
 
 def _check_row(pol: PolicySpec, exp: ExperimentSpec, where: str) -> None:

@@ -862,6 +862,8 @@ def _plan(po: Preorder, dense_only: bool) -> _Plan:
     return plan
 
 
+# long: Algorithm 1 in one batched pass, level by level in topological order, so it reads
+# against the paper's pseudo-code; each step is a few tensor lines under its own comment.
 def _optimal_subsets(
     quantiles: torch.Tensor,
     po: Preorder | str,

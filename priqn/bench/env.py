@@ -74,6 +74,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
 
 
+# long: one benchmark in the order it prints: flag checks, per-density rounds (env, floor,
+# per-part times, sensors against the reference), then the vector-env scaling table.
 def run(args: argparse.Namespace) -> int:
     from priqn.errors import PriqnError
 

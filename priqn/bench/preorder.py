@@ -60,6 +60,8 @@ def _timeit(fn: Callable[[], Any], repeats: int, sync: Callable[[], None]) -> tu
     return times[len(times) // 2], times[0]
 
 
+# long: the unbatched reference the batched core is timed and checked against, written
+# line by line from the paper's Algorithm 1 on purpose (no helpers that could share a bug).
 def reference_optimal_subsets(
     quantiles_BNKA: Any,
     parents: Sequence[Sequence[int]],
@@ -190,6 +192,8 @@ def _network_forward_time(
     )
 
 
+# long: one benchmark in the order it prints: checks, the reference and batched timings in
+# the same rounds, then the table; splitting it would scatter the rounds' shared state.
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch

@@ -326,6 +326,9 @@ class IntersectionEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 2}
 
+    # long: builds the env's parts in dependency order (config, action table, objectives and
+    # reward space, sensors and observation space, risk envelope, planner, scenes, the
+    # simulator backend), a few lines each; the order is the documentation.
     def __init__(
         self,
         config: EnvConfig | Mapping[str, Any] | None = None,
