@@ -26,7 +26,10 @@ from priqn.agent_config import (
     COMPARATOR_NAMES,
     NORMALISATIONS,
     PREORDER_PRESETS,
+    AgentConfig,
     agent_spec,
+    resolve_agent,
+    resolve_spec,
 )
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
@@ -460,14 +463,13 @@ def _load_policies(raw_policies: Any, exp: ExperimentSpec, p: Path) -> list[Poli
         where = f"{p} [[policy]] {label}"
         pol = from_dict(PolicySpec, raw, where=where)
         _check_name(pol.name, f"{where}.name")
-        if pol.agent not in AGENT_SPECS:
-            raise PriqnError(
-                f"{where}.agent: unknown agent {pol.agent!r} (valid: {', '.join(AGENT_SPECS)})"
-            )
+        # Shipped, an installed priqn.agents entry point or your package.module:NAME (the
+        # experiment file is yours: importing the agent it names is by intent).
+        resolve_agent(pol.agent, f"{where}.agent")
         if pol.name in seen:
             raise PriqnError(f"{where}.name: duplicate policy name {pol.name!r}")
         seen.add(pol.name)
-        if not agent_spec(pol.agent).uses_preorder:
+        if not resolve_spec(AgentConfig(name=pol.agent)).uses_preorder:
             for opt in _PREORDER_OPTIONS:
                 if getattr(pol, opt) is not None:
                     raise PriqnError(

@@ -91,3 +91,25 @@ def test_a_run_folder_cannot_supply_its_agent_module(runs, tmp_path):
             RunFolder(run).config()
     finally:
         sys.path.remove(str(tmp_path))
+
+
+def test_a_sweep_grid_may_name_the_agent_by_path(tmp_path: Path, monkeypatch) -> None:
+    """An experiment row with ``agent = "package.module:NAME"`` expands into cells that
+    train it (the experiment file is the user's own, so its agent is imported by intent)."""
+    from priqn.sweep import expand, load_experiment
+    from priqn.sweep.cells import build_train_config
+
+    monkeypatch.syspath_prepend(str(ROOT))
+    path = tmp_path / "own.toml"
+    path.write_text(
+        f'[experiment]\nname = "own"\nseeds = [0]\nnet = "tjunction"\n'
+        f'[[policy]]\nname = "shielded"\nagent = "{AGENT}"\n'
+        '[[policy]]\nname = "iqn"\nagent = "iqn"\n'
+    )
+    cells = expand(load_experiment(path, runs_dir=tmp_path))
+    assert [(c.policy, c.agent) for c in cells] == [("shielded", AGENT), ("iqn", "iqn")]
+    assert build_train_config(cells[0]).agent.name == AGENT
+    assert cells[0].controls == ()  # a path-named agent gets no near-greedy control
+    path.write_text(path.read_text().replace(AGENT, "tests.agent_example:NO_SUCH"))
+    with pytest.raises(Exception, match=r"own.toml \[\[policy\]\] shielded.agent: module"):
+        load_experiment(path, runs_dir=tmp_path)
