@@ -108,13 +108,18 @@ def virtual_display(size: tuple[int, int] = (1280, 1024)) -> Iterator[str]:
             else:
                 os.environ["DISPLAY"] = saved
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        _stop(proc)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """End ``proc`` (Xvfb or sumo-gui) if it still runs: SIGTERM, then SIGKILL after 10 s."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -271,13 +276,8 @@ class GuiSession:
         if conn is not None:
             with contextlib.suppress(Exception):
                 conn.close(wait=False)
-        if proc is not None and proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        if proc is not None:
+            _stop(proc)
 
     def __enter__(self) -> GuiSession:
         return self
