@@ -1104,7 +1104,9 @@ def test_bench_sweep_times_real_cells_one_then_two_at_a_time(tmp_path: Path) -> 
     assert "concurrent / sequential:" in proc.stdout
     assert f"recommended: jobs={data['recommended_jobs']}" in proc.stdout
     assert proc.stderr.count(" done in ") == 4  # a line per finished cell
-    assert list(scratch.iterdir()) == []  # the temporary runs folder is gone
+    # The temporary runs folder is gone (torch keeps its own inductor cache in TMPDIR: any
+    # training run makes one, compile on or off, at aa4f06e already).
+    assert [p for p in scratch.iterdir() if not p.name.startswith("torchinductor_")] == []
 
 
 def test_commit_commits_only_complete_cells_and_only_their_folders(tmp_path: Path) -> None:

@@ -338,6 +338,39 @@ def _check(args: argparse.Namespace) -> list[int]:
     return counts
 
 
+def measure_modes(
+    args: argparse.Namespace, plans: list[tuple[str, int, int]], gpus: list[str] | None = None
+) -> list[dict[str, Any]]:
+    """:func:`measure_mode` for each ``(mode, jobs, cells)`` of ``plans`` in one scratch runs
+    folder, removed afterwards unless ``--keep`` or a cell failed (its log is in there)."""
+    root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
+    keep = args.keep
+    try:
+        return [
+            measure_mode(
+                root,
+                mode,
+                jobs,
+                cells,
+                args.agent,
+                args.net,
+                args.steps,
+                args.device,
+                gpus,
+                tuple(args.set),
+            )  # fmt: skip
+            for mode, jobs, cells in plans
+        ]
+    except PriqnError:
+        keep = True
+        raise
+    finally:
+        if keep:
+            print(f"runs folder kept: {root}", file=sys.stderr)
+        else:
+            shutil.rmtree(root, ignore_errors=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Entry point of ``priqn bench sweep``."""
     from priqn.experiment import ResourceSpec
@@ -353,31 +386,9 @@ def run(args: argparse.Namespace) -> int:
         f"a time; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
         flush=True,
     )
-    root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
-    keep = args.keep
-    try:
-        modes = [
-            measure_mode(
-                root,
-                name,
-                jobs,
-                args.cells,
-                args.agent,
-                args.net,
-                args.steps,
-                args.device,
-                extra=tuple(args.set),
-            )
-            for name, jobs in (("sequential", 1), ("concurrent", args.jobs))
-        ]
-    except PriqnError:
-        keep = True  # the failed cell's log is in there
-        raise
-    finally:
-        if keep:
-            print(f"runs folder kept: {root}", file=sys.stderr)
-        else:
-            shutil.rmtree(root, ignore_errors=True)
+    modes = measure_modes(
+        args, [("sequential", 1, args.cells), ("concurrent", args.jobs, args.cells)]
+    )
     seq, conc = modes
     ratio = concurrency_ratio(seq["cells_per_hour"], conc["cells_per_hour"])
     best = recommend_jobs(ratio, args.jobs)
@@ -441,32 +452,7 @@ def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
         f"{args.device}{pinned}; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
         flush=True,
     )
-    root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
-    keep = args.keep
-    try:
-        levels = [
-            measure_mode(
-                root,
-                f"x{n}",
-                n,
-                n,
-                args.agent,
-                args.net,
-                args.steps,
-                args.device,
-                gpus,
-                tuple(args.set),
-            )  # fmt: skip
-            for n in counts
-        ]
-    except PriqnError:
-        keep = True
-        raise
-    finally:
-        if keep:
-            print(f"runs folder kept: {root}", file=sys.stderr)
-        else:
-            shutil.rmtree(root, ignore_errors=True)
+    levels = measure_modes(args, [(f"x{n}", n, n) for n in counts], gpus)
     aggregates = [aggregate_rate([c["decisions_per_s"] for c in m["cells"]]) for m in levels]
     ratios = scaling_ratios(aggregates)
     print(
