@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from priqn.errors import PriqnError
-from priqn.objectives import NUM_OBJECTIVES, import_path
+from priqn.objectives import NUM_OBJECTIVES, import_path, import_plugin
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
@@ -308,19 +308,11 @@ def resolve_agent(name: str, where: str = "agent.name") -> AgentDeclaration:
         raise PriqnError(f"{where}: expected an agent name or 'package.module:NAME', got {name!r}")
     if name in SHIPPED_AGENTS:
         obj = import_path(SHIPPED_AGENTS[name], where)
-    elif ":" in name:
-        obj = import_path(name, where)
     else:
-        eps = _entry_points()
-        if name not in eps:
-            raise PriqnError(
-                f"{where}: unknown agent {name!r} (valid: {', '.join([*SHIPPED_AGENTS, *sorted(eps)])}; "
-                "or 'package.module:NAME' naming a priqn.agent_config.AgentSpec)"
-            )
-        try:
-            obj = eps[name].load()
-        except Exception as exc:  # a broken plug-in: one line naming it
-            raise PriqnError(f"{where}: entry point {name!r} failed to load ({exc})") from None
+        obj = import_plugin(
+            name, SHIPPED_AGENTS, _entry_points(), where, "agent", "valid",
+            "priqn.agent_config.AgentSpec",
+        )  # fmt: skip
     if not (isinstance(obj, AgentSpec) or callable(obj)):
         raise PriqnError(
             f"{where}: {name!r} is a {type(obj).__name__}, expected an AgentSpec or a function "

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from priqn.errors import PriqnError
@@ -167,6 +167,34 @@ def import_path(spec: str, where: str) -> Any:
     return obj
 
 
+def import_plugin(
+    name: str,
+    shipped: Iterable[str],
+    entry_points: Mapping[str, Any],
+    where: str,
+    what: str,
+    listed: str,
+    expected: str,
+) -> Any:
+    """A plug-in that is not shipped: ``package.module:NAME`` (:func:`import_path`) or an
+    installed entry point of ``entry_points``, loaded. An unknown name is one line listing
+    the ``shipped`` names and the entry points (``"unknown <what> 'x' (<listed>: ...; or
+    'package.module:NAME' naming a <expected>)"``); a plug-in that fails to load, one line
+    naming it. The one resolver of objectives and agents."""
+    if ":" in name:
+        return import_path(name, where)
+    if name not in entry_points:
+        known = [*shipped, *sorted(entry_points)]
+        raise PriqnError(
+            f"{where}: unknown {what} {name!r} ({listed}: {', '.join(known)}; "
+            f"or 'package.module:NAME' naming a {expected})"
+        )
+    try:
+        return entry_points[name].load()
+    except Exception as exc:  # a broken plug-in: one line naming it
+        raise PriqnError(f"{where}: entry point {name!r} failed to load ({exc})") from None
+
+
 def _path_of(fn: Any) -> str:
     if isinstance(fn, str):
         return fn
@@ -190,20 +218,10 @@ def resolve_objective(entry: str | Objective, where: str = "env.objectives") -> 
         )
     if entry in BUILTIN_OBJECTIVES:
         return BUILTIN_OBJECTIVES[entry]
-    if ":" in entry:
-        obj = import_path(entry, where)
-    else:
-        eps = _entry_points()
-        if entry not in eps:
-            known = [*BUILTIN_OBJECTIVES, *sorted(eps)]
-            raise PriqnError(
-                f"{where}: unknown objective {entry!r} (known: {', '.join(known)}; or "
-                "'package.module:NAME' naming a priqn.objectives.Objective)"
-            )
-        try:
-            obj = eps[entry].load()
-        except Exception as exc:  # a broken plug-in: one line naming it
-            raise PriqnError(f"{where}: entry point {entry!r} failed to load ({exc})") from None
+    obj = import_plugin(
+        entry, BUILTIN_OBJECTIVES, _entry_points(), where, "objective", "known",
+        "priqn.objectives.Objective",
+    )  # fmt: skip
     if not isinstance(obj, Objective):
         raise PriqnError(
             f"{where}: {entry!r} is a {type(obj).__name__}, expected a priqn.objectives.Objective"
