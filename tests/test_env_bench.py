@@ -128,9 +128,11 @@ def test_bench_env_without_the_reference_sensors(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     cmd = [sys.executable, "-m", "priqn.cli", "bench", "env", "--family", "tjunction",
            "--densities", "0.5", "--decisions", "10", "--max-workers", "0", "--obs-size", "32",
-           "--repeats", "1", "--no-sensors-ref", "--json", str(out)]  # fmt: skip
+           "--repeats", "1", "--no-sensors-ref", "--sensors", "numpy", "--json", str(out)]  # fmt: skip
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    env = json.loads(out.read_text())["density"]["0.5"]["env"]
+    data = json.loads(out.read_text())
+    assert data["config"]["sensors"] == "numpy" and "sensors=numpy" in proc.stdout
+    env = data["density"]["0.5"]["env"]
     assert env["sensors_ref_ms"] == 0 and env["parts_ms"]["sensors_ms"] > 0
     assert "(not timed)" in proc.stdout

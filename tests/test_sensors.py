@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from priqn.env import sensor_kernels
 from priqn.env.geometry import Boxes, MapRaster
 from priqn.env.sensors import (
     BEV_CHANNELS,
@@ -273,7 +274,17 @@ def test_ray_casting_matches_a_naive_loop():
 # ----------------------------------------------------------------------------- fast == reference
 # The sensors were rewritten for speed (issue 38); their first implementation is kept in
 # priqn/env/sensors_reference.py. Observations must not change: byte for byte, on
-# synthetic scenes of every kind and on real env states at every density.
+# synthetic scenes of every kind and on real env states at every density, on the numpy
+# path and on the compiled one (priqn/env/sensor_kernels.py, numba).
+
+PATHS = [
+    pytest.param(False, id="numpy"),
+    pytest.param(
+        True,
+        id="compiled",
+        marks=pytest.mark.skipif(not sensor_kernels.AVAILABLE, reason="numba not installed"),
+    ),
+]
 
 
 def _assert_same_observation(new: Sensors, ref, raster, ego, actors, speed=None) -> None:
@@ -296,11 +307,15 @@ def _assert_same_observation(new: Sensors, ref, raster, ego, actors, speed=None)
     ],
     ids=["64px", "128px", "32px-all-channels", "80-beams", "short-range"],
 )
-def test_fast_sensors_equal_the_reference_on_synthetic_scenes(cfg: SensorConfig) -> None:
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fast_sensors_equal_the_reference_on_synthetic_scenes(
+    cfg: SensorConfig, compiled: bool
+) -> None:
     from priqn.env.sensors_reference import ReferenceSensors
 
     rng = np.random.default_rng(38)
-    new, ref = Sensors(cfg), ReferenceSensors(cfg)
+    new, ref = Sensors(cfg, compiled=compiled), ReferenceSensors(cfg)
+    assert new.compiled == compiled
     polys, marks, centres = synthetic_crossroads()
     raster = MapRaster.from_roadmap_arrays(polys, marks, 0.2, cfg.marking_width_m)
     raster = raster.with_route(np.array([[-60.0, -1.75], [60.0, -1.75]]), 3.5)
@@ -326,14 +341,31 @@ def test_fast_sensors_equal_the_reference_on_synthetic_scenes(cfg: SensorConfig)
             )
 
 
+@pytest.mark.parametrize("compiled", PATHS)
+def test_footprint_edges_through_cell_centres_count_as_inside(compiled: bool) -> None:
+    """A box is closed: cell centres on its edges are inside, on both paths."""
+    from priqn.env.sensors_reference import ReferenceSensors
+
+    cfg = SensorConfig(size_px=64)  # 1 m cells; centres at fwd 48 - (r + .5), left 32 - (c + .5)
+    ego = Boxes.make([0.0, 0.0], 0.0, 4.5, 1.8, 1.5)  # heading 0: the ego frame is exact
+    # 4 m x 2 m at fwd 10.5, left 0.5: edges at fwd 8.5 / 12.5 (rows 39 / 35) and left
+    # -0.5 / 1.5 (columns 32 / 30), each through a row or column of cell centres.
+    car = Boxes.make([10.5, 0.5], 0.0, 4.0, 2.0, 1.5)
+    for sensors in (Sensors(cfg, compiled=compiled), ReferenceSensors(cfg)):
+        bev = sensors.bev(big_plaza(), ego, car)
+        assert cells(bev[3] == 255) == block(range(35, 40), range(30, 33))
+
+
 @pytest.mark.parametrize("density", [0.5, 0.75, 1.0])
-def test_fast_sensors_equal_the_reference_on_env_states(density: float) -> None:
+@pytest.mark.parametrize("compiled", PATHS)
+def test_fast_sensors_equal_the_reference_on_env_states(density: float, compiled: bool) -> None:
     """Seeded episodes of the real env: every observation of every step, both ways."""
     from priqn.env.intersection import EnvConfig, IntersectionEnv
     from priqn.env.sensors_reference import ReferenceSensors
 
     env = IntersectionEnv(EnvConfig(family="all", obs_size_px=64, max_episode_steps=30))
-    new, ref = Sensors(env._sensors.cfg), ReferenceSensors(env._sensors.cfg)
+    new = Sensors(env._sensors.cfg, compiled=compiled)
+    ref = ReferenceSensors(env._sensors.cfg)
     fast = env._sensors.observe
     seen = []
 

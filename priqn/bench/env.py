@@ -22,7 +22,10 @@ The sensors are also timed against their first implementation
 (:class:`~priqn.env.sensors_reference.ReferenceSensors`) on the same states: every
 ``observe`` of a step is repeated by the reference, in alternating order (reference
 first on every other decision), outside the step's timing, and the two outputs are
-compared byte for byte (``sensors ref ms``, ``sensors mismatches``).
+compared byte for byte (``sensors ref ms``, ``sensors mismatches``). ``--sensors numpy``
+times the sensors' numpy path instead of the compiled one (numba,
+:mod:`priqn.env.sensor_kernels`); either way one observation is made before the timing,
+so that the loops are compiled or loaded from numba's cache first.
 
 Each density is measured ``--repeats`` times in fresh processes; the table shows the
 run with the median ``env/floor`` ratio (the env's cost over SUMO's own).
@@ -72,6 +75,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help="do not time the reference sensors beside the fast ones (their runs warm the "
         "caches of the rest of the step; leave them out for a per-part breakdown alone)",
     )
+    parser.add_argument(
+        "--sensors",
+        choices=("compiled", "numpy"),
+        default="compiled",
+        help="the sensors' path to time: compiled loops (numba, the default where it is "
+        "installed) or numpy; both give the same grids",
+    )
 
 
 # long: one benchmark in the order it prints: flag checks, per-density rounds (env, floor,
@@ -95,16 +105,29 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError("--max-workers: expected >= 0 (0 skips the vector env)")
     if args.repeats < 1:
         raise PriqnError("--repeats: expected >= 1")
+    from priqn.env import sensor_kernels
+
+    if args.sensors == "compiled" and not sensor_kernels.AVAILABLE:
+        raise PriqnError("--sensors compiled: numba is not installed (pip install numba)")
     base = {"family": args.family, "obs_size_px": args.obs_size, "seed": args.seed}
-    env_base = {**base, "sensors_ref": not args.no_sensors_ref}
+    env_base = {
+        **base,
+        "sensors_ref": not args.no_sensors_ref,
+        "sensors_compiled": args.sensors == "compiled",
+    }
     results: dict[str, Any] = {
-        "config": {**base, "decisions": args.decisions, "repeats": args.repeats},
+        "config": {
+            **base,
+            "decisions": args.decisions,
+            "repeats": args.repeats,
+            "sensors": args.sensors,
+        },
         "density": {},
         "vector": {},
     }
     print(
         f"priqn bench env: family={args.family} obs={args.obs_size}px "
-        f"decisions={args.decisions} repeats={args.repeats} (medians)"
+        f"decisions={args.decisions} repeats={args.repeats} sensors={args.sensors} (medians)"
     )
     print(
         f"{'density':>7} {'env dec/s':>9} {'floor dec/s':>11} {'env/floor':>9} "
@@ -284,8 +307,14 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
 def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
 
+    from priqn.env.sensors import Sensors
+
     n_off = env.config.n_offsets
     policy = np.random.default_rng(spec["seed"] + 1)
+    compiled = spec.get("sensors_compiled", True)
+    if env._sensors.compiled != compiled:  # the env's own choice is numba where installed
+        env._sensors = env._render_sensors = Sensors(env._sensors.cfg, compiled=compiled)
+    env.reset(seed=spec["seed"])  # the first observation compiles (or loads) the loops
     parts = _time_parts(env, sensors_ref=spec.get("sensors_ref", True))
     sim_step = parts.pop("simulation_step")  # the unwrapped libsumo step, for the floor
     episodes, step_s, reset_s, done, floor_s = [], 0.0, 0.0, 0, 0.0
@@ -427,6 +456,8 @@ def _with_reference(sensors: Any, in_step: list[bool], totals: dict[str, Any]) -
         if not in_step[0]:
             return new(*a, **k)
         t_in = time.perf_counter()
+        if not calls[0]:  # the reference's first call pays one-off costs (~0.4 s): untimed
+            ref(*a, **k)
         calls[0] += 1
         out, took = {}, {}
         for name in ("ref", "new") if calls[0] % 2 else ("new", "ref"):

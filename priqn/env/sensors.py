@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from priqn.env import sensor_kernels
 from priqn.env.geometry import DRIVABLE, MARKING, ROUTE, Boxes, MapRaster
 
 BEV_CHANNELS: dict[str, str] = {
@@ -63,6 +64,8 @@ _FLIP_21 = np.array([[-1.0], [1.0]])
 """Signs that make ``(sin, cos)·hw`` the left half-width vector ``(−sin·hw, cos·hw)``."""
 _NEXT = np.array([1, 2, 3, 0])
 """The corner after each corner: edge j runs from corner j to corner ``_NEXT[j]``."""
+_NO_FACES = (np.zeros((6, 0)), np.zeros(0, np.intp), np.zeros(0, np.intp))
+"""``Sensors._front_faces`` of no boxes."""
 
 
 @dataclass(frozen=True)
@@ -140,10 +143,18 @@ class SensorConfig:
 
 
 class Sensors:
-    """Builds BEV and LiDAR observations; precomputes everything that does not move."""
+    """Builds BEV and LiDAR observations; precomputes everything that does not move.
 
-    def __init__(self, cfg: SensorConfig | None = None) -> None:
+    ``compiled``: run the per-observation loops of :mod:`priqn.env.sensor_kernels`
+    (numba) instead of the numpy path; same grids byte for byte. Default: wherever numba
+    imports.
+    """
+
+    def __init__(self, cfg: SensorConfig | None = None, compiled: bool | None = None) -> None:
         self.cfg = cfg = cfg or SensorConfig()
+        if compiled and not sensor_kernels.AVAILABLE:
+            raise ImportError("Sensors(compiled=True) needs numba: pip install numba")
+        self.compiled = sensor_kernels.AVAILABLE if compiled is None else compiled
         n = cfg.size_px
         res = cfg.metres_per_px
         self._res = res
@@ -208,6 +219,8 @@ class Sensors:
             [self._fwd_max - (pad + 0.5) * res, self._left_max - (pad + 0.5) * res]
         )
         self._centre_axis_21 = np.array([[0], [n + 2]])
+        self._centre_fwd_P = np.ascontiguousarray(self._centre_2Q[: n + 2])
+        self._centre_left_P = np.ascontiguousarray(self._centre_2Q[n + 2 :])
         self._ego_mask_key: tuple[float, float] | None = None
         self._ego_mask = np.zeros(n * n, dtype=bool)
 
@@ -324,10 +337,16 @@ class Sensors:
         ox, oy = map_raster.origin_xy
         hgt, wid = map_raster.bits.shape
         # World position in raster cells, as float32 (one fused expression per axis).
-        fx = self._pix_fwd * np.float32(c / res) - self._pix_left * np.float32(s / res)
-        fx += np.float32((ex - ox) / res)
-        fy = self._pix_fwd * np.float32(s / res) + self._pix_left * np.float32(c / res)
-        fy += np.float32((ey - oy) / res)
+        c_res, s_res = np.float32(c / res), np.float32(s / res)
+        x0, y0 = np.float32((ex - ox) / res), np.float32((ey - oy) / res)
+        if self.compiled:
+            return sensor_kernels.sample_map(
+                self._pix_fwd, self._pix_left, c_res, s_res, x0, y0, map_raster.bits
+            )
+        fx = self._pix_fwd * c_res - self._pix_left * s_res
+        fx += x0
+        fy = self._pix_fwd * s_res + self._pix_left * c_res
+        fy += y0
         ix = np.clip(fx, 0, wid - 1).astype(np.intp)  # trunc == floor once clipped >= 0
         iy = np.clip(fy, 0, hgt - 1).astype(np.intp)
         iy *= wid
@@ -374,6 +393,13 @@ class Sensors:
         )
         return rel, idx
 
+    def _box_halves(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, int]:
+        """``(half_len_M, half_wid_M, k)``: the half sizes a footprint is drawn with (at
+        least ``res/√2``) and the patch half-size k that holds the largest one."""
+        hl_M = np.maximum(0.5 * rel.length_m, self._min_half)
+        hw_M = np.maximum(0.5 * rel.width_m, self._min_half)
+        return hl_M, hw_M, int(np.ceil(np.max(np.hypot(hl_M, hw_M)) / self._res)) + 1
+
     def _box_cells(
         self, rel: Boxes, with_box: bool = False
     ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -390,9 +416,7 @@ class Sensors:
         res = self._res
         if len(rel) == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp) if with_box else None
-        hl_M = np.maximum(0.5 * rel.length_m, self._min_half)
-        hw_M = np.maximum(0.5 * rel.width_m, self._min_half)
-        k = int(np.ceil(np.max(np.hypot(hl_M, hw_M)) / res)) + 1
+        hl_M, hw_M, k = self._box_halves(rel)
         # Padded (row, col) of the patch around each box's centre cell.
         rc0_M2 = np.floor((self._grid_base_2 - rel.center_xy) / res).astype(np.intp)
         rc_M2K = np.clip(rc0_M2[:, :, None] + np.arange(1 - k, k + 2), 0, n + 1)
@@ -440,8 +464,19 @@ class Sensors:
             if name == "ego":
                 out_CHW[ci].reshape(-1)[self._ego_cells(ego)] = 255
                 continue
-            cells, boxes = self._box_cells(rel, with_box=name == "actor_speed")
             canvas_Q = np.zeros((n + 2) * (n + 2), np.uint8)
+            if name == "actors" and self.compiled:
+                if len(rel):
+                    hl_M, hw_M, k = self._box_halves(rel)
+                    sensor_kernels.fill_boxes(
+                        canvas_Q, np.uint8(255), rel.center_xy[:, 0], rel.center_xy[:, 1],
+                        np.cos(rel.heading_rad), np.sin(rel.heading_rad), hl_M, hw_M, k,
+                        self._centre_fwd_P, self._centre_left_P, self._fwd_max,
+                        self._left_max, self._res,
+                    )  # fmt: skip
+                out_CHW[ci] = self._crop(canvas_Q)
+                continue
+            cells, boxes = self._box_cells(rel, with_box=name == "actor_speed")
             if name == "actors":
                 canvas_Q[cells] = 255
             else:  # actor_speed
@@ -454,19 +489,16 @@ class Sensors:
             out_CHW[ci] = self._crop(canvas_Q)
         return out_CHW
 
-    def _face_hits(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(ray_N, range_N, height_N)``: every (ray, sensor-facing box edge) intersection
-        within range, sorted by ray, then range; ``height_N`` is the box's height.
+    def _front_faces(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(front_6F, k0_F, n_F)``: the F box edges facing the sensor, as rows corner x,
+        y; edge (to the next corner) x, y; cross(corner, edge); box height; and the rays
+        ``k0_F[f] .. k0_F[f] + n_F[f] - 1`` (mod R) inside each one's angular span.
 
-        Only the rays inside each edge's angular span can meet it: those (ray, edge) pairs
-        are listed instead of testing all rays against all edges. The edge quantities are
-        rows of one array, so that each selection and gather is one numpy call.
+        The edge quantities are rows of one array, so that each selection and gather is
+        one numpy call.
         """
-        cfg = self.cfg
-        rays = cfg.lidar_rays
-        # Corners counter-clockwise from the front-right one (as geometry.boxes_corners).
-        # Rows of edges_6M4: corner x, y; edge (to the next corner) x, y; cross(corner,
-        # edge); box height. x = (c_x + ±cos·hl) + ±(−sin·hw), y = (c_y + ±sin·hl) + ±cos·hw.
+        # Corners counter-clockwise from the front-right one (as geometry.boxes_corners):
+        # x = (c_x + ±cos·hl) + ±(−sin·hw), y = (c_y + ±sin·hl) + ±cos·hw.
         cs_2M = np.stack([np.cos(rel.heading_rad), np.sin(rel.heading_rad)])
         fwd_2M1 = (cs_2M * (0.5 * rel.length_m))[:, :, None]
         left_2M1 = (cs_2M[::-1] * (0.5 * rel.width_m) * _FLIP_21)[:, :, None]
@@ -479,18 +511,28 @@ class Sensors:
         np.subtract(edges_6M4[0] * edges_6M4[3], edges_6M4[1] * edges_6M4[2], out=edges_6M4[4])
         edges_6M4[5] = rel.height_m[:, None]
         front_6F = edges_6M4[:, edges_6M4[4] < 0]  # edges facing the sensor (counter-clockwise)
-        px, py, ex, ey, cpe, height = front_6F
-        dth = 2 * np.pi / rays
+        px, py, ex, ey = front_6F[:4]
+        dth = 2 * np.pi / self.cfg.lidar_rays
         az_p = np.arctan2(py, px)
         az_q = np.arctan2(py + ey, px + ex)  # front edges run clockwise: span [az_q, az_p]
         width = np.mod(az_p - az_q, 2 * np.pi)
         k0 = np.ceil(az_q / dth - 1e-9).astype(np.intp)
         k1 = np.floor((az_q + width) / dth + 1e-9).astype(np.intp)
-        n_F = np.maximum(k1 - k0 + 1, 0)
+        return front_6F, k0, np.maximum(k1 - k0 + 1, 0)
+
+    def _face_hits(self, rel: Boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ray_N, range_N, height_N)``: every (ray, sensor-facing box edge) intersection
+        within range, sorted by ray, then range; ``height_N`` is the box's height.
+
+        Only the rays inside each edge's angular span can meet it: those (ray, edge) pairs
+        are listed instead of testing all rays against all edges.
+        """
+        cfg = self.cfg
+        front_6F, k0, n_F = self._front_faces(rel)
         e_i = np.repeat(np.arange(len(n_F)), n_F)
         r_i = np.repeat(k0 - (np.cumsum(n_F) - n_F), n_F)
         r_i += np.arange(len(e_i))
-        r_i %= rays
+        r_i %= cfg.lidar_rays
         ux, uy = self._ray_cos[r_i], self._ray_sin[r_i]
         px, py, ex, ey, cpe, height = front_6F[:, e_i]
         den = ux * ey - uy * ex  # cross(u, e)
@@ -535,6 +577,16 @@ class Sensors:
         """``lidar_2HW``: ground returns of the drivable cells less those a face blocks,
         plus the face returns (counted on the padded canvas, then cut to the grid)."""
         n = self.cfg.size_px
+        if self.compiled:
+            cfg = self.cfg
+            front_6F, k0_F, n_F = self._front_faces(rel) if len(rel) else _NO_FACES
+            return sensor_kernels.lidar_grid(
+                *front_6F, k0_F, n_F, self._ray_cos, self._ray_sin, self._tan_el,
+                self._ground_pad_RK, self._g_count, bits_HW, DRIVABLE, n,
+                cfg.lidar_range_m, cfg.lidar_height_m,
+                cfg.lidar_split_height_m - cfg.lidar_height_m,
+                self._fwd_max, self._left_max, self._res,
+            )  # fmt: skip
         drivable_HW = ((bits_HW & DRIVABLE) != 0).reshape(n, n)
         out = np.empty((2, n, n), dtype=np.uint8)
         ray_N, range_N, height_N = self._face_hits(rel) if len(rel) else (np.zeros(0),) * 3
