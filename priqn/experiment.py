@@ -313,19 +313,11 @@ class Experiment:
 
     def row_config(self, policy: PolicySpec, seed: int) -> Any:
         """The :class:`~priqn.train_config.TrainConfig` ``policy``'s row trains with ``seed``
-        (what ``priqn train`` builds from the preset, the flags and the overrides)."""
-        from priqn.train_config import resolve_config
+        (what ``priqn train`` builds from the preset, the flags and the overrides; the
+        sweep's :func:`~priqn.sweep.cells.build_train_config` of that cell)."""
+        from priqn.sweep.cells import build_train_config, cell_of
 
-        e = self.experiment
-        return resolve_config(
-            preset=e.preset,
-            agent=policy.agent,
-            seed=seed,
-            net=e.net,
-            steps=self.row_steps(policy),
-            overrides=[*e.set, *policy_overrides(policy)],
-            where=f"{self.path} ({policy.name})",
-        )
+        return build_train_config(cell_of(self, policy, seed))
 
     def group(self, name: str) -> list[PolicySpec]:
         """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""

@@ -16,7 +16,13 @@ from typing import Any
 from priqn.agent_config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
-from priqn.experiment import Experiment, cell_dir_name, policy_difference, policy_overrides
+from priqn.experiment import (
+    Experiment,
+    PolicySpec,
+    cell_dir_name,
+    policy_difference,
+    policy_overrides,
+)
 from priqn.io import read_json
 from priqn.runs import RunFolder, Status
 
@@ -111,24 +117,27 @@ def expand(exp: Experiment) -> list[Cell]:
         pairs = [(pol, seed) for seed in seeds for pol in rows if seed in exp.row_seeds(pol)]
     if e.order == "cost":
         pairs.sort(key=lambda ps: -ps[0].cost)
-    return [
-        Cell(
-            experiment=e.name,
-            policy=pol.name,
-            seed=seed,
-            run_dir=exp.cell_dir(pol.name, seed),
-            agent=pol.agent,
-            net=e.net,
-            preset=e.preset,
-            steps=exp.row_steps(pol),
-            overrides=tuple(e.set) + tuple(policy_overrides(pol)),
-            evaluate=dict(exp.evaluate),
-            source=str(exp.path),
-            controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
-            snapshots=pol.keep_at,
-        )
-        for pol, seed in pairs
-    ]
+    return [cell_of(exp, pol, seed) for pol, seed in pairs]
+
+
+def cell_of(exp: Experiment, pol: PolicySpec, seed: int) -> Cell:
+    """Row ``pol`` of ``exp`` trained with ``seed``, as a :class:`Cell`."""
+    e = exp.experiment
+    return Cell(
+        experiment=e.name,
+        policy=pol.name,
+        seed=seed,
+        run_dir=exp.cell_dir(pol.name, seed),
+        agent=pol.agent,
+        net=e.net,
+        preset=e.preset,
+        steps=exp.row_steps(pol),
+        overrides=tuple(e.set) + tuple(policy_overrides(pol)),
+        evaluate=dict(exp.evaluate),
+        source=str(exp.path),
+        controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
+        snapshots=pol.keep_at,
+    )
 
 
 def _first_index(items: list[int]) -> Any:
