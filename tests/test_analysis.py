@@ -264,28 +264,6 @@ def test_vectorised_improvement_equals_rliable() -> None:
         )
 
 
-def test_learning_curve_from_priqn_metrics() -> None:
-    from priqn.analysis.load import EVAL_SUCCESS_CURVE, learning_curves_of
-
-    metrics = pd.DataFrame(
-        {
-            "kind": ["train", "eval", "eval", "train", "eval", "eval"],
-            "step": [5, 10, 10, 15, 20, 20],
-            "return_weighted": [1.0, 0.0, 0.0, 3.0, 0.0, 0.0],
-            "success": [False, True, False, False, True, True],
-        }
-    )
-    x_name, curves = learning_curves_of(metrics)
-    assert x_name == "step"
-    success = curves[EVAL_SUCCESS_CURVE]
-    assert success["x"].tolist() == [10, 20] and success["y"].tolist() == [0.5, 1.0]
-    (ret_name,) = [n for n in curves if n.startswith("return_weighted")]
-    assert curves[ret_name]["y"].tolist() == [1.0, 2.0]  # trailing mean
-    x_name, curves = learning_curves_of(metrics[metrics["kind"] == "train"])
-    assert list(curves) == [ret_name]
-    assert "no step column" in learning_curves_of(pd.DataFrame({"a": [1]}))
-
-
 def test_config_cells_and_order() -> None:
     pr = ("pr-iqn", "qd", True, "[0.2, 0.4]", False)
     assert tables.config_cells(pr) == ["Pr-IQN", "QD", "✓", "0.2/0.4", "✗"]
