@@ -618,6 +618,14 @@ def test_cli_exit_status_summary_and_list(tmp_path: Path, fake_cells: str) -> No
         "fake: 2 cells: 1 complete, 1 new",
         "fake: time left for 1 cell(s): unknown until boom has a complete cell to time it by",
     ]
+    only = subprocess.run(
+        _sweep_cli(exp_path, "--list", "--only", "fake/boom*"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert [line.split()[:2] for line in only.stdout.splitlines()] == [["fake/boom__seed0", "new"]]
+    assert only.stderr.splitlines()[0] == "fake: 1 cells: 1 new"
     bad = subprocess.run(
         _sweep_cli(exp_path, "--jobs", "0"), capture_output=True, text=True, timeout=60
     )

@@ -9,6 +9,8 @@ is ``<runs_dir>/<experiment>/<policy>__seed<k>`` (:func:`priqn.experiment.cell_d
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -118,6 +120,17 @@ def expand(exp: Experiment) -> list[Cell]:
     if e.order == "cost":
         pairs.sort(key=lambda ps: -ps[0].cost)
     return [cell_of(exp, pol, seed) for pol, seed in pairs]
+
+
+def select(cells: list[Cell], only: Sequence[str], source: Any) -> list[Cell]:
+    """The cells whose name matches one of the glob patterns ``only`` (all when empty);
+    a one-line error naming ``source`` when none does (``--only``)."""
+    if not only:
+        return cells
+    kept = [c for c in cells if any(fnmatch.fnmatch(c.name, pat) for pat in only)]
+    if not kept:
+        raise PriqnError(f"--only {' '.join(only)}: matches no cell of {source}")
+    return kept
 
 
 def cell_of(exp: Experiment, pol: PolicySpec, seed: int) -> Cell:

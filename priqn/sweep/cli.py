@@ -13,7 +13,7 @@ from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, load_experiment
 from priqn.paths import EXPERIMENTS, shipped
 from priqn.runs import Status
-from priqn.sweep.cells import expand, stale_cells, time_left, validate
+from priqn.sweep.cells import expand, select, stale_cells, time_left, validate
 from priqn.sweep.process import DEFAULT_CELL_FN
 from priqn.sweep.scheduler import SweepFolder, default_jobs, run_sweep
 
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--retries {args.retries}: expected 0 or more")
     code_dir = _code_dir(args.code)
     if args.list:
-        _list(exp, args.jobs)
+        _list(exp, args.jobs, args.only or ())
         return 0
     if args.forecast is not None:
         return _forecast(exp, args.forecast)
@@ -213,18 +213,19 @@ def _forecast(exp: Any, sims: int) -> int:
     return 0
 
 
-def _list(exp: Any, jobs: int | None) -> None:
-    """``--list``: every cell and its state (stdout); for a sequential design, which cells
-    the next look needs; the tally and the time left (:func:`time_left`) on stderr."""
+def _list(exp: Any, jobs: int | None, only: list[str] | tuple[str, ...] = ()) -> None:
+    """``--list``: every cell (those matching ``--only``) and its state (stdout); for a
+    sequential design, which cells the next look needs; the tally and the time left
+    (:func:`time_left`) on stderr."""
     needed: set[str] = set()
     if exp.designs:
         next_cells, where = _design_plan(exp)
         needed = {cell_dir_name(p, s) for p, s in next_cells}
-    cells = expand(exp)
+    cells = select(expand(exp), only, exp.path)
     states = [c.state() for c in cells]
     for c, state in zip(cells, states, strict=True):
         mark = "  <- next look" if c.run_dir.name in needed else ""
-        print(f"{c.name:<48} {state:<9} {c.run_dir}{mark}")
+        print(f"{c.name:<48} {state:<11} {c.run_dir}{mark}")
     counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
     # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
     print(f"{exp.experiment.name}: {len(cells)} cells: {counts}", file=sys.stderr)

@@ -10,7 +10,6 @@ files live in the experiment folder's ``.sweep/`` (:class:`SweepFolder`).
 from __future__ import annotations
 
 import contextlib
-import fnmatch
 import os
 import sys
 import time
@@ -24,7 +23,7 @@ from priqn.errors import PriqnError
 from priqn.experiment import Experiment, ResourceSpec
 from priqn.io import atomic_write_json
 from priqn.sweep.backends import Backend, LocalBackend, RayBackend
-from priqn.sweep.cells import Cell, expand
+from priqn.sweep.cells import Cell, expand, select
 from priqn.sweep.process import DEFAULT_CELL_FN, describe_failure
 
 # --------------------------------------------------------------------------- the sweep's files
@@ -160,11 +159,7 @@ def run_sweep(
     KeyboardInterrupt after writing the sweep summary.
     """
     say = log or (lambda msg: print(msg, file=sys.stderr))
-    cells = expand(exp)
-    if only:
-        cells = [c for c in cells if any(fnmatch.fnmatch(c.name, pat) for pat in only)]
-        if not cells:
-            raise PriqnError(f"--only {' '.join(only)}: matches no cell of {exp.path}")
+    cells = select(expand(exp), only, exp.path)
     exp_dir = exp.runs_dir
     exp_dir.mkdir(parents=True, exist_ok=True)
     result = SweepResult()
