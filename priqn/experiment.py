@@ -314,10 +314,22 @@ class Experiment:
     def row_config(self, policy: PolicySpec, seed: int) -> Any:
         """The :class:`~priqn.train_config.TrainConfig` ``policy``'s row trains with ``seed``
         (what ``priqn train`` builds from the preset, the flags and the overrides; the
-        sweep's :func:`~priqn.sweep.cells.build_train_config` of that cell)."""
-        from priqn.sweep.cells import build_train_config, cell_of
+        sweep's cells carry the same fields)."""
+        from priqn.train_config import resolve_config
 
-        return build_train_config(cell_of(self, policy, seed))
+        return resolve_config(
+            preset=self.experiment.preset,
+            agent=policy.agent,
+            seed=seed,
+            net=self.experiment.net,
+            steps=self.row_steps(policy),
+            overrides=list(self.row_overrides(policy)),
+            where=f"{self.path} ({policy.name})",
+        )
+
+    def row_overrides(self, policy: PolicySpec) -> tuple[str, ...]:
+        """``policy``'s row's ``--set`` overrides: ``[experiment].set``, then the row's own."""
+        return (*self.experiment.set, *policy_overrides(policy))
 
     def group(self, name: str) -> list[PolicySpec]:
         """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""

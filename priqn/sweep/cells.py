@@ -18,13 +18,7 @@ from typing import Any
 from priqn.agent_config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
-from priqn.experiment import (
-    Experiment,
-    PolicySpec,
-    cell_dir_name,
-    policy_difference,
-    policy_overrides,
-)
+from priqn.experiment import Experiment, PolicySpec, cell_dir_name, policy_difference
 from priqn.io import read_json
 from priqn.runs import RunFolder, Status
 
@@ -145,7 +139,7 @@ def cell_of(exp: Experiment, pol: PolicySpec, seed: int) -> Cell:
         net=e.net,
         preset=e.preset,
         steps=exp.row_steps(pol),
-        overrides=tuple(e.set) + tuple(policy_overrides(pol)),
+        overrides=exp.row_overrides(pol),
         evaluate=dict(exp.evaluate),
         source=str(exp.path),
         controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
