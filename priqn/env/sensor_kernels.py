@@ -111,7 +111,7 @@ def fill_boxes(
 
 
 @_njit
-def lidar_grid(
+def face_hits(
     px_F: np.ndarray,
     py_F: np.ndarray,
     ex_F: np.ndarray,
@@ -122,28 +122,11 @@ def lidar_grid(
     n_F: np.ndarray,
     ray_cos_R: np.ndarray,
     ray_sin_R: np.ndarray,
-    tan_el_K: np.ndarray,
-    ground_pad_RK: np.ndarray,
-    ground_count_Q: np.ndarray,
-    bits_Q: np.ndarray,
-    drivable_bit: np.uint8,
-    n: int,
     range_m: float,
-    sensor_h_m: float,
-    split_m: float,
-    fwd_max: float,
-    left_max: float,
-    res: float,
-) -> np.ndarray:
-    """``lidar uint8 [2, n, n]`` from the F sensor-facing box edges (``Sensors._face_hits``
-    after its trigonometry, ``_claims`` and ``_lidar_from`` in one pass).
-
-    Edge f runs from corner ``(px, py)`` along ``(ex, ey)``; ``cpe`` = cross(corner,
-    edge); rays ``k0[f] .. k0[f] + n[f] - 1`` (mod R) lie in its angular span.
-    ``split_m`` is the split height less the sensor height.
-    """
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(ray_N, range_N, height_N)`` as ``Sensors._face_hits`` after its trigonometry:
+    every (ray, edge) intersection within range, by ray, nearest face first."""
     rays = ray_cos_R.shape[0]
-    beams = tan_el_K.shape[0]
     total = 0
     for f in range(n_F.shape[0]):
         total += n_F[f]
@@ -168,12 +151,51 @@ def lidar_grid(
     # By ray, nearest face first; ties in (edge, ray) order (np.lexsort's).
     by_t = np.argsort(t_N, kind="mergesort")
     order = by_t[np.argsort(ray_N[by_t], kind="mergesort")]
+    return ray_N[order], t_N[order], h_N[order]
+
+
+@_njit
+def lidar_grid(
+    px_F: np.ndarray,
+    py_F: np.ndarray,
+    ex_F: np.ndarray,
+    ey_F: np.ndarray,
+    cpe_F: np.ndarray,
+    height_F: np.ndarray,
+    k0_F: np.ndarray,
+    n_F: np.ndarray,
+    ray_cos_R: np.ndarray,
+    ray_sin_R: np.ndarray,
+    tan_el_K: np.ndarray,
+    ground_pad_RK: np.ndarray,
+    ground_count_Q: np.ndarray,
+    bits_Q: np.ndarray,
+    drivable_bit: np.uint8,
+    n: int,
+    range_m: float,
+    sensor_h_m: float,
+    split_m: float,
+    fwd_max: float,
+    left_max: float,
+    res: float,
+) -> np.ndarray:
+    """``lidar uint8 [2, n, n]`` from the F sensor-facing box edges: :func:`face_hits`,
+    then ``Sensors._claims`` and ``_lidar_from`` in one pass.
+
+    Edge f runs from corner ``(px, py)`` along ``(ex, ey)``; ``cpe`` = cross(corner,
+    edge); rays ``k0[f] .. k0[f] + n[f] - 1`` (mod R) lie in its angular span.
+    ``split_m`` is the split height less the sensor height.
+    """
+    ray_N, t_N, h_N = face_hits(
+        px_F, py_F, ex_F, ey_F, cpe_F, height_F, k0_F, n_F, ray_cos_R, ray_sin_R, range_m
+    )
+    beams = tan_el_K.shape[0]
     side = n + 2
     blocked_Q = np.zeros(side * side, np.int64)
     low_Q = np.zeros(side * side, np.int64)
     high_Q = np.zeros(side * side, np.int64)
     ray_prev, best = -1, 0
-    for i in order:
+    for i in range(ray_N.shape[0]):
         r, t = ray_N[i], t_N[i]
         if r != ray_prev:  # the running maximum of k_hi restarts on each ray
             ray_prev, best = r, 0
