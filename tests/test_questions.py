@@ -152,6 +152,35 @@ def test_next_cells_are_the_grids_own_cells_the_next_looks_need(tmp_path: Path) 
     ]  # fmt: skip
 
 
+def test_forecast_of_each_question_in_its_own_words(tmp_path: Path, capsys) -> None:
+    """Two complete seeds per group (no spread): every simulated completion repeats them,
+    so the forecast is certain; violation words, and no paper scenario without a paper
+    difference. A question short of two seeds per group is named and skipped."""
+    from priqn.cli import main
+
+    exp = grid(tmp_path, seeds=[0, 1])
+    safety, long = exp.questions
+    table = questions.forecast(exp, safety, sims=3)
+    assert table[["scenario", "verdict", "share"]].values.tolist() == [
+        ["observed", "a violates more", 1.0]
+    ]
+    table = questions.forecast(exp, long, sims=3)
+    assert list(table["scenario"].unique()) == ["observed", "paper"]
+    observed = table[table["scenario"] == "observed"]
+    assert observed[["verdict", "share"]].values.tolist() == [["reproduced", 1.0]]
+    assert main(["sweep", str(exp.path), "--forecast", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "qx safety: if the seeds still to train (up to 8 per row)" in out
+    assert "a vs b: a violates more 100%" in out
+    (tmp_path / "one").mkdir()
+    grid(tmp_path / "one", seeds=[0])
+    assert main(["sweep", str(tmp_path / "one" / "qx.toml"), "--forecast", "2"]) == 0
+    assert (
+        "qx safety: not forecast (need at least 2 committed seeds per row: a (1), b (1))"
+        in capsys.readouterr().out
+    )
+
+
 def test_a_cell_at_another_commit_is_refused_in_one_line(tmp_path: Path) -> None:
     exp = grid(tmp_path, commits='["0123456789abcdef"]', sha="fedcba9876543210")
     with pytest.raises(PriqnError, match=r"trained at commit fedcba987654, which .* does not list"):

@@ -85,12 +85,16 @@ def forecast(
     permutations: int = PERMUTATIONS,
     seed: int = 0,
     on_sim: Callable[[], None] | None = None,
+    scenarios: tuple[str, ...] = SCENARIOS,
 ) -> pd.DataFrame:
-    """:data:`FORECAST_COLUMNS` for every scenario and comparison (see the module docstring).
+    """:data:`FORECAST_COLUMNS` for every scenario (of ``scenarios``) and comparison (see
+    the module docstring).
 
-    ``scores`` are the committed cells (:func:`sequential.collect_scores`); every row needs
-    at least two seeds for its spread. ``seed`` seeds the draws and the permutations;
-    ``on_sim`` is called once per simulated experiment (a progress bar)."""
+    ``exp``: an experiment with a ``sequential`` design, or anything shaped like one
+    (:class:`priqn.analysis.questions.QuestionView`). ``scores`` are the committed cells
+    (:func:`sequential.collect_scores`); every row needs at least two seeds for its
+    spread. ``seed`` seeds the draws and the permutations; ``on_sim`` is called once per
+    simulated experiment (a progress bar)."""
     seq = exp.sequential
     have = committed_rows(exp, scores)
     rows = list(have)
@@ -99,7 +103,7 @@ def forecast(
     cap, cap_look = seq.interims[-1], len(seq.interims)
     rng = np.random.default_rng(seed)
     out = []
-    for scenario in SCENARIOS:
+    for scenario in scenarios:
         means = scenario_means(exp, observed, scenario)
         verdicts: dict[str, dict[str, int]] = {c.name: {} for c in seq.comparisons}
         seeds_used = dict.fromkeys(verdicts, 0)

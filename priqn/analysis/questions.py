@@ -22,11 +22,13 @@ The report is :mod:`priqn.analysis.questions_report`.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
+from priqn.analysis import forecast as planning
 from priqn.analysis import sequential
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
@@ -171,10 +173,44 @@ def verdict(question: SequentialSpec, result: sequential.Replay, comparison: Any
     the headline's for a success comparison; for a violation rate (lower is better, no
     paper difference) ``a violates more`` / ``a violates less`` / ``no difference
     found at N seeds``."""
-    word = sequential.verdict(view(question), result, comparison)
+    return reword(question, comparison, sequential.verdict(view(question), result, comparison))
+
+
+def reword(question: SequentialSpec, comparison: Any, word: str) -> str:
+    """A verdict word of :func:`priqn.analysis.sequential.verdict` in the question's own
+    words: for a violation rate without a paper difference, ``a better`` is ``a violates
+    more`` and ``a worse`` ``a violates less``."""
     if question.endpoint != "violation" or comparison.paper_difference is not None:
         return word
     return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
+
+
+def forecast(
+    exp: Experiment,
+    question: SequentialSpec,
+    sims: int,
+    seed: int = 0,
+    on_sim: Callable[[], None] | None = None,
+) -> pd.DataFrame:
+    """:func:`priqn.analysis.forecast.forecast` of one question from its complete cells,
+    with the question's verdict words; the ``paper`` scenario only where a comparison
+    has a paper difference. Planning only. A one-line PriqnError when a group has fewer
+    than two complete seeds (no spread to draw from)."""
+    with_paper = any(c.paper_difference is not None for c in question.comparisons)
+    table = planning.forecast(
+        view(question),
+        collect(exp, question),
+        sims=sims,
+        seed=seed,
+        on_sim=on_sim,
+        scenarios=planning.SCENARIOS if with_paper else ("observed",),
+    )
+    by_name = {c.name: c for c in question.comparisons}
+    table["verdict"] = [
+        reword(question, by_name[name], word)
+        for name, word in zip(table["comparison"], table["verdict"], strict=True)
+    ]
+    return table
 
 
 def next_cells(exp: Experiment) -> list[tuple[str, int]]:

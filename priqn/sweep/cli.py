@@ -183,34 +183,59 @@ def _commit(exp: Any) -> int:
 
 
 def _forecast(exp: Any, sims: int) -> int:
-    """``--forecast SIMS``: the planning simulation of a sequential design (stdout)."""
+    """``--forecast SIMS``: the planning simulation of a sequential design, or of each
+    ``[[question]]`` (stdout); a question whose groups lack two complete seeds is named
+    and skipped."""
     from tqdm import tqdm
 
-    from priqn.analysis import forecast, sequential
+    from priqn.analysis import forecast, questions, sequential
 
-    if exp.sequential is None:
-        raise PriqnError(f"--forecast: {exp.path} has no [sequential] design")
     if sims < 1:
         raise PriqnError(f"--forecast {sims}: expected a positive number of simulations")
-    scores = sequential.collect_scores(exp)
-    have = forecast.committed_rows(exp, scores)
-    with tqdm(total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim") as bar:
-        table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
-    print(
-        f"{exp.experiment.name}: if the seeds still to train (up to "
-        f"{exp.sequential.interims[-1]} per row) follow each row's spread so far "
-        f"({', '.join(f'{r} {v.size} seeds, SD {v.std(ddof=1):.3f}' for r, v in have.items())}):"
-    )
-    for scenario, part in table.groupby("scenario", sort=False):
-        print(f"  {forecast.SCENARIO_TEXT[scenario]}:")
-        for name, rows in part.groupby("comparison", sort=False):
-            words = ", ".join(f"{r.verdict} {r.share:.0%}" for r in rows.itertuples())
-            print(f"    {name}: {words}; {rows['mean_seeds'].iloc[0]:.1f} seeds per row on average")
+    if exp.sequential is None and not exp.questions:
+        raise PriqnError(f"--forecast: {exp.path} has no [sequential] design or [[question]]")
+    name = exp.experiment.name
+    if exp.sequential is not None:
+        scores = sequential.collect_scores(exp)
+        have = forecast.committed_rows(exp, scores)
+        with tqdm(total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim") as bar:
+            table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
+        _print_forecast(name, exp.sequential, have, table)
+    for q in exp.questions:
+        try:
+            have = forecast.committed_rows(questions.view(q), questions.collect(exp, q))
+        except PriqnError as exc:
+            print(f"{name} {q.name}: not forecast ({str(exc).removeprefix('forecast: ')})")
+            continue
+        scenarios = 2 if any(c.paper_difference is not None for c in q.comparisons) else 1
+        with tqdm(total=sims * scenarios, desc=f"forecast {q.name}", unit="sim") as bar:
+            table = questions.forecast(exp, q, sims=sims, on_sim=bar.update)
+        _print_forecast(f"{name} {q.name}", q, have, table)
     print(
         f"({sims} simulated experiments a scenario, {forecast.PERMUTATIONS} permutations each; "
         "planning only, not a verdict: docs/statistics.md)"
     )
     return 0
+
+
+def _print_forecast(title: str, design: Any, have: dict[str, Any], table: Any) -> None:
+    """One design's forecast: its rows' spread, then per scenario each comparison's
+    verdict shares."""
+    from priqn.analysis import forecast
+
+    print(
+        f"{title}: if the seeds still to train (up to {design.interims[-1]} per row) follow "
+        "each row's spread so far "
+        f"({', '.join(f'{r} {v.size} seeds, SD {v.std(ddof=1):.3f}' for r, v in have.items())}):"
+    )
+    for scenario, part in table.groupby("scenario", sort=False):
+        print(f"  {forecast.SCENARIO_TEXT[scenario]}:")
+        for comparison, rows in part.groupby("comparison", sort=False):
+            words = ", ".join(f"{r.verdict} {r.share:.0%}" for r in rows.itertuples())
+            print(
+                f"    {comparison}: {words}; "
+                f"{rows['mean_seeds'].iloc[0]:.1f} seeds per row on average"
+            )
 
 
 def _list(exp: Any, jobs: int | None, only: list[str] | tuple[str, ...] = ()) -> None:
