@@ -19,7 +19,7 @@ and every later process, env workers included, loads them from ``__pycache__`` (
 numba's per-user cache where the package folder is read-only).
 
 Without numba (``AVAILABLE`` false) :class:`~priqn.env.sensors.Sensors` runs its numpy
-path, which gives the same grids, about 1.5× slower.
+path, which gives the same grids in about twice the time.
 """
 
 from __future__ import annotations
