@@ -125,7 +125,11 @@ def face_hits(
     range_m: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(ray_N, range_N, height_N)`` as ``Sensors._face_hits`` after its trigonometry:
-    every (ray, edge) intersection within range, by ray, nearest face first."""
+    every (ray, edge) intersection within range, by ray, nearest face first.
+
+    Edge f runs from corner ``(px, py)`` along ``(ex, ey)``; ``cpe`` = cross(corner,
+    edge); rays ``k0[f] .. k0[f] + n[f] - 1`` (mod R) lie in its angular span.
+    """
     rays = ray_cos_R.shape[0]
     total = 0
     for f in range(n_F.shape[0]):
@@ -156,14 +160,9 @@ def face_hits(
 
 @_njit
 def lidar_grid(
-    px_F: np.ndarray,
-    py_F: np.ndarray,
-    ex_F: np.ndarray,
-    ey_F: np.ndarray,
-    cpe_F: np.ndarray,
-    height_F: np.ndarray,
-    k0_F: np.ndarray,
-    n_F: np.ndarray,
+    ray_N: np.ndarray,
+    t_N: np.ndarray,
+    h_N: np.ndarray,
     ray_cos_R: np.ndarray,
     ray_sin_R: np.ndarray,
     tan_el_K: np.ndarray,
@@ -172,23 +171,16 @@ def lidar_grid(
     bits_Q: np.ndarray,
     drivable_bit: np.uint8,
     n: int,
-    range_m: float,
     sensor_h_m: float,
     split_m: float,
     fwd_max: float,
     left_max: float,
     res: float,
 ) -> np.ndarray:
-    """``lidar uint8 [2, n, n]`` from the F sensor-facing box edges: :func:`face_hits`,
-    then ``Sensors._claims`` and ``_lidar_from`` in one pass.
-
-    Edge f runs from corner ``(px, py)`` along ``(ex, ey)``; ``cpe`` = cross(corner,
-    edge); rays ``k0[f] .. k0[f] + n[f] - 1`` (mod R) lie in its angular span.
-    ``split_m`` is the split height less the sensor height.
+    """``lidar uint8 [2, n, n]`` from the face hits of :func:`face_hits` (ray, range and
+    box height, by ray, nearest first): ``Sensors._claims`` and ``_lidar_from`` in one
+    pass. ``split_m`` is the split height less the sensor height.
     """
-    ray_N, t_N, h_N = face_hits(
-        px_F, py_F, ex_F, ey_F, cpe_F, height_F, k0_F, n_F, ray_cos_R, ray_sin_R, range_m
-    )
     beams = tan_el_K.shape[0]
     side = n + 2
     blocked_Q = np.zeros(side * side, np.int64)

@@ -580,10 +580,12 @@ class Sensors:
         if self.compiled:
             cfg = self.cfg
             front_6F, k0_F, n_F = self._front_faces(rel) if len(rel) else _NO_FACES
+            hits = sensor_kernels.face_hits(
+                *front_6F, k0_F, n_F, self._ray_cos, self._ray_sin, cfg.lidar_range_m
+            )
             return sensor_kernels.lidar_grid(
-                *front_6F, k0_F, n_F, self._ray_cos, self._ray_sin, self._tan_el,
-                self._ground_pad_RK, self._g_count, bits_HW, DRIVABLE, n,
-                cfg.lidar_range_m, cfg.lidar_height_m,
+                *hits, self._ray_cos, self._ray_sin, self._tan_el, self._ground_pad_RK,
+                self._g_count, bits_HW, DRIVABLE, n, cfg.lidar_height_m,
                 cfg.lidar_split_height_m - cfg.lidar_height_m,
                 self._fwd_max, self._left_max, self._res,
             )  # fmt: skip
