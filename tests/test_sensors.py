@@ -386,3 +386,11 @@ def test_fast_sensors_equal_the_reference_on_env_states(density: float, compiled
     finally:
         env.close()
     assert len(seen) >= 15 and max(seen) >= 3  # observations with traffic in them
+
+
+def test_without_numba_the_numpy_path_runs(monkeypatch) -> None:
+    """numba missing: the default is the numpy path; asking for the compiled one says why."""
+    monkeypatch.setattr(sensor_kernels, "AVAILABLE", False)
+    assert Sensors(SensorConfig(size_px=16)).compiled is False
+    with pytest.raises(ImportError, match="needs numba: pip install numba"):
+        Sensors(SensorConfig(size_px=16), compiled=True)
