@@ -321,18 +321,20 @@ def resolve_agent(name: str, where: str = "agent.name") -> AgentDeclaration:
     return obj
 
 
-def resolve_spec(cfg: AgentConfig, num_objectives: int = NUM_OBJECTIVES) -> AgentSpec:
+def resolve_spec(
+    cfg: AgentConfig, num_objectives: int = NUM_OBJECTIVES, where: str = "agent.name"
+) -> AgentSpec:
     """The :class:`AgentSpec` of ``cfg.name`` under ``cfg`` for a run with
-    ``num_objectives`` objectives (:func:`resolve_agent`; one-line errors)."""
-    declared = resolve_agent(cfg.name)
+    ``num_objectives`` objectives (:func:`resolve_agent`; one-line errors naming ``where``)."""
+    declared = resolve_agent(cfg.name, where)
     spec = declared if isinstance(declared, AgentSpec) else declared(cfg, num_objectives)
     if not isinstance(spec, AgentSpec):
         raise PriqnError(
-            f"agent.name: {cfg.name!r} gave a {type(spec).__name__}, expected an AgentSpec"
+            f"{where}: {cfg.name!r} gave a {type(spec).__name__}, expected an AgentSpec"
         )
     if spec.per_objective_heads and spec.num_heads != num_objectives:
         raise PriqnError(
-            f"agent.name: {cfg.name!r} has per-objective heads but {spec.num_heads} heads "
+            f"{where}: {cfg.name!r} has per-objective heads but {spec.num_heads} heads "
             f"for {num_objectives} objectives"
         )
     return spec

@@ -28,7 +28,6 @@ from priqn.agent_config import (
     PREORDER_PRESETS,
     AgentConfig,
     agent_spec,
-    resolve_agent,
     resolve_spec,
 )
 from priqn.config import from_dict, load_toml
@@ -469,11 +468,11 @@ def _load_policies(raw_policies: Any, exp: ExperimentSpec, p: Path) -> list[Poli
         _check_name(pol.name, f"{where}.name")
         # Shipped, an installed priqn.agents entry point or your package.module:NAME (the
         # experiment file is yours: importing the agent it names is by intent).
-        resolve_agent(pol.agent, f"{where}.agent")
+        spec = resolve_spec(AgentConfig(name=pol.agent), where=f"{where}.agent")
         if pol.name in seen:
             raise PriqnError(f"{where}.name: duplicate policy name {pol.name!r}")
         seen.add(pol.name)
-        if not resolve_spec(AgentConfig(name=pol.agent)).uses_preorder:
+        if not spec.uses_preorder:
             for opt in _PREORDER_OPTIONS:
                 if getattr(pol, opt) is not None:
                     raise PriqnError(
