@@ -18,7 +18,8 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from priqn.errors import PriqnError
-from priqn.objectives import NUM_OBJECTIVES, import_path, import_plugin
+from priqn.objectives import NUM_OBJECTIVES
+from priqn.plugins import import_path, import_plugin
 
 NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""

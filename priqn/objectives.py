@@ -20,12 +20,12 @@ docs/your-own-objective.md walks through adding one.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from priqn.errors import PriqnError
+from priqn.plugins import import_path, import_plugin
 
 OBJECTIVES: tuple[str, ...] = ("safety", "risk", "lane_keeping", "progress", "comfort")
 """The default objective list (``env.objectives``), in reward-vector order; highest
@@ -148,51 +148,6 @@ def load_callable(spec: str | Callable[..., Any], where: str) -> Callable[..., A
     if not callable(obj):
         raise PriqnError(f"{where}: {spec!r} is not callable")
     return obj
-
-
-def import_path(spec: str, where: str) -> Any:
-    """The object ``"package.module:NAME"`` names (one-line errors naming ``where``): the one
-    importer of plug-ins by path (objectives here, agents in :mod:`priqn.agent_config`)."""
-    module, sep, attr = str(spec).partition(":")
-    if not sep or not module or not attr:
-        raise PriqnError(f"{where}: expected 'package.module:NAME', got {spec!r}")
-    try:
-        obj: Any = importlib.import_module(module)
-    except ImportError as exc:
-        raise PriqnError(f"{where}: cannot import {module!r} for {spec!r} ({exc})") from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise PriqnError(f"{where}: module {module!r} has no {attr!r}")
-        obj = getattr(obj, part)
-    return obj
-
-
-def import_plugin(
-    name: str,
-    shipped: Iterable[str],
-    entry_points: Mapping[str, Any],
-    where: str,
-    what: str,
-    listed: str,
-    expected: str,
-) -> Any:
-    """A plug-in that is not shipped: ``package.module:NAME`` (:func:`import_path`) or an
-    installed entry point of ``entry_points``, loaded. An unknown name is one line listing
-    the ``shipped`` names and the entry points (``"unknown <what> 'x' (<listed>: ...; or
-    'package.module:NAME' naming a <expected>)"``); a plug-in that fails to load, one line
-    naming it. The one resolver of objectives and agents."""
-    if ":" in name:
-        return import_path(name, where)
-    if name not in entry_points:
-        known = [*shipped, *sorted(entry_points)]
-        raise PriqnError(
-            f"{where}: unknown {what} {name!r} ({listed}: {', '.join(known)}; "
-            f"or 'package.module:NAME' naming a {expected})"
-        )
-    try:
-        return entry_points[name].load()
-    except Exception as exc:  # a broken plug-in: one line naming it
-        raise PriqnError(f"{where}: entry point {name!r} failed to load ({exc})") from None
 
 
 def _path_of(fn: Any) -> str:

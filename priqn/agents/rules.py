@@ -33,7 +33,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from priqn.errors import PriqnError
-from priqn.objectives import import_path
+from priqn.plugins import import_path
 
 if TYPE_CHECKING:
     from torch import Tensor
