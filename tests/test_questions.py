@@ -160,11 +160,11 @@ def test_forecast_of_each_question_in_its_own_words(tmp_path: Path, capsys) -> N
 
     exp = grid(tmp_path, seeds=[0, 1])
     safety, long = exp.questions
-    table = questions.forecast(exp, safety, sims=3)
+    table = questions.forecast(safety, questions.collect(exp, safety), sims=3)
     assert table[["scenario", "verdict", "share"]].values.tolist() == [
         ["observed", "a violates more", 1.0]
     ]
-    table = questions.forecast(exp, long, sims=3)
+    table = questions.forecast(long, questions.collect(exp, long), sims=3)
     assert list(table["scenario"].unique()) == ["observed", "paper"]
     observed = table[table["scenario"] == "observed"]
     assert observed[["verdict", "share"]].values.tolist() == [["reproduced", 1.0]]

@@ -185,25 +185,32 @@ def reword(question: SequentialSpec, comparison: Any, word: str) -> str:
     return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
 
 
+def forecast_scenarios(question: SequentialSpec) -> tuple[str, ...]:
+    """The :data:`priqn.analysis.forecast.SCENARIOS` that apply to ``question``: ``paper``
+    only where a comparison has a paper difference."""
+    if any(c.paper_difference is not None for c in question.comparisons):
+        return planning.SCENARIOS
+    return ("observed",)
+
+
 def forecast(
-    exp: Experiment,
     question: SequentialSpec,
+    scores: pd.DataFrame,
     sims: int,
     seed: int = 0,
     on_sim: Callable[[], None] | None = None,
 ) -> pd.DataFrame:
-    """:func:`priqn.analysis.forecast.forecast` of one question from its complete cells,
-    with the question's verdict words; the ``paper`` scenario only where a comparison
-    has a paper difference. Planning only. A one-line PriqnError when a group has fewer
-    than two complete seeds (no spread to draw from)."""
-    with_paper = any(c.paper_difference is not None for c in question.comparisons)
+    """:func:`priqn.analysis.forecast.forecast` of one question from its complete cells'
+    ``scores`` (:func:`collect`), in the question's verdict words, over
+    :func:`forecast_scenarios`. Planning only. A one-line PriqnError when a group has
+    fewer than two complete seeds (no spread to draw from)."""
     table = planning.forecast(
         view(question),
-        collect(exp, question),
+        scores,
         sims=sims,
         seed=seed,
         on_sim=on_sim,
-        scenarios=planning.SCENARIOS if with_paper else ("observed",),
+        scenarios=forecast_scenarios(question),
     )
     by_name = {c.name: c for c in question.comparisons}
     table["verdict"] = [

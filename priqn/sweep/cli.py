@@ -202,14 +202,15 @@ def _forecast(exp: Any, sims: int) -> int:
             table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
         _print_forecast(name, exp.sequential, have, table)
     for q in exp.questions:
+        scores = questions.collect(exp, q)
         try:
-            have = forecast.committed_rows(questions.view(q), questions.collect(exp, q))
+            have = forecast.committed_rows(questions.view(q), scores)
         except PriqnError as exc:
             print(f"{name} {q.name}: not forecast ({str(exc).removeprefix('forecast: ')})")
             continue
-        scenarios = 2 if any(c.paper_difference is not None for c in q.comparisons) else 1
-        with tqdm(total=sims * scenarios, desc=f"forecast {q.name}", unit="sim") as bar:
-            table = questions.forecast(exp, q, sims=sims, on_sim=bar.update)
+        total = sims * len(questions.forecast_scenarios(q))
+        with tqdm(total=total, desc=f"forecast {q.name}", unit="sim") as bar:
+            table = questions.forecast(q, scores, sims=sims, on_sim=bar.update)
         _print_forecast(f"{name} {q.name}", q, have, table)
     print(
         f"({sims} simulated experiments a scenario, {forecast.PERMUTATIONS} permutations each; "
