@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -125,6 +126,17 @@ def at_budget(label: PolicyLabel, budget: int) -> PolicyLabel:
     budget is a row of its own."""
     word = f"@{budget // 1000}k" if budget % 1000 == 0 else f"@{budget}"
     return dataclasses.replace(label, extra=(*label.extra, word))
+
+
+_DERIVED_WORDS = re.compile(r"(?: near-greedy ε=\S+| @\d+k?)+$")
+"""The words :func:`near_greedy` and :func:`at_budget` append, at the end of a rendered label."""
+
+
+def trained_row(rendered: str) -> str:
+    """The rendered label of the trained row that ``rendered`` derives from: ``IQN
+    near-greedy ε=0.2`` and ``IQN @60k`` give ``IQN``; a label without the words of
+    :func:`near_greedy` or :func:`at_budget` is its own trained row."""
+    return _DERIVED_WORDS.sub("", rendered)
 
 
 def _missing_to_none(value: Any) -> Any:

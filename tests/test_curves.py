@@ -173,3 +173,41 @@ def test_a_figure_of_full_evaluations_only(tmp_path: Path) -> None:
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["IQN (2 seeds)"]
     styles = [t.get_text() for t in fig.legends[0].get_texts()]
     assert len(styles) == 1 and styles[0].startswith("full hold-out evaluation (16 episodes")
+
+
+def test_derived_rows_are_shades_of_their_trained_row() -> None:
+    """A near-greedy control and a kept budget are the trained row's network: they get a
+    shade of its colour (mixed half with white, then 35 % with black), and the trained
+    rows take tab10 in order without the derived rows using up its colours."""
+    from matplotlib.colors import to_rgb
+
+    from priqn.labels import PolicyLabel, at_budget, near_greedy, trained_row
+
+    iqn = PolicyLabel("iqn")
+    pr = PolicyLabel("pr-iqn", "qd", True, 0.2, False)
+    rows = [
+        iqn.render(),
+        near_greedy(iqn, 0.005).render(),
+        at_budget(near_greedy(iqn, 0.2), 60_000).render(),
+        pr.render(),
+        at_budget(pr, 60_000).render(),
+        "Ensemble @60k",  # its trained row is not in the report: a row of its own
+    ]
+    assert [trained_row(r) for r in rows] == [
+        "IQN",
+        "IQN",
+        "IQN",
+        pr.render(),
+        pr.render(),
+        "Ensemble",
+    ]
+    colors = {k: np.round(v[:3], 6) for k, v in row_colors(rows).items()}
+    blue, orange, green = (np.array(to_rgb(c)) for c in ("#1f77b4", "#ff7f0e", "#2ca02c"))
+    np.testing.assert_allclose(colors["IQN"], blue.round(6))
+    np.testing.assert_allclose(colors[rows[1]], (blue + 1) / 2, atol=1e-6)
+    np.testing.assert_allclose(colors[rows[2]], 0.65 * blue, atol=1e-6)
+    np.testing.assert_allclose(colors[rows[3]], orange.round(6))
+    np.testing.assert_allclose(colors[rows[4]], (orange + 1) / 2, atol=1e-6)
+    np.testing.assert_allclose(colors["Ensemble @60k"], green.round(6))
+    many = [f"row {i}" for i in range(18)]
+    assert len({row_colors(many)[r] for r in many}) == 18

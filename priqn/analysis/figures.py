@@ -17,12 +17,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.colors import to_hex, to_rgb  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from priqn.analysis.claims import ClaimResult  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
+from priqn.labels import trained_row  # noqa: E402
 from priqn.objectives import names_in_columns  # noqa: E402
 
 plt.rcParams["svg.hashsalt"] = "priqn"
@@ -61,11 +63,52 @@ def legend_above(ax: plt.Axes, handles: list, title: str, ncol: int) -> None:
     )
 
 
+ROW_PALETTE: tuple[str, ...] = (
+    *(to_hex(c) for c in plt.get_cmap("tab10").colors),
+    "#1a237e",  # navy
+    "#00897b",  # teal
+    "#b8860b",  # dark goldenrod
+    "#6d0f1f",  # maroon
+    "#222222",  # near-black
+    "#64dd17",  # light green
+    "#d500f9",  # violet
+    "#546e7a",  # slate
+)
+"""Colours of trained rows, in report order: tab10, then eight dark or saturated colours
+that tab10 lacks, so up to 18 trained rows get colours of their own."""
+
+DERIVED_SHADES: tuple[tuple[str, float], ...] = (
+    ("white", 0.5),
+    ("black", 0.35),
+    ("white", 0.75),
+    ("black", 0.6),
+)
+"""How a derived row's colour departs from its trained row's (mixed with white or black by
+that fraction), for the 1st, 2nd, ... derived row of one trained row."""
+
+
 def row_colors(labels: list[str]) -> dict[str, tuple]:
     """One colour per row, by its place in ``labels`` (the report's row order), so a row
-    has the same colour in every figure of a report."""
-    cmap = plt.get_cmap("tab10" if len(labels) <= 10 else "tab20")
-    return {label: cmap(i % cmap.N) for i, label in enumerate(labels)}
+    has the same colour in every figure of a report.
+
+    A row derived from a trained row in ``labels`` (its near-greedy control or its policy
+    at a kept budget, :func:`priqn.labels.trained_row`) gets a lighter or darker shade of
+    that row's colour rather than a colour of its own, so a figure shows which rows are
+    one network, and the trained rows keep the distinct colours."""
+    present = set(labels)
+    parent = {label: base if (base := trained_row(label)) in present else label for label in labels}
+    trained = list(dict.fromkeys(parent.values()))
+    base_rgb = {label: to_rgb(ROW_PALETTE[i % len(ROW_PALETTE)]) for i, label in enumerate(trained)}
+    colors: dict[str, tuple] = {}
+    derived_count: dict[str, int] = {}
+    for label in labels:
+        rgb = np.array(base_rgb[parent[label]])
+        if parent[label] != label:
+            k = derived_count[parent[label]] = derived_count.get(parent[label], 0) + 1
+            toward, fraction = DERIVED_SHADES[(k - 1) % len(DERIVED_SHADES)]
+            rgb = (1 - fraction) * rgb + fraction * np.array(to_rgb(toward))
+        colors[label] = (*(float(c) for c in rgb), 1.0)
+    return colors
 
 
 def select_pairs(result: RliableResult, max_pairs: int) -> pd.DataFrame:
@@ -166,7 +209,7 @@ def performance_profile_figure(result: RliableResult) -> plt.Figure:
         labelsize="medium",
         ticklabelsize="small",
     )
-    ax.legend(fontsize="small", loc="lower left")
+    ax.legend(fontsize="small", loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     return fig
 
 
