@@ -286,6 +286,17 @@ class RunFolder:
         ``name``: of the control evaluation ``eval-<name>/`` instead."""
         return _status_in(self.evaluation_dir(name) / self.META)
 
+    def evaluated(self, names: Sequence[str] = ()) -> bool:
+        """Trained, and ``eval/`` and every ``eval-<name>/`` of ``names`` complete (what a
+        sweep counts as a complete cell), read from the recorded statuses."""
+        return self.recorded_status() == Status.COMPLETE and all(
+            self.recorded_eval_status(name) == Status.COMPLETE for name in ("", *names)
+        )
+
+    def kept_evaluations(self) -> list[str]:
+        """The evaluation names (``at<N>``) of the snapshots meta.json records as kept."""
+        return [self.snapshot_evaluation(int(b)) for b in self.meta().get("snapshots") or {}]
+
     def status(self) -> str:
         """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
         meta = self.meta()

@@ -23,6 +23,7 @@ import pytest
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.paths import experiments_dir
+from priqn.runs import RunFolder
 from priqn.sweep import (
     Cell,
     cell_state,
@@ -442,6 +443,20 @@ def test_control_evaluations_belong_to_the_greedy_baselines_cells(tmp_path: Path
     assert cell_state(run, ("near-greedy",)) == "trained"
     atomic_write_json(run / "eval-near-greedy" / "meta.json", {"status": "complete"})
     assert is_complete(run, ("near-greedy",))
+
+
+def test_a_run_folder_is_evaluated_with_each_kept_snapshot(tmp_path: Path) -> None:
+    """What a report counts as complete without a sweep's cell: the snapshots that
+    meta.json records as kept name the evaluations (``eval-at<N>/``) it waits for."""
+    folder = RunFolder(tmp_path / "r")
+    atomic_write_json(folder.meta_path, {"status": "complete", "snapshots": {"60000": "ab"}})
+    atomic_write_json(folder.eval_meta_path, {"status": "complete"})
+    assert folder.kept_evaluations() == ["at60000"]
+    assert folder.evaluated() and not folder.evaluated(folder.kept_evaluations())
+    atomic_write_json(folder.evaluation_dir("at60000") / "meta.json", {"status": "complete"})
+    assert folder.evaluated(folder.kept_evaluations())
+    atomic_write_json(folder.meta_path, {"status": "running", "snapshots": {"60000": "ab"}})
+    assert not folder.evaluated(folder.kept_evaluations())
 
     bad = tmp_path / "bad.toml"
     bad.write_text(

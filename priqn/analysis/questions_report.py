@@ -359,16 +359,6 @@ def _budget_tables(
     return frame.assign(question=question.name), changes
 
 
-def _evaluated(folder: RunFolder) -> bool:
-    """Trained and every evaluation done (``eval/`` and each kept snapshot's): what a sweep
-    counts as a complete cell, read from the run folder alone."""
-    if folder.recorded_status() != Status.COMPLETE:
-        return False
-    kept = [int(b) for b in folder.meta().get("snapshots") or {}]
-    names = ["", *map(RunFolder.snapshot_evaluation, kept)]
-    return all(folder.recorded_eval_status(n) == Status.COMPLETE for n in names)
-
-
 def _efficiency(exp: Experiment, out: Path) -> list[str]:
     """The sample-efficiency curves of every complete cell's group (periodic evaluations
     and full evaluations at each budget, kept snapshots included): table, figure and the
@@ -377,7 +367,11 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
     from priqn.analysis.figures import save_figure
     from priqn.io import atomic_write_text
 
-    cells = [cell for cell in curves.experiment_cells(exp) if _evaluated(RunFolder(cell[2]))]
+    cells = [
+        cell
+        for cell in curves.experiment_cells(exp)
+        if (folder := RunFolder(cell[2])).evaluated(folder.kept_evaluations())
+    ]
     points, notes = curves.curve_points(cells)
     if points.empty:
         return []

@@ -167,9 +167,7 @@ def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> Status:
     if run == Status.RUNNING and folder.status() == Status.INTERRUPTED:
         return Status.INTERRUPTED  # its trainer died (kill -9, crash): the next sweep resumes it
     if run == Status.COMPLETE:
-        names = ("", *controls)
-        done = all(folder.recorded_eval_status(n) == Status.COMPLETE for n in names)
-        return Status.COMPLETE if done else Status.TRAINED
+        return Status.COMPLETE if folder.evaluated(controls) else Status.TRAINED
     if run in (Status.RUNNING, Status.FAILED):
         return Status(run)
     return Status.NEW
