@@ -23,7 +23,7 @@ import pytest
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.paths import experiments_dir
-from priqn.runs import RunFolder
+from priqn.runs import RunFolder, Status
 from priqn.sweep import (
     Cell,
     cell_state,
@@ -34,7 +34,7 @@ from priqn.sweep import (
     load_experiment,
     run_sweep,
 )
-from priqn.sweep.cells import time_left
+from priqn.sweep.cells import time_left, training_fraction_done
 from priqn.sweep.commit import commit_complete_cells
 from priqn.sweep.scheduler import SweepFolder
 
@@ -684,6 +684,43 @@ def test_time_left_times_the_cells_left_by_their_rows_complete_cells(tmp_path: P
     c_cells = [c for c in expand(exp_c) if c.policy == "c"]
     est = time_left(exp_c, c_cells, 2)
     assert (est.hours, est.untimed) == (None, ("c",))
+
+
+def test_list_says_how_far_each_started_cell_is(tmp_path: Path) -> None:
+    """``--list`` gives a training cell's decisions logged of its budget (the preset's,
+    from meta.json, where the row names none), and a trained cell's missing evaluations;
+    an interrupted cell is timed by what it has logged too, since it resumes."""
+    exp_path = write_experiment(tmp_path, ["a"], [0, 1, 2])
+    cells = {c.name: c for c in expand(load_experiment(exp_path))}
+    assert cells["fake/a__seed0"].steps is None
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    stopped = cells["fake/a__seed0"].run_dir
+    atomic_write_json(
+        stopped / "meta.json",
+        {"status": "running", "pid": int(dead), "host": socket.gethostname(), "total_steps": 2000},
+    )
+    (stopped / "metrics.csv").write_text("phase,step\ntrain,250\ntrain,500\n")
+    trained = cells["fake/a__seed1"].run_dir
+    atomic_write_json(trained / "meta.json", {"status": "complete", "wall_s": 540})
+    atomic_write_json(trained / "eval" / "meta.json", {"status": "running"})
+    assert cells["fake/a__seed0"].state() == Status.INTERRUPTED
+    assert training_fraction_done(cells["fake/a__seed0"]) == 0.25
+    listed = subprocess.run(
+        _sweep_cli(exp_path, "--list"), capture_output=True, text=True, timeout=60
+    )
+    lines = {line.split()[0]: line for line in listed.stdout.splitlines()}
+    assert lines["fake/a__seed0"].split()[1] == "interrupted"
+    assert lines["fake/a__seed0"].endswith("  500/2,000 decisions")
+    assert lines["fake/a__seed1"].endswith("  to evaluate: eval")
+    assert lines["fake/a__seed2"].endswith("a__seed2")  # new: nothing to say
+    atomic_write_json(trained / "eval" / "meta.json", {"status": "complete", "wall_s": 60})
+    # a's one complete cell took 10 min, 1 of them evaluation: seed 0 has 3/4 of 9 min of
+    # training left plus 1 min of evaluation; seed 2 the whole 10 min.
+    left = [cells["fake/a__seed0"], cells["fake/a__seed2"]]
+    assert time_left(load_experiment(exp_path), left, slots=1).hours == pytest.approx(
+        (6.75 + 1 + 10) / 60
+    )
 
 
 @pytest.mark.parametrize("backend", ["local", pytest.param("ray", marks=pytest.mark.ray)])

@@ -274,10 +274,39 @@ def evaluation_minutes(cell: Cell) -> float:
     return seconds / 60.0
 
 
+def training_progress(cell: Cell) -> tuple[int, int | None]:
+    """``(decisions its metrics.csv has logged, its budget)``: the budget is the cell's
+    ``steps`` or, where the preset's applies, meta.json's ``total_steps`` (None if neither)."""
+    folder = RunFolder(cell.run_dir)
+    rows = folder.read_metrics()
+    logged = int(float(rows[-1]["step"])) if rows else 0
+    total = cell.steps if cell.steps is not None else folder.meta().get("total_steps")
+    return logged, (int(total) if isinstance(total, (int, float)) and total > 0 else None)
+
+
 def training_fraction_done(cell: Cell) -> float:
-    """Share of a cell's training decisions its ``metrics.csv`` has logged (0 when none)."""
-    rows = RunFolder(cell.run_dir).read_metrics()
-    return min(1.0, int(float(rows[-1]["step"])) / cell.steps) if rows else 0.0
+    """Share of a cell's training decisions its ``metrics.csv`` has logged (0 when none or
+    when its budget is unknown)."""
+    logged, total = training_progress(cell)
+    return min(1.0, logged / total) if total else 0.0
+
+
+def cell_progress(cell: Cell, state: Status) -> str:
+    """Where a started cell stands, in words (``priqn sweep --list``): the decisions
+    logged of its budget while it trains, or stopped training; the evaluations
+    (``eval/``, ``eval-<name>/``) still missing once trained; "" when new or complete."""
+    if state in (Status.RUNNING, Status.INTERRUPTED, Status.FAILED):
+        logged, total = training_progress(cell)
+        return f"{logged:,}/{total:,} decisions" if total else f"{logged:,} decisions"
+    if state == Status.TRAINED:
+        folder = RunFolder(cell.run_dir)
+        missing = [
+            folder.evaluation_dir(name).name
+            for name in cell.evaluations
+            if folder.recorded_eval_status(name) != Status.COMPLETE
+        ]
+        return "to evaluate: " + ", ".join(missing)
+    return ""
 
 
 @dataclass(frozen=True)
@@ -297,7 +326,8 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     """How long ``cells`` (the ones still to run, in the order the sweep starts them) will
     take at ``slots`` cells at a time, timed by this experiment's complete cells: each
     row's median; a running cell less the share of its training its ``metrics.csv`` has
-    logged, a trained one only its row's median evaluation. An estimate from the cells'
+    logged (also when interrupted: it resumes), a trained one only its row's median
+    evaluation. An estimate from the cells'
     own history, for planning only."""
     import heapq
     import statistics
@@ -317,13 +347,14 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
 
     def minutes_left(c: Cell) -> float:
         whole, evaluation = per_cell[c.policy], per_eval[c.policy]
-        if state[c.name] == Status.RUNNING:  # training: the share not yet logged, then evaluation
+        if state[c.name] in (Status.RUNNING, Status.INTERRUPTED):  # the share not yet logged
             return (whole - evaluation) * (1 - training_fraction_done(c)) + evaluation
         if state[c.name] == Status.TRAINED:  # trained, an evaluation missing
             return evaluation
         return whole
 
-    running_first = sorted(cells, key=lambda c: state[c.name] != Status.RUNNING)  # stable
+    started = (Status.RUNNING, Status.INTERRUPTED)
+    running_first = sorted(cells, key=lambda c: state[c.name] not in started)  # stable
     queue = [minutes_left(c) for c in running_first]
     free_at = [0.0] * max(1, slots)  # minutes from now at which each slot is free
     for minutes in queue:

@@ -13,7 +13,7 @@ from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, load_experiment
 from priqn.paths import EXPERIMENTS, shipped
 from priqn.runs import Status
-from priqn.sweep.cells import expand, select, stale_cells, time_left, validate
+from priqn.sweep.cells import cell_progress, expand, select, stale_cells, time_left, validate
 from priqn.sweep.process import DEFAULT_CELL_FN
 from priqn.sweep.scheduler import SweepFolder, default_jobs, run_sweep
 
@@ -250,7 +250,10 @@ def _list(exp: Any, jobs: int | None, only: list[str] | tuple[str, ...] = ()) ->
     cells = select(expand(exp), only, exp.path)
     states = [c.state() for c in cells]
     for c, state in zip(cells, states, strict=True):
-        mark = "  <- next look" if c.run_dir.name in needed else ""
+        progress = cell_progress(c, state)
+        mark = ("  " + progress if progress else "") + (
+            "  <- next look" if c.run_dir.name in needed else ""
+        )
         print(f"{c.name:<48} {state:<11} {c.run_dir}{mark}")
     counts = ", ".join(f"{states.count(s)} {s}" for s in dict.fromkeys(sorted(states)))
     # The listing is stdout (one cell a line, for scripts); the tally goes to stderr.
