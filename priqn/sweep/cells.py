@@ -327,8 +327,7 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     take at ``slots`` cells at a time, timed by this experiment's complete cells: each
     row's median; a running cell less the share of its training its ``metrics.csv`` has
     logged (also when interrupted: it resumes), a trained one only its row's median
-    evaluation. An estimate from the cells'
-    own history, for planning only."""
+    evaluation. An estimate from the cells' own history, for planning only."""
     import heapq
     import statistics
 
