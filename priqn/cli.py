@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "why a policy acted: per-objective quantiles and optimal subsets",
     ),
     "play": ("priqn.play", "watch a trained policy drive in sumo-gui; record it"),
+    "diff": ("priqn.diff", "are two runs the same training, bit for bit?"),
     "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
 }
 

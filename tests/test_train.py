@@ -293,6 +293,26 @@ def test_long_run_prefix_is_the_short_run(tmp_path):
     assert other.returncode == 0, other.stderr
     assert rows("other") != rows("short")
 
+    # priqn diff says the same, also once the snapshot's weights are gone (as in git, where
+    # only meta.json's SHA-256 of them is kept), and names the decay of the other run.
+    from priqn.diff import diff_runs
+    from priqn.runs import RunFolder
+
+    def diff(a: str, b: str) -> dict[str, bool | None]:
+        _, found = diff_runs(RunFolder(tmp_path / a), RunFolder(tmp_path / b))
+        return {p.name: p.same for p in found}
+
+    same = {"config": True, "metrics": True, "weights": True, "episodes": None}
+    assert diff("long", "short") == same
+    (tmp_path / "long/snapshots/policy-at200.pt").unlink()
+    assert diff("short", "long") == same
+    found = diff_runs(RunFolder(tmp_path / "short"), RunFolder(tmp_path / "other"))[1]
+    assert (
+        found[0].text
+        == "ε decays over 120 decisions, not 60 (fix the decay in decisions: exploration.decay_steps)"
+    )
+    assert [p.same for p in found[1:3]] == [False, False]  # metrics and weights at 200
+
 
 def success_rate(env_cfg, act, episodes: int, seed: int) -> float:
     """Fraction of ``episodes`` that end in success at density 0.5 (one worker process)."""

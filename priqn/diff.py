@@ -1,0 +1,244 @@
+"""``priqn diff RUN_A RUN_B``: are two runs the same training, bit for bit?
+
+The question behind reusing a cell trained at another commit, counting a long run's
+snapshot as a short run of its seed, or checking that a refactor left training alone.
+Two runs are the same training up to ``N`` decisions when
+
+- **config**: their resolved configurations differ at most in the budget (seed equal;
+  :func:`priqn.experiment.policy_difference`, which also asks ε to decay over the same
+  decisions);
+- **metrics**: their ``metrics.csv`` rows up to decision ``N`` are equal in every column
+  but ``wall_s``;
+- **weights**: they hold the same policy at ``N`` (``policy.pt`` of a run whose budget is
+  ``N``, else the snapshot it kept there, ``checkpoint.keep_at``): the same SHA-256, which
+  meta.json records even where the snapshot's weights are not on disk;
+- **episodes** (where both evaluated that policy): the same ``episodes.csv`` rows, all
+  columns but the run's name.
+
+``N`` is the smaller budget unless ``--upto`` says otherwise. Exit status 0 when every
+part compared is equal, 1 when one differs (each part names its first difference), 2 on
+bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from priqn.errors import PriqnError
+from priqn.io import sha256_file
+from priqn.runs import RunFolder, Status
+
+IGNORED_METRICS = ("wall_s",)
+"""metrics.csv columns that differ between identical trainings (wall-clock time)."""
+
+IGNORED_EPISODES = ("run",)
+"""episodes.csv columns that name the run rather than describe its episodes."""
+
+
+@dataclass(frozen=True)
+class Part:
+    """One part of the comparison."""
+
+    name: str
+    """``config``, ``metrics``, ``weights`` or ``episodes``."""
+    same: bool | None
+    """Equal, different, or None when it could not be compared (the text says why)."""
+    text: str
+    """What was compared and, where it differs, the first difference."""
+
+
+@dataclass(frozen=True)
+class Kept:
+    """The policy a run holds at a budget."""
+
+    file: str
+    """Its file, relative to the run folder (``policy.pt``, ``snapshots/policy-at<N>.pt``)."""
+    sha256: str
+    """SHA-256 of the file's bytes (meta.json's record where the file is not on disk)."""
+    path: Path | None
+    """The file, None where only its SHA-256 is recorded (snapshot weights not committed)."""
+    evaluation: str
+    """The evaluation of this policy by name: "" (``eval/``) or ``at<N>``."""
+
+
+def diff_runs(a: RunFolder, b: RunFolder, upto: int | None = None) -> tuple[int, list[Part]]:
+    """``(N, parts)``: the runs compared up to ``N`` decisions (``upto``, else the smaller
+    budget), part by part."""
+    cfg_a, cfg_b = a.config(), b.config()
+    budget = min(cfg_a.total_steps, cfg_b.total_steps)
+    if upto is None:
+        upto = budget
+    elif not 0 < upto <= budget:
+        raise PriqnError(f"--upto {upto}: expected 1 to {budget:,}, the smaller run's budget")
+    kept = (kept_policy(a, cfg_a.total_steps, upto), kept_policy(b, cfg_b.total_steps, upto))
+    parts = [
+        _config_part(cfg_a, cfg_b),
+        _metrics_part(a, b, upto),
+        _weights_part(kept, upto),
+        _episodes_part(a, b, kept, upto),
+    ]
+    return upto, parts
+
+
+def kept_policy(folder: RunFolder, total_steps: int, budget: int) -> Kept | None:
+    """The policy ``folder`` holds at ``budget`` decisions: ``policy.pt`` if that is its
+    finished budget, else the snapshot meta.json records; None if it keeps none there."""
+    if budget == total_steps and folder.recorded_status() == Status.COMPLETE:
+        path = folder.policy_path
+        if path.is_file():
+            return Kept(path.name, sha256_file(path), path, "")
+    entry = (folder.meta().get("snapshots") or {}).get(str(budget))
+    if not entry:
+        return None
+    path = folder.path / entry["file"]
+    on_disk = path if path.is_file() else None
+    return Kept(entry["file"], entry["sha256"], on_disk, folder.snapshot_evaluation(budget))
+
+
+def _config_part(cfg_a: Any, cfg_b: Any) -> Part:
+    from priqn.experiment import policy_difference
+
+    if cfg_a.seed != cfg_b.seed:
+        return Part("config", False, f"seed is {cfg_b.seed}, not {cfg_a.seed}")
+    why = policy_difference(cfg_a, cfg_b)
+    if why is not None:
+        return Part("config", False, why)
+    budgets = f"{cfg_a.total_steps:,} / {cfg_b.total_steps:,} decisions"
+    same = "the same" if cfg_a.total_steps == cfg_b.total_steps else "the same but for the budget"
+    return Part("config", True, f"{same} ({budgets}), seed {cfg_a.seed}")
+
+
+def _rows(rows: list[dict[str, Any]], ignored: tuple[str, ...]) -> list[dict[str, Any]]:
+    return [{k: v for k, v in r.items() if k not in ignored} for r in rows]
+
+
+def _first_difference(
+    rows_a: list[dict[str, Any]], rows_b: list[dict[str, Any]], what: str
+) -> str | None:
+    """Where two row lists first differ, in words; None if equal."""
+    for i, (x, y) in enumerate(zip(rows_a, rows_b, strict=False)):
+        if x != y:
+            key = next(k for k in (*x, *y) if x.get(k) != y.get(k))
+            where = ", ".join(f"{k} {x[k]}" for k in ("kind", "step", "net", "episode") if k in x)
+            return f"{what} row {i + 1} ({where}): {key} is {y.get(key)!r}, not {x.get(key)!r}"
+    if len(rows_a) != len(rows_b):
+        return f"{len(rows_a):,} {what} rows against {len(rows_b):,}"
+    return None
+
+
+def _metrics_part(a: RunFolder, b: RunFolder, upto: int) -> Part:
+    rows_a, rows_b = (_rows(f.read_metrics(upto), IGNORED_METRICS) for f in (a, b))
+    if not rows_a and not rows_b:
+        return Part("metrics", None, "neither run has logged a row yet")
+    difference = _first_difference(rows_a, rows_b, "metrics.csv")
+    if difference is not None:
+        return Part("metrics", False, difference)
+    return Part(
+        "metrics",
+        True,
+        f"{len(rows_a):,} rows up to decision {upto:,} identical "
+        f"(every column but {', '.join(IGNORED_METRICS)})",
+    )
+
+
+def _weights_part(kept: tuple[Kept | None, Kept | None], upto: int) -> Part:
+    ka, kb = kept
+    if ka is None or kb is None:
+        which = "A" if ka is None else "B"
+        return Part("weights", None, f"{which} keeps no policy at {upto:,} decisions")
+    files = f"{ka.file} / {kb.file}"
+    if ka.sha256 == kb.sha256:
+        return Part("weights", True, f"identical ({files}, SHA-256 {ka.sha256[:12]}…)")
+    if ka.path is None or kb.path is None:
+        return Part("weights", False, f"SHA-256 differ ({files}); weights not on disk to compare")
+    differing = _differing_tensors(ka.path, kb.path)
+    if not differing:
+        return Part("weights", True, f"the same tensors, files differ in bytes ({files})")
+    return Part(
+        "weights", False, f"{len(differing)} tensor(s) differ ({files}), first {differing[0]}"
+    )
+
+
+def _differing_tensors(path_a: Path, path_b: Path) -> list[str]:
+    """Names of the online network's tensors (and agent state) that differ."""
+    import torch
+
+    from priqn.checkpoint import load_policy_state
+
+    sa, sb = load_policy_state(path_a), load_policy_state(path_b)
+    out = []
+    for part in ("online", "agent"):
+        da, db = getattr(sa, part), getattr(sb, part)
+        for key in sorted(set(da) | set(db)):
+            x, y = da.get(key), db.get(key)
+            equal = (
+                torch.equal(x, y)
+                if isinstance(x, torch.Tensor) and isinstance(y, torch.Tensor)
+                else x == y
+            )
+            if not equal:
+                out.append(f"{part}.{key}")
+    return out
+
+
+def _episodes_part(
+    a: RunFolder, b: RunFolder, kept: tuple[Kept | None, Kept | None], upto: int
+) -> Part:
+    if kept[0] is None or kept[1] is None:
+        return Part("episodes", None, f"no policy at {upto:,} decisions to compare")
+    dirs = []
+    for folder, k, which in ((a, kept[0], "A"), (b, kept[1], "B")):
+        if folder.recorded_eval_status(k.evaluation) != Status.COMPLETE:
+            name = folder.evaluation_dir(k.evaluation).name
+            return Part("episodes", None, f"{which} has no complete evaluation {name}/")
+        dirs.append(folder.evaluation_dir(k.evaluation))
+    rows_a, rows_b = (_rows(_read_csv(d / "episodes.csv"), IGNORED_EPISODES) for d in dirs)
+    difference = _first_difference(rows_a, rows_b, "episodes.csv")
+    if difference is not None:
+        return Part("episodes", False, difference)
+    names = f"{dirs[0].name}/ / {dirs[1].name}/"
+    return Part("episodes", True, f"{len(rows_a):,} episodes identical ({names})")
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(encoding="utf-8", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Are two runs the same training, bit for bit? Config (but for the budget), "
+        "metrics.csv rows, the policy's weights and, where both evaluated it, the "
+        "episodes, up to the smaller budget. Exit 0 if equal, 1 if not."
+    )
+    parser.add_argument("run_a", metavar="RUN_A", help="a run folder")
+    parser.add_argument("run_b", metavar="RUN_B", help="another run folder")
+    parser.add_argument(
+        "--upto",
+        type=int,
+        default=None,
+        metavar="N",
+        help="compare up to N decisions (default: the smaller budget); "
+        "weights and episodes need a policy kept at N",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    a, b = RunFolder(args.run_a), RunFolder(args.run_b)
+    upto, parts = diff_runs(a, b, args.upto)
+    print(f"A {a.path} (code {str(a.meta().get('git_sha'))[:12]})")
+    print(f"B {b.path} (code {str(b.meta().get('git_sha'))[:12]})")
+    for part in parts:
+        mark = {True: "same", False: "DIFFERS", None: "not compared"}[part.same]
+        print(f"  {part.name:<9} {mark:<13} {part.text}")
+    differs = any(p.same is False for p in parts)
+    verdict = "differ" if differs else "are the same training"
+    print(f"up to {upto:,} decisions, the runs {verdict}")
+    return 1 if differs else 0
