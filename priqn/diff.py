@@ -130,10 +130,31 @@ def _first_difference(
     return None
 
 
+def _trained_to(folder: RunFolder) -> int:
+    """Decisions a run has trained: its budget once complete, else its last checkpoint's."""
+    meta = folder.meta()
+    if meta.get("status") == Status.COMPLETE:
+        return int(meta.get("total_steps") or meta.get("steps_done") or 0)
+    return int(meta.get("steps_done") or 0)
+
+
 def _metrics_part(a: RunFolder, b: RunFolder, upto: int) -> Part:
     rows_a, rows_b = (_rows(f.read_metrics(upto), IGNORED_METRICS) for f in (a, b))
     if not rows_a and not rows_b:
         return Part("metrics", None, "neither run has logged a row yet")
+    short = [(w, f) for w, f in (("A", a), ("B", b)) if _trained_to(f) < upto]
+    if short:  # still training (or stopped) short of N: compare as far as both have logged
+        n = min(len(rows_a), len(rows_b))
+        difference = _first_difference(rows_a[:n], rows_b[:n], "metrics.csv")
+        if difference is not None:
+            return Part("metrics", False, difference)
+        which, folder = short[0]
+        return Part(
+            "metrics",
+            None,
+            f"{n:,} rows identical as far as both have logged; {which} has trained "
+            f"{_trained_to(folder):,} of the {upto:,} decisions",
+        )
     difference = _first_difference(rows_a, rows_b, "metrics.csv")
     if difference is not None:
         return Part("metrics", False, difference)
@@ -238,7 +259,16 @@ def run(args: argparse.Namespace) -> int:
     for part in parts:
         mark = {True: "same", False: "DIFFERS", None: "not compared"}[part.same]
         print(f"  {part.name:<9} {mark:<13} {part.text}")
-    differs = any(p.same is False for p in parts)
-    verdict = "differ" if differs else "are the same training"
-    print(f"up to {upto:,} decisions, the runs {verdict}")
-    return 1 if differs else 0
+    print(f"up to {upto:,} decisions, {verdict(parts)}")
+    return 1 if any(p.same is False for p in parts) else 0
+
+
+def verdict(parts: list[Part]) -> str:
+    """The comparison in words: the runs differ, are the same training (config, metrics
+    and weights equal), or showed no difference in the parts that could be compared."""
+    if any(p.same is False for p in parts):
+        return "the runs differ"
+    missing = [p.name for p in parts if p.same is None and p.name != "episodes"]
+    if not missing:
+        return "the runs are the same training"
+    return f"no difference in the parts compared (not compared: {', '.join(missing)})"

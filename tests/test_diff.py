@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from test_train import TINY, cli
 
-from priqn.diff import diff_runs
+from priqn.diff import diff_runs, verdict
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.runs import RunFolder
@@ -101,6 +101,25 @@ def test_each_part_names_its_first_difference(trained: Path, tmp_path: Path) -> 
     assert out.returncode == 1
     assert out.stdout.splitlines()[-1] == "up to 120 decisions, the runs differ"
     assert "  episodes  DIFFERS" in out.stdout
+
+
+def test_a_run_short_of_the_budget_is_compared_as_far_as_it_got(
+    trained: Path, tmp_path: Path
+) -> None:
+    """B stopped at its last checkpoint (60 of 120 decisions): the rows both logged are
+    compared, nothing is called the same training, and a changed row still differs."""
+    b = copy_of(trained, tmp_path)
+    meta = RunFolder(b).meta()
+    atomic_write_json(b / "meta.json", {**meta, "status": "running", "steps_done": 60})
+    (b / "policy.pt").unlink()
+    found = diff_runs(RunFolder(trained), RunFolder(b))[1]
+    assert [p.same for p in found] == [True, None, None, None]
+    assert found[1].text.endswith("B has trained 60 of the 120 decisions")
+    assert verdict(found) == (
+        "no difference in the parts compared (not compared: metrics, weights)"
+    )
+    out = diff_cli(str(trained), str(b))
+    assert out.returncode == 0 and "the runs are the same training" not in out.stdout
 
 
 def test_bad_input_is_one_line(trained: Path, tmp_path: Path) -> None:
