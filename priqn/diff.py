@@ -58,7 +58,7 @@ class Kept:
     file: str
     """Its file, relative to the run folder (``policy.pt``, ``snapshots/policy-at<N>.pt``)."""
     sha256: str
-    """SHA-256 of the file's bytes (meta.json's record where the file is not on disk)."""
+    """SHA-256 of the file's bytes, or meta.json's record of it where the file is not on disk."""
     path: Path | None
     """The file, None where only its SHA-256 is recorded (snapshot weights not committed)."""
     evaluation: str
@@ -95,8 +95,9 @@ def kept_policy(folder: RunFolder, total_steps: int, budget: int) -> Kept | None
     if not entry:
         return None
     path = folder.path / entry["file"]
-    on_disk = path if path.is_file() else None
-    return Kept(entry["file"], entry["sha256"], on_disk, folder.snapshot_evaluation(budget))
+    if path.is_file():  # the bytes themselves where they are there
+        return Kept(entry["file"], sha256_file(path), path, folder.snapshot_evaluation(budget))
+    return Kept(entry["file"], entry["sha256"], None, folder.snapshot_evaluation(budget))
 
 
 def _config_part(cfg_a: Any, cfg_b: Any) -> Part:
