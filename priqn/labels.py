@@ -124,8 +124,12 @@ def at_budget(label: PolicyLabel, budget: int) -> PolicyLabel:
     """``label``'s policy as kept at ``budget`` decisions (an ``eval-at<N>/`` evaluation of
     ``checkpoint.keep_at``): the same row with ``@60k`` (or ``@<N>``) appended, so each
     budget is a row of its own."""
-    word = f"@{budget // 1000}k" if budget % 1000 == 0 else f"@{budget}"
-    return dataclasses.replace(label, extra=(*label.extra, word))
+    return dataclasses.replace(label, extra=(*label.extra, f"@{budget_text(budget)}"))
+
+
+def budget_text(decisions: int) -> str:
+    """A budget in decisions as the reports write it: ``60k``, or ``61500`` off the thousands."""
+    return f"{decisions // 1000}k" if decisions % 1000 == 0 else str(decisions)
 
 
 _DERIVED_WORDS = re.compile(r"(?: near-greedy ε=\S+| @\d+k?)+$")

@@ -297,6 +297,13 @@ class RunFolder:
         """The evaluation names (``at<N>``) of the snapshots meta.json records as kept."""
         return [self.snapshot_evaluation(int(b)) for b in self.meta().get("snapshots") or {}]
 
+    def resumed_at(self) -> list[int]:
+        """The decisions at which training resumed after an interruption (meta.json
+        ``sessions``): each resume goes on from the last checkpoint, so the training after it
+        differs from an uninterrupted run's (its replay buffer is refilled unless saved)."""
+        sessions = self.meta().get("sessions") or []
+        return [int(s["from_step"]) for s in sessions if s.get("resume") and "from_step" in s]
+
     def status(self) -> str:
         """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
         meta = self.meta()

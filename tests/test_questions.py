@@ -214,3 +214,22 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     assert (success["from"], success["to"], success["seeds"]) == (200, 400, 4)
     assert success["change"] == pytest.approx(1.1)
     assert second.read_text() == text
+
+
+def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> None:
+    """The Cells section: a long cell counted at both budgets is one row naming both
+    evaluations; a cell whose meta.json records a resume says at which decision."""
+    exp = grid(tmp_path)
+    run = exp.cell_dir("a-long", 1)
+    sessions = [{"from_step": 0, "resume": False}, {"from_step": 100, "resume": True}]
+    atomic_write_json(
+        run / "meta.json", {"status": "complete", "git_sha": "abc", "sessions": sessions}
+    )
+    text = questions_report.write_report(exp, tmp_path / "r", command="cmd").read_text()
+    cells = text[text.index("## Cells") :].splitlines()
+    rows = [line for line in cells if line.startswith("| `")]
+    assert len(rows) == 16  # 8 seeds x 2 groups, each once
+    (resumed,) = [line for line in rows if "a-long__seed1`" in line]
+    assert resumed.endswith("| 100 |")
+    assert "safety: eval-at200/" in resumed and "long: eval/" in resumed
+    assert sum(line.endswith("| – |") for line in rows) == 15

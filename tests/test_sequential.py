@@ -52,7 +52,9 @@ def cell(c):
     atomic_write_json(
         c.run_dir / "meta.json",
         {"status": "complete", "seed": c.seed, "git_sha": os.environ.get("FAKE_SHA", "abc"),
-         "labels": {"label": "IQN" if c.policy == "good" else c.policy}},
+         "labels": {"label": "IQN" if c.policy == "good" else c.policy},
+         "sessions": [{"from_step": 0, "resume": False}]
+         + ([{"from_step": 5000, "resume": True}] if c.seed == 3 else [])},
     )
 """
 
@@ -358,6 +360,9 @@ def test_sweep_trains_only_what_each_look_needs_then_reports(
     )
     assert np.isnan(same["paper"])
     assert "| good | 8 | 0.900 [0.900, 0.900] (paper 0.737) |" in report
+    # The Cells table says where a cell's training resumed (seed 3 of each row, at 5k).
+    assert "| good | 3 | 0.900 | 20 | `abc` | 5k | `runs/seq/good__seed3` |" in report
+    assert "| good | 2 | 0.900 | 20 | `abc` | – | `runs/seq/good__seed2` |" in report
     looks = pd.read_csv(tmp_path / "reports" / "seq" / "tables" / "looks.csv")
     assert list(looks["look"]) == [1, 1, 2, 2]
     meta = json.loads((tmp_path / "reports" / "seq" / "meta.json").read_text())

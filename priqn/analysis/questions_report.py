@@ -19,6 +19,7 @@ import pandas as pd
 
 from priqn.analysis import inference, questions
 from priqn.analysis.sequential import Replay, relative_path
+from priqn.analysis.sequential_report import RESUMED_NOTE, resumed_text
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.runs import RunFolder, Status
 
@@ -185,9 +186,11 @@ def report_markdown(
     changes: pd.DataFrame,
     command: str,
     efficiency: Sequence[str] = (),
+    scores: pd.DataFrame | None = None,
 ) -> str:
     """``report.md`` of an experiment with questions (``efficiency``: the sample-efficiency
-    section's lines, :func:`_efficiency`)."""
+    section's lines, :func:`_efficiency`; ``scores``: every question's counted cells,
+    ``tables/scores.csv``, for the "Cells" section)."""
     e = exp.experiment
     lines = [
         f"# {e.name}: pre-registered questions",
@@ -204,8 +207,34 @@ def report_markdown(
         "![per-seed endpoints](figures/questions.png)",
         "",
         *efficiency,
+        *_cells_lines(scores if scores is not None else pd.DataFrame()),
     ]
     return "\n".join(lines)
+
+
+def _cells_lines(scores: pd.DataFrame) -> list[str]:
+    """The "Cells" section: every cell a question counts, once, with the evaluations it
+    is counted by, its commit and where its training resumed."""
+    if scores.empty:
+        return []
+    lines = [
+        "## Cells",
+        "",
+        "| run folder | train seed | commit | counted by (question: evaluation) | resumed at |",
+        "|:--|--:|:--|:--|:--|",
+    ]
+    ordered = scores.sort_values(["policy", "train_seed"], kind="mergesort")
+    for run_dir, part in ordered.groupby("run_dir", sort=False):
+        counted = ", ".join(
+            f"{q}: {'eval' if not isinstance(ev, str) or not ev else f'eval-{ev}'}/"
+            for q, ev in part[["question", "evaluation"]].itertuples(index=False)
+        )
+        first = part.iloc[0]
+        lines.append(
+            f"| `{run_dir}` | {int(first.train_seed)} | `{str(first.git_sha)[:12]}` | "
+            f"{counted} | {resumed_text(run_dir)} |"
+        )
+    return [*lines, "", RESUMED_NOTE, ""]
 
 
 def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
@@ -436,7 +465,9 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
     efficiency = _efficiency(exp, out)
     report = out / "report.md"
-    text = report_markdown(exp, comparisons, looks, budgets, changes, command, efficiency)
+    text = report_markdown(
+        exp, comparisons, looks, budgets, changes, command, efficiency, all_scores
+    )
     atomic_write_text(report, text)
     atomic_write_json(
         out / "meta.json",

@@ -29,6 +29,7 @@ from priqn.analysis.sequential import (
     verdict,
 )
 from priqn.experiment import cell_dir_name
+from priqn.labels import budget_text
 from priqn.runs import RunFolder
 
 CURVE_SEED = 0
@@ -468,18 +469,34 @@ def _next_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
     ]
 
 
+def resumed_text(run_dir: str | Path) -> str:
+    """``–``, or the budgets at which the cell's training resumed (``40k, 170k``)."""
+    return ", ".join(map(budget_text, RunFolder(run_dir).resumed_at())) or "–"
+
+
+RESUMED_NOTE = (
+    "*Resumed at*: the cell's training was interrupted (a session ended) and went on from "
+    "its last checkpoint, with fresh scenes and its replay buffer as saved "
+    "(`checkpoint.save_replay`; refilled first where it was not); from there on its "
+    "training differs from an uninterrupted run's (docs/implementation-details.md §8)."
+)
+"""What the reports' "resumed at" column means."""
+
+
 def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
     """The report's "Cells" section (every counted cell) and its list of files."""
     return [
         "## Cells",
         "",
-        "| row | seed | success (endpoint) | episodes | commit | run folder |",
-        "|:--|--:|--:|--:|:--|:--|",
+        "| row | seed | success (endpoint) | episodes | commit | resumed at | run folder |",
+        "|:--|--:|--:|--:|:--|:--|:--|",
         *[
             f"| {r.policy} | {r.seed} | {r.score:.3f} | {r.episodes} | `{r.git_sha[:12]}` | "
-            f"`{r.run_dir}` |"
+            f"{resumed_text(r.run_dir)} | `{r.run_dir}` |"
             for r in scores.sort_values(["policy", "seed"], kind="mergesort").itertuples()
         ],
+        "",
+        RESUMED_NOTE,
         "",
         "Files: `tables/scores.csv`, `tables/looks.csv`, `tables/density.csv`, "
         + (
