@@ -181,6 +181,22 @@ def test_report_files_and_reproducibility(runs, tmp_path) -> None:
     assert meta["seed"] == 3 and meta["holdout_hash"] == HASH and len(meta["runs"]) == 4
 
 
+def test_inputs_name_each_runs_commit_and_resumes(runs, tmp_path) -> None:
+    """The Inputs table: the commit a run trained at and where its training resumed
+    (meta.json); a run without a meta.json shows neither."""
+    sessions = [{"from_step": 0, "resume": False}, {"from_step": 40000, "resume": True},
+                {"from_step": 170000, "resume": True}]  # fmt: skip
+    (runs / "pr_s1" / "meta.json").write_text(
+        json.dumps({"status": "complete", "git_sha": "0123456789abcdef", "sessions": sessions})
+    )
+    report = make_report(runs, tmp_path / "rep", seed=0, reps=20).read_text()
+    inputs = report[report.index("## Inputs") :].splitlines()
+    (pr1,) = [line for line in inputs if line.startswith("| pr_s1 |")]
+    assert pr1.endswith("| `0123456789ab` | 40k, 170k |")
+    (iqn0,) = [line for line in inputs if line.startswith("| iqn_s0 |")]
+    assert iqn0.endswith("| – | – |")
+
+
 def test_sample_efficiency_curves_in_the_report(runs, tmp_path) -> None:
     for i, run in enumerate(sorted(runs.iterdir())):
         evals = [{"kind": "eval", "step": 100, "success": int(e < i)} for e in range(6)]

@@ -20,7 +20,7 @@ from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import episode_columns, is_nets_evaluation, snapshot_budget
 from priqn.io import read_json
-from priqn.labels import CONFIG_COLUMNS, PolicyLabel, at_budget
+from priqn.labels import CONFIG_COLUMNS, PolicyLabel, at_budget, budget_text
 from priqn.objectives import OBJECTIVES, names_in_columns
 from priqn.runs import RunFolder, Status
 
@@ -274,3 +274,29 @@ def check_seeds(episodes: pd.DataFrame, min_seeds: int) -> None:
             f"policy {label!r} has {n} training seed(s) but {min_seeds} were asked for "
             f"({len(short)} policies short); train the missing seeds or lower --seeds"
         )
+
+
+def resumed_text(run_dir: str | Path) -> str:
+    """``–``, or the budgets at which the run's training resumed (``40k, 170k``); ``–``
+    also for a run folder without a meta.json (nothing recorded)."""
+    folder = RunFolder(run_dir)
+    if not folder.meta_path.is_file():
+        return "–"
+    return ", ".join(map(budget_text, folder.resumed_at())) or "–"
+
+
+def commit_text(run_dir: str | Path) -> str:
+    """The commit a run trained at, as the reports print it (12 hex digits), or ``–``
+    where its meta.json records none."""
+    folder = RunFolder(run_dir)
+    sha = folder.meta().get("git_sha") if folder.meta_path.is_file() else None
+    return f"`{str(sha)[:12]}`" if sha else "–"
+
+
+RESUMED_NOTE = (
+    "*Resumed at*: the cell's training was interrupted (a session ended) and went on from "
+    "its last checkpoint, with fresh scenes and its replay buffer as saved "
+    "(`checkpoint.save_replay`; refilled first where it was not); from there on its "
+    "training differs from an uninterrupted run's (docs/implementation-details.md §8)."
+)
+"""What the reports' "resumed at" column means."""

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference, questions
+from priqn.analysis.load import RESUMED_NOTE, resumed_text
 from priqn.analysis.sequential import Replay, relative_path
-from priqn.analysis.sequential_report import RESUMED_NOTE, resumed_text
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.runs import RunFolder, Status
 

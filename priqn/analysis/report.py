@@ -421,18 +421,24 @@ def _curves_section(has_curves: bool, seed: int, reps: int) -> list[str]:
 
 
 def _inputs_section(inputs: ReportInputs) -> list[str]:
-    """The "Inputs" section: every evaluated run (and reference driver) with its hold-out hash."""
+    """The "Inputs" section: every evaluated run (and reference driver) with its hold-out
+    hash, the commit it trained at and where its training resumed."""
+    from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_text
+
     refs = inputs.references.runs if inputs.references is not None else ()
     return [
         "## Inputs",
         "",
-        "| run | policy | training seed | hold-out hash |",
-        "|:--|:--|--:|:--|",
+        "| run | policy | training seed | hold-out hash | commit | resumed at |",
+        "|:--|:--|--:|:--|:--|:--|",
         *[
-            f"| {r.name} | {r.label} | {r.train_seed} | `{r.holdout_hash[:16]}` |"
+            f"| {r.name} | {r.label} | {r.train_seed} | `{r.holdout_hash[:16]}` | "
+            f"{commit_text(r.path)} | {resumed_text(r.path)} |"
             for r in inputs.evaluation.runs
         ],
-        *[f"| {r.name} | *{r.label}* | – | `{r.holdout_hash[:16]}` |" for r in refs],
+        *[f"| {r.name} | *{r.label}* | – | `{r.holdout_hash[:16]}` | – | – |" for r in refs],
+        "",
+        RESUMED_NOTE,
         "",
     ]
 

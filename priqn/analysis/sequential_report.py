@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference
+from priqn.analysis.load import RESUMED_NOTE, resumed_text
 from priqn.analysis.sequential import (
     ComparisonLook,
     Replay,
@@ -29,7 +30,6 @@ from priqn.analysis.sequential import (
     verdict,
 )
 from priqn.experiment import cell_dir_name
-from priqn.labels import budget_text
 from priqn.runs import RunFolder
 
 CURVE_SEED = 0
@@ -467,20 +467,6 @@ def _next_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
         + f" (`priqn sweep {exp.experiment.name} --code <frozen worktree>`).",
         "",
     ]
-
-
-def resumed_text(run_dir: str | Path) -> str:
-    """``–``, or the budgets at which the cell's training resumed (``40k, 170k``)."""
-    return ", ".join(map(budget_text, RunFolder(run_dir).resumed_at())) or "–"
-
-
-RESUMED_NOTE = (
-    "*Resumed at*: the cell's training was interrupted (a session ended) and went on from "
-    "its last checkpoint, with fresh scenes and its replay buffer as saved "
-    "(`checkpoint.save_replay`; refilled first where it was not); from there on its "
-    "training differs from an uninterrupted run's (docs/implementation-details.md §8)."
-)
-"""What the reports' "resumed at" column means."""
 
 
 def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
