@@ -186,25 +186,31 @@ def _weights_part(kept: tuple[Kept | None, Kept | None], upto: int) -> Part:
 
 
 def _differing_tensors(path_a: Path, path_b: Path) -> list[str]:
-    """Names of the online network's tensors (and agent state) that differ."""
-    import torch
-
+    """Names of the online network's tensors and of the agent's learned state (nested
+    entries as ``agent.a.b``) that differ between two policy files."""
     from priqn.checkpoint import load_policy_state
 
     sa, sb = load_policy_state(path_a), load_policy_state(path_b)
-    out = []
-    for part in ("online", "agent"):
-        da, db = getattr(sa, part), getattr(sb, part)
-        for key in sorted(set(da) | set(db)):
-            x, y = da.get(key), db.get(key)
-            equal = (
-                torch.equal(x, y)
-                if isinstance(x, torch.Tensor) and isinstance(y, torch.Tensor)
-                else x == y
-            )
-            if not equal:
-                out.append(f"{part}.{key}")
-    return out
+    la = dict(_leaves({"online": sa.online, "agent": sa.agent}))
+    lb = dict(_leaves({"online": sb.online, "agent": sb.agent}))
+    return [k for k in sorted(set(la) | set(lb)) if not _equal(la.get(k), lb.get(k))]
+
+
+def _leaves(value: Any, prefix: str = "") -> Any:
+    """``(dotted name, leaf)`` of a nested dict of tensors and plain values."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _leaves(item, f"{prefix}{key}.")
+    else:
+        yield prefix.rstrip("."), value
+
+
+def _equal(x: Any, y: Any) -> bool:
+    import torch
+
+    if isinstance(x, torch.Tensor) or isinstance(y, torch.Tensor):
+        return isinstance(x, torch.Tensor) and isinstance(y, torch.Tensor) and torch.equal(x, y)
+    return bool(x == y)
 
 
 def _episodes_part(
