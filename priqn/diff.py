@@ -179,20 +179,28 @@ def _weights_part(kept: tuple[Kept | None, Kept | None], upto: int) -> Part:
         return Part("weights", False, f"SHA-256 differ ({files}); weights not on disk to compare")
     differing = _differing_tensors(ka.path, kb.path)
     if not differing:
-        return Part("weights", True, f"the same tensors, files differ in bytes ({files})")
+        return Part(
+            "weights",
+            True,
+            f"the same policy, files differ in bytes ({files}: another file format or torch)",
+        )
     return Part(
-        "weights", False, f"{len(differing)} tensor(s) differ ({files}), first {differing[0]}"
+        "weights",
+        False,
+        f"{len(differing)} part(s) of the policy differ ({files}), first {differing[0]}",
     )
 
 
 def _differing_tensors(path_a: Path, path_b: Path) -> list[str]:
-    """Names of the online network's tensors and of the agent's learned state (nested
-    entries as ``agent.a.b``) that differ between two policy files."""
+    """Names of the policy's parts that differ between two policy files: the online
+    network's tensors, the agent's learned state (nested entries as ``agent.a.b``), the
+    observation shapes, action count, step and objectives (:class:`PolicyState`)."""
+    import dataclasses
+
     from priqn.checkpoint import load_policy_state
 
     sa, sb = load_policy_state(path_a), load_policy_state(path_b)
-    la = dict(_leaves({"online": sa.online, "agent": sa.agent}))
-    lb = dict(_leaves({"online": sb.online, "agent": sb.agent}))
+    la, lb = (dict(_leaves(dataclasses.asdict(x))) for x in (sa, sb))
     return [k for k in sorted(set(la) | set(lb)) if not _equal(la.get(k), lb.get(k))]
 
 

@@ -59,6 +59,19 @@ def test_a_copy_is_the_same_training(trained: Path, tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines()[-1] == "up to 120 decisions, the runs are the same training"
 
+    # A policy file written without the format key (as before checkpoint format 2): other
+    # bytes, the same policy.
+    import torch
+
+    data = torch.load(b / "policy.pt", weights_only=True)
+    del data["format"]
+    torch.save(data, b / "policy.pt")
+    (b / "policy.pt.sha256").unlink(missing_ok=True)
+    assert parts(trained, b)["weights"] == (
+        True,
+        "the same policy, files differ in bytes (policy.pt / policy.pt: another file format or torch)",
+    )
+
 
 def test_each_part_names_its_first_difference(trained: Path, tmp_path: Path) -> None:
 
@@ -92,7 +105,7 @@ def test_each_part_names_its_first_difference(trained: Path, tmp_path: Path) -> 
     assert found["metrics"][1].startswith("metrics.csv row 2 (kind train, step ")
     assert found["metrics"][1].endswith(f": loss is '12345.0', not '{loss}'")
     assert found["weights"] == (
-        False, f"1 tensor(s) differ (policy.pt / policy.pt), first online.{key}",
+        False, f"1 part(s) of the policy differ (policy.pt / policy.pt), first online.{key}",
     )  # fmt: skip
     assert found["episodes"] == (
         False, "episodes.csv row 2 (net holdout/x, episode 1): success is 'False', not 'True'",
