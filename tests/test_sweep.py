@@ -686,6 +686,32 @@ def test_time_left_times_the_cells_left_by_their_rows_complete_cells(tmp_path: P
     assert (est.hours, est.untimed) == (None, ("c",))
 
 
+def test_time_left_scales_a_rows_time_from_its_groups_other_budget(tmp_path: Path) -> None:
+    """a-long (4,000 decisions, one snapshot) has no complete cell; its group's 1,000-decision
+    cells took 9 and 19 min of training (median 14 min per 1,000 decisions) and 1 min per
+    evaluation: 56 min of training plus 2 evaluations, 58 min."""
+    path = tmp_path / "grp.toml"
+    path.write_text(
+        '[experiment]\nname = "fake"\nseeds = [0, 1]\nsteps = 1000\n'
+        'set = ["exploration.decay_steps=300"]\n'
+        f'runs_dir = "{(tmp_path / "runs").as_posix()}"\n'
+        "[resources]\ncpus_per_cell = 1\n"
+        '[[policy]]\nname = "a"\nagent = "iqn"\n'
+        '[[policy]]\nname = "a-long"\ngroup = "a"\nagent = "iqn"\nsteps = 4000\n'
+        "seeds = [2]\nkeep_at = [1000]\n"
+    )
+    exp = load_experiment(path)
+    cells = {c.name: c for c in expand(exp)}
+    for name, train_s in (("fake/a__seed0", 540), ("fake/a__seed1", 1140)):
+        d = cells[name].run_dir
+        atomic_write_json(d / "meta.json", {"status": "complete", "wall_s": train_s})
+        atomic_write_json(d / "eval" / "meta.json", {"status": "complete", "wall_s": 60})
+    est = time_left(exp, [cells["fake/a-long__seed2"]], slots=1)
+    assert est.scaled == ("a-long",) and est.untimed == ()
+    assert est.minutes_per_cell["a-long"] == pytest.approx(58.0)
+    assert est.hours == pytest.approx(58 / 60)
+
+
 def test_list_says_how_far_each_started_cell_is(tmp_path: Path) -> None:
     """``--list`` gives a training cell's decisions logged of its budget (the preset's,
     from meta.json, where the row names none), and a trained cell's missing evaluations;

@@ -319,7 +319,47 @@ class TimeLeft:
     minutes_per_cell: dict[str, float]
     """Policy -> median wall minutes of its complete cells in this experiment."""
     untimed: tuple[str, ...]
-    """Policies with cells left but no complete cell yet."""
+    """Policies with cells left but no complete cell yet, nor one of their group's."""
+    scaled: tuple[str, ...] = ()
+    """Policies timed by their group's complete cells at another budget (reused ones
+    included), scaled to their own budget and evaluations."""
+
+
+def reused_cells(exp: Experiment) -> list[Cell]:
+    """The cells rows read from earlier grids (``reuse``), as cells of those rows."""
+    return [
+        dataclasses.replace(
+            cell_of(exp, pol, seed), run_dir=Path(folder) / cell_dir_name(pol.name, seed)
+        )
+        for pol in exp.policies
+        for folder, seeds in pol.reuse.items()
+        for seed in seeds
+    ]
+
+
+def _scaled_minutes(
+    exp: Experiment, complete: list[Cell], untimed: list[Cell]
+) -> dict[str, tuple[float, float]]:
+    """Policy -> (whole, evaluation) minutes of a cell of each ``untimed`` policy, from its
+    group's ``complete`` cells: the median training minutes per decision times its budget,
+    the median minutes per evaluation times its evaluations."""
+    import statistics
+
+    group = {pol.name: pol.group_name for pol in exp.policies}
+    rates: dict[str, list[tuple[float, float]]] = {}
+    for c in complete:
+        budget = training_progress(c)[1]
+        if budget:
+            per_eval = evaluation_minutes(c) / len(c.evaluations)
+            rates.setdefault(group[c.policy], []).append((training_minutes(c) / budget, per_eval))
+    out = {}
+    for c in untimed:
+        found = rates.get(group[c.policy])
+        if c.policy in out or not found or not c.steps:
+            continue
+        evaluation = statistics.median(e for _, e in found) * len(c.evaluations)
+        out[c.policy] = (statistics.median(t for t, _ in found) * c.steps + evaluation, evaluation)
+    return out
 
 
 def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
@@ -327,7 +367,9 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     take at ``slots`` cells at a time, timed by this experiment's complete cells: each
     row's median; a running cell less the share of its training its ``metrics.csv`` has
     logged (also when interrupted: it resumes), a trained one only its row's median
-    evaluation. An estimate from the cells' own history, for planning only."""
+    evaluation. A row with no complete cell is timed by its group's complete cells at
+    another budget (reused ones too), scaled by decisions. An estimate from the cells'
+    own history, for planning only."""
     import heapq
     import statistics
 
@@ -340,9 +382,18 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
             done.setdefault(c.policy, []).append((training_minutes(c) + evaluation, evaluation))
     per_cell = {p: statistics.median(w for w, _ in m) for p, m in sorted(done.items())}
     per_eval = {p: statistics.median(e for _, e in m) for p, m in done.items()}
+    if any(c.policy not in per_cell for c in cells):
+        complete = [c for c in grid if state[c.name] == Status.COMPLETE]
+        complete += [c for c in reused_cells(exp) if c.is_complete()]
+        missing = [c for c in cells if c.policy not in per_cell]
+        scaled = _scaled_minutes(exp, complete, missing)
+        for p, (whole, evaluation) in scaled.items():
+            per_cell[p], per_eval[p] = whole, evaluation
+    else:
+        scaled = {}
     untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
     if untimed:
-        return TimeLeft(None, per_cell, untimed)
+        return TimeLeft(None, per_cell, untimed, tuple(scaled))
 
     def minutes_left(c: Cell) -> float:
         whole, evaluation = per_cell[c.policy], per_eval[c.policy]
@@ -358,4 +409,4 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     free_at = [0.0] * max(1, slots)  # minutes from now at which each slot is free
     for minutes in queue:
         heapq.heappush(free_at, heapq.heappop(free_at) + minutes)
-    return TimeLeft(max(free_at) / 60.0, per_cell, ())
+    return TimeLeft(max(free_at) / 60.0, per_cell, (), tuple(scaled))

@@ -276,7 +276,10 @@ def _time_left_line(exp: Any, left: list[Any], slots: int) -> str:
             f"time left for {len(left)} cell(s): unknown until {', '.join(est.untimed)} "
             "has a complete cell to time it by"
         )
-    per = ", ".join(f"{p} {m:.0f} min" for p, m in est.minutes_per_cell.items())
+    per = ", ".join(
+        f"{p} {m:.0f} min" + (" (scaled from its group's other budgets)" if p in est.scaled else "")
+        for p, m in est.minutes_per_cell.items()
+    )
     return (
         f"about {est.hours:.1f} h left for {len(left)} cell(s), {slots} at a time "
         f"(per cell, the median of this experiment's complete cells: {per}; an estimate)"
