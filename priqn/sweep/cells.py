@@ -317,7 +317,8 @@ class TimeLeft:
     """Makespan of the cells left, handed in order to the first free slot; None when a
     row has no complete cell to time it by."""
     minutes_per_cell: dict[str, float]
-    """Policy -> median wall minutes of its complete cells in this experiment."""
+    """Policy -> median wall minutes of its complete cells in this experiment (for a
+    policy in :attr:`scaled`, the estimate from its group's other budgets)."""
     untimed: tuple[str, ...]
     """Policies with cells left but no complete cell yet, nor one of their group's."""
     scaled: tuple[str, ...] = ()
@@ -375,22 +376,20 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
 
     grid = expand(exp)
     state = {c.name: c.state() for c in grid}  # read once per cell
+    complete = [c for c in grid if state[c.name] == Status.COMPLETE]
     done: dict[str, list[tuple[float, float]]] = {}  # policy -> (whole, evaluation) minutes
-    for c in grid:
-        if state[c.name] == Status.COMPLETE:
-            evaluation = evaluation_minutes(c)
-            done.setdefault(c.policy, []).append((training_minutes(c) + evaluation, evaluation))
+    for c in complete:
+        evaluation = evaluation_minutes(c)
+        done.setdefault(c.policy, []).append((training_minutes(c) + evaluation, evaluation))
     per_cell = {p: statistics.median(w for w, _ in m) for p, m in sorted(done.items())}
     per_eval = {p: statistics.median(e for _, e in m) for p, m in done.items()}
-    if any(c.policy not in per_cell for c in cells):
-        complete = [c for c in grid if state[c.name] == Status.COMPLETE]
-        complete += [c for c in reused_cells(exp) if c.is_complete()]
-        missing = [c for c in cells if c.policy not in per_cell]
-        scaled = _scaled_minutes(exp, complete, missing)
+    missing = [c for c in cells if c.policy not in per_cell]
+    scaled: dict[str, tuple[float, float]] = {}
+    if missing:  # timed by their group's other budgets, reused cells included
+        sources = complete + [c for c in reused_cells(exp) if c.is_complete()]
+        scaled = _scaled_minutes(exp, sources, missing)
         for p, (whole, evaluation) in scaled.items():
             per_cell[p], per_eval[p] = whole, evaluation
-    else:
-        scaled = {}
     untimed = tuple(dict.fromkeys(c.policy for c in cells if c.policy not in per_cell))
     if untimed:
         return TimeLeft(None, per_cell, untimed, tuple(scaled))
