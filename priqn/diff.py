@@ -131,19 +131,11 @@ def _first_difference(
     return None
 
 
-def _trained_to(folder: RunFolder) -> int:
-    """Decisions a run has trained: its budget once complete, else its last checkpoint's."""
-    meta = folder.meta()
-    if meta.get("status") == Status.COMPLETE:
-        return int(meta.get("total_steps") or meta.get("steps_done") or 0)
-    return int(meta.get("steps_done") or 0)
-
-
 def _metrics_part(a: RunFolder, b: RunFolder, upto: int) -> Part:
     rows_a, rows_b = (_rows(f.read_metrics(upto), IGNORED_METRICS) for f in (a, b))
     if not rows_a and not rows_b:
         return Part("metrics", None, "neither run has logged a row yet")
-    short = [(w, f) for w, f in (("A", a), ("B", b)) if _trained_to(f) < upto]
+    short = [(w, f) for w, f in (("A", a), ("B", b)) if f.trained_to() < upto]
     if short:  # still training (or stopped) short of N: compare as far as both have logged
         n = min(len(rows_a), len(rows_b))
         difference = _first_difference(rows_a[:n], rows_b[:n], "metrics.csv")
@@ -154,7 +146,7 @@ def _metrics_part(a: RunFolder, b: RunFolder, upto: int) -> Part:
             "metrics",
             None,
             f"{n:,} rows identical as far as both have logged; {which} has trained "
-            f"{_trained_to(folder):,} of the {upto:,} decisions",
+            f"{folder.trained_to():,} of the {upto:,} decisions",
         )
     difference = _first_difference(rows_a, rows_b, "metrics.csv")
     if difference is not None:

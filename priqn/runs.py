@@ -304,6 +304,14 @@ class RunFolder:
         sessions = self.meta().get("sessions") or []
         return [int(s["from_step"]) for s in sessions if s.get("resume") and "from_step" in s]
 
+    def trained_to(self) -> int:
+        """Decisions the run has trained, as its meta.json records them: the budget
+        (``total_steps``) once complete, else the last checkpoint's ``steps_done``."""
+        meta = self.meta()
+        if meta.get("status") == Status.COMPLETE:
+            return int(meta.get("total_steps") or meta.get("steps_done") or 0)
+        return int(meta.get("steps_done") or 0)
+
     def status(self) -> str:
         """meta.json's status, with ``interrupted`` for a ``running`` run whose trainer is dead."""
         meta = self.meta()

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference, questions
-from priqn.analysis.load import RESUMED_NOTE, resumed_text
+from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_text
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.runs import RunFolder, Status
@@ -231,7 +231,7 @@ def _cells_lines(scores: pd.DataFrame) -> list[str]:
         )
         first = part.iloc[0]
         lines.append(
-            f"| `{run_dir}` | {int(first.train_seed)} | `{str(first.git_sha)[:12]}` | "
+            f"| `{run_dir}` | {int(first.train_seed)} | {commit_text(run_dir)} | "
             f"{counted} | {resumed_text(run_dir)} |"
         )
     return [*lines, "", RESUMED_NOTE, ""]
