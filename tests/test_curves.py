@@ -163,6 +163,36 @@ def test_panels_cut_long_kinds_into_balanced_chunks() -> None:
     assert sum((r for _, r in got), []) == rows
 
 
+def test_the_reference_line_is_the_iqn_group_that_reaches_furthest() -> None:
+    """A design with IQN at 60k (first in file order) and IQN at 240k: the Pr-IQN panel's
+    dotted IQN is the 240k one, the curve a 240k Pr-IQN* is compared with."""
+    from types import SimpleNamespace
+
+    from priqn.analysis.sequential_report import efficiency_figure
+
+    policies = [SimpleNamespace(group_name=g, agent=a)
+                for g, a in (("iqn-halving", "iqn"), ("iqn", "iqn"), ("pr", "pr-iqn"))]  # fmt: skip
+    reach = {"iqn-halving": 60_000, "iqn": 240_000, "pr": 240_000}
+    curve = pd.DataFrame(
+        [
+            {"row": row, "source": curves.PERIODIC, "budget": budget, "mean": 0.5, "lo": 0.4,
+             "hi": 0.6, "seeds": 2, "episodes_min": 6, "episodes_max": 6}  # fmt: skip
+            for row, top in reach.items()
+            for budget in (top // 2, top)
+        ]
+    )
+    fig = efficiency_figure(SimpleNamespace(policies=policies), curve)
+    legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes]
+    assert legends[1] == ["iqn (for reference)", "pr (2 seeds)"]
+    dotted = fig.axes[1].get_lines()[0]
+    assert dotted.get_linestyle() == ":" and max(dotted.get_xdata()) == 240_000
+    # Among equals, the first in file order (the headline: one IQN row).
+    reach["iqn"] = 60_000
+    curve.loc[curve["row"] == "iqn", "budget"] = [30_000, 60_000]
+    fig = efficiency_figure(SimpleNamespace(policies=policies), curve)
+    assert fig.axes[1].get_legend().get_texts()[0].get_text() == "iqn-halving (for reference)"
+
+
 def test_a_figure_of_full_evaluations_only(tmp_path: Path) -> None:
     """Runs without in-training evaluations (e.g. a short run): markers only, one style entry."""
     cells = [("IQN", s, _cell(tmp_path, f"r{s}", "IQN", IQN, s, 20)) for s in (0, 1)]

@@ -258,13 +258,17 @@ def sample_efficiency(exp: Any, scores: pd.DataFrame) -> tuple[pd.DataFrame, lis
 
 def efficiency_figure(exp: Any, curve: pd.DataFrame) -> Any:
     """The sample-efficiency figure: baselines and Pr-IQN variants in their own panels,
-    one colour per row group (file order), the first baseline dotted where it is absent."""
+    one colour per row group (file order), dotted where it is absent the IQN group whose
+    curve reaches furthest (the first in file order among equals: with IQN at 60k and at
+    240k, the one a Pr-IQN* 240k curve is compared with)."""
     from priqn.analysis import curves
     from priqn.analysis.figures import row_colors, sample_efficiency_figure
 
     agents = {p.group_name: p.agent for p in exp.policies}
     rows = [g for g in agents if g in set(curve["row"])]
-    reference = next((g for g in rows if agents[g] == "iqn"), None)
+    reach = curve.groupby("row")["budget"].max()
+    iqn = [g for g in rows if agents[g] == "iqn"]
+    reference = max(iqn, key=lambda g: reach[g]) if iqn else None  # max keeps the first of ties
     return sample_efficiency_figure(
         curve, curves.panels(rows, curves.row_kinds(agents)), row_colors(list(agents)), reference
     )
