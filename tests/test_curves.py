@@ -175,8 +175,17 @@ def test_the_reference_line_is_the_iqn_group_that_reaches_furthest() -> None:
     reach = {"iqn-halving": 60_000, "iqn": 240_000, "pr": 240_000}
     curve = pd.DataFrame(
         [
-            {"row": row, "source": curves.PERIODIC, "budget": budget, "mean": 0.5, "lo": 0.4,
-             "hi": 0.6, "seeds": 2, "episodes_min": 6, "episodes_max": 6}  # fmt: skip
+            {
+                "row": row,
+                "source": curves.PERIODIC,
+                "budget": budget,
+                "mean": 0.5,
+                "lo": 0.4,
+                "hi": 0.6,
+                "seeds": 2,
+                "episodes_min": 6,
+                "episodes_max": 6,
+            }
             for row, top in reach.items()
             for budget in (top // 2, top)
         ]
