@@ -140,18 +140,32 @@ def _pts(x: float) -> str:
 
 
 def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
-    """One panel per question: each group's per-seed endpoint (dots), its mean (bar) and
-    95 % t interval (thin line), at the question's budget."""
-    from priqn.analysis.figures import plt
+    """One panel per question: each group's per-seed endpoint (dots, in the group's colour
+    of the sample-efficiency figure; hollow where the cell's training resumed before the
+    question's budget), its mean (bar) and 95 % t interval (thin line), at the question's
+    budget."""
+    from priqn.analysis.figures import plt, row_colors
 
+    colors = row_colors(list(dict.fromkeys(p.group_name for p in exp.policies)))
     names = [q.name for q in exp.questions]
     fig, axes = plt.subplots(len(names), 1, figsize=(7.5, 1.45 * len(names) + 0.6), squeeze=False)
     for ax, q in zip(axes[:, 0], exp.questions, strict=True):
         scores = scores_by_question[q.name]
         groups = [r.name for r in questions.view(q).policies]
         for i, group in enumerate(groups):
-            x = scores[scores["policy"] == group]["score"].to_numpy(float)
-            ax.plot(x, np.full(x.size, i), "o", color="tab:blue", ms=4, alpha=0.75)
+            mine = scores[scores["policy"] == group]
+            x = mine["score"].to_numpy(float)
+            resumed = np.array([resumed_before(d, q.budget) for d in mine["run_dir"]], dtype=bool)
+            for hollow in (False, True):
+                ax.plot(
+                    x[resumed == hollow],
+                    np.full(int((resumed == hollow).sum()), i),
+                    "o",
+                    color=colors.get(group, "tab:blue"),
+                    mfc="white" if hollow else colors.get(group, "tab:blue"),
+                    ms=4,
+                    alpha=0.8,
+                )
             if x.size:
                 ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
             if x.size >= 2:
@@ -171,11 +185,19 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
             loc="left",
         )
     axes[-1, 0].set_xlabel(
-        "per training seed, mean over densities (dot: seed; bar: mean; thin: 95 % t interval)",
+        "per training seed, mean over densities (dot: seed, hollow where its training resumed "
+        "before this budget; bar: mean; thin: 95 % t interval)",
         fontsize=7,
     )
     fig.tight_layout()
     return fig
+
+
+def resumed_before(run_dir: str | Path, budget: int) -> bool:
+    """Whether the cell's training resumed (a session ended) before ``budget`` decisions,
+    so that its policy at ``budget`` is not the uninterrupted run's."""
+    folder = RunFolder(run_dir)
+    return folder.meta_path.is_file() and any(b < budget for b in folder.resumed_at())
 
 
 def report_markdown(
