@@ -186,7 +186,7 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
         )
     axes[-1, 0].set_xlabel(
         "per training seed, mean over densities (dot: seed, hollow where its training resumed "
-        "before this budget; bar: mean; thin: 95 % t interval)",
+        "before this budget;\nbar: mean; thin: 95 % t interval)",
         fontsize=7,
     )
     fig.tight_layout()
