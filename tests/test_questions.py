@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from priqn.analysis import questions, questions_report
+from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.sweep import load_experiment
@@ -233,18 +234,16 @@ def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> Non
     assert resumed.endswith("| 100 |")
     assert "safety: eval-at200/" in resumed and "long: eval/" in resumed
     assert sum(line.endswith("| – |") for line in rows) == 15
-    # The figure: that cell's dot is hollow at 400 (resumed at 100, before it) and at 200.
-    assert questions_report.resumed_before(run, 200) and questions_report.resumed_before(run, 400)
-    assert not questions_report.resumed_before(run, 100)  # its policy at 100 came before
-    assert not questions_report.resumed_before(exp.cell_dir("a-long", 0), 400)
+    # The figure: that cell's dot is a square at 400 (resumed at 100, before it) and at 200.
+    assert resumed_before(run, 200) and resumed_before(run, 400) and resumed_before(run)
+    assert not resumed_before(run, 100)  # its policy at 100 came before the resume
+    assert not resumed_before(exp.cell_dir("a-long", 0), 400)
     scores = {q.name: questions.collect(exp, q) for q in exp.questions}
     fig = questions_report.figure(exp, scores)
-    hollow = [
+    squares = [
         (ax.get_title(loc="left").split(":")[0], line.get_xdata().size)
         for ax in fig.axes
         for line in ax.get_lines()
-        if line.get_marker() == "o"
-        and line.get_markerfacecolor() == "white"
-        and line.get_xdata().size  # fmt: skip
+        if line.get_marker() == "s"
     ]
-    assert hollow == [("safety", 1), ("long", 1)]
+    assert squares == [("safety", 1), ("long", 1)]

@@ -18,6 +18,7 @@ from matplotlib.collections import PolyCollection
 
 from priqn.analysis import sequential, sequential_report
 from priqn.errors import PriqnError
+from priqn.io import atomic_write_json
 from priqn.sweep import load_experiment
 
 # Fake cells: one evaluation episode table per cell whose success rate is set by the row
@@ -199,6 +200,18 @@ def test_per_seed_figure_marks_where_the_first_row_would_sit_at_the_papers_diffe
     assert diamond.get_xdata()[0] == pytest.approx(0.1 + 0.5)
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "where good would sit at the paper's difference" in labels
+    assert not [ln for ln in ax.lines if ln.get_marker() == "s"]
+    assert "seed whose training resumed (a session ended)" not in labels
+    # A cell whose training resumed is a square, and the legend says what a square is.
+    resumed = tmp_path / "resumed"
+    sessions = [{"from_step": 0, "resume": False}, {"from_step": 50, "resume": True}]
+    atomic_write_json(resumed / "meta.json", {"status": "complete", "sessions": sessions})
+    four.loc[(four["policy"] == "bad") & (four["seed"] == 2), "run_dir"] = str(resumed)
+    ax = sequential_report.figure(exp, four).axes[0]
+    (square,) = [ln for ln in ax.lines if ln.get_marker() == "s"]
+    assert list(square.get_xdata()) == [0.1] and list(square.get_ydata()) == [1]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "seed whose training resumed (a session ended)" in labels
 
 
 def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(

@@ -49,6 +49,50 @@ def save_figure(fig: plt.Figure, out_dir: Path, name: str) -> list[Path]:
     return paths
 
 
+def seed_dots(
+    ax: plt.Axes, x: np.ndarray, row: float, color: Any, reused: np.ndarray, resumed: np.ndarray
+) -> None:
+    """One row's per-training-seed endpoints ``x`` at height ``row``: circles for cells
+    trained in this experiment, open where a cell comes from a prior grid (``reused``),
+    squares where its training resumed after a session ended before the budget shown
+    (``resumed``; from there on not the uninterrupted run's)."""
+    for is_reused in (False, True):
+        for is_resumed in (False, True):
+            mask = (reused == is_reused) & (resumed == is_resumed)
+            if mask.any():
+                ax.plot(
+                    x[mask],
+                    np.full(int(mask.sum()), row),
+                    "s" if is_resumed else "o",
+                    color=color,
+                    mfc="none" if is_reused else color,
+                    ms=5 if not is_resumed else 4.5,
+                    alpha=0.8,
+                )
+
+
+def seed_dot_handles(color: Any, reused: bool, resumed: bool) -> list:
+    """Legend entries for :func:`seed_dots`: the kinds of cell a figure shows."""
+    handles = [plt.Line2D([], [], ls="", marker="o", color=color, label="seed (this experiment)")]
+    if reused:
+        handles.append(
+            plt.Line2D([], [], ls="", marker="o", mfc="none", mec=color, label="seed (prior grid)")
+        )
+    if resumed:
+        handles.append(
+            plt.Line2D(
+                [],
+                [],
+                ls="",
+                marker="s",
+                color=color,
+                ms=4.5,
+                label="seed whose training resumed (a session ended)",
+            )
+        )
+    return handles
+
+
 def legend_above(ax: plt.Axes, handles: list, title: str, ncol: int) -> None:
     """The legend of a dot / interval figure: small, frameless, centred above the axes."""
     ax.legend(

@@ -285,6 +285,16 @@ def resumed_text(run_dir: str | Path) -> str:
     return ", ".join(map(budget_text, folder.resumed_at())) or "–"
 
 
+def resumed_before(run_dir: str | Path, budget: int | None = None) -> bool:
+    """Whether the run's training resumed after an interruption before ``budget``
+    decisions (any resume where None), so its policy there is not the uninterrupted
+    run's; False for a run folder without a meta.json."""
+    folder = RunFolder(run_dir)
+    if not folder.meta_path.is_file():
+        return False
+    return any(budget is None or b < budget for b in folder.resumed_at())
+
+
 def commit_text(run_dir: str | Path) -> str:
     """The commit a run trained at, as the reports print it (12 hex digits), or ``–``
     where its meta.json records none."""

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference, questions
-from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_text
+from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.runs import RunFolder, Status
@@ -140,13 +140,14 @@ def _pts(x: float) -> str:
 
 
 def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
-    """One panel per question: each group's per-seed endpoint (dots, in the group's colour
-    of the sample-efficiency figure; hollow where the cell's training resumed before the
-    question's budget), its mean (bar) and 95 % t interval (thin line), at the question's
-    budget."""
-    from priqn.analysis.figures import plt, row_colors
+    """One panel per question: each group's per-seed endpoint (dots in the group's colour
+    of the sample-efficiency figure, :func:`priqn.analysis.figures.seed_dots`: open for a
+    prior grid's cell, square where the training resumed before the question's budget),
+    its mean (bar) and 95 % t interval (thin line), at the question's budget."""
+    from priqn.analysis.figures import plt, row_colors, seed_dots
 
     colors = row_colors(list(dict.fromkeys(p.group_name for p in exp.policies)))
+    own = Path(exp.runs_dir).resolve()
     names = [q.name for q in exp.questions]
     fig, axes = plt.subplots(len(names), 1, figsize=(7.5, 1.45 * len(names) + 0.6), squeeze=False)
     for ax, q in zip(axes[:, 0], exp.questions, strict=True):
@@ -155,17 +156,10 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
         for i, group in enumerate(groups):
             mine = scores[scores["policy"] == group]
             x = mine["score"].to_numpy(float)
-            resumed = np.array([resumed_before(d, q.budget) for d in mine["run_dir"]], dtype=bool)
-            for hollow in (False, True):
-                ax.plot(
-                    x[resumed == hollow],
-                    np.full(int((resumed == hollow).sum()), i),
-                    "o",
-                    color=colors.get(group, "tab:blue"),
-                    mfc="white" if hollow else colors.get(group, "tab:blue"),
-                    ms=4,
-                    alpha=0.8,
-                )
+            dirs = [Path(d) for d in mine["run_dir"]]
+            reused = np.array([not d.resolve().is_relative_to(own) for d in dirs], dtype=bool)
+            resumed = np.array([resumed_before(d, q.budget) for d in dirs], dtype=bool)
+            seed_dots(ax, x, i, colors[group], reused, resumed)
             if x.size:
                 ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
             if x.size >= 2:
@@ -185,19 +179,12 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
             loc="left",
         )
     axes[-1, 0].set_xlabel(
-        "per training seed, mean over densities (dot: seed, hollow where its training resumed "
-        "before this budget;\nbar: mean; thin: 95 % t interval)",
+        "per training seed, mean over densities (dot: seed; open: a prior grid's cell; square: "
+        "its training resumed before this budget;\nbar: mean; thin: 95 % t interval)",
         fontsize=7,
     )
     fig.tight_layout()
     return fig
-
-
-def resumed_before(run_dir: str | Path, budget: int) -> bool:
-    """Whether the cell's training resumed (a session ended) before ``budget`` decisions,
-    so that its policy at ``budget`` is not the uninterrupted run's."""
-    folder = RunFolder(run_dir)
-    return folder.meta_path.is_file() and any(b < budget for b in folder.resumed_at())
 
 
 def report_markdown(

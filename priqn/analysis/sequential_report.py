@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference
-from priqn.analysis.load import RESUMED_NOTE, resumed_text
+from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.sequential import (
     ComparisonLook,
     Replay,
@@ -94,20 +94,23 @@ def looks_frame(result: Replay) -> pd.DataFrame:
 
 def figure(exp: Any, scores: pd.DataFrame) -> Any:
     """Per-seed endpoint of every row (dots: filled = this experiment's cells, open = the
-    prior grid's), the row mean (bar) with its 95 % t interval, and where Pr-IQN* would
-    sit if the paper's difference to each baseline held (diamonds on the compared row)."""
-    from priqn.analysis.figures import legend_above, plt
+    prior grid's, square = training resumed after a session ended), the row mean (bar)
+    with its 95 % t interval, and where Pr-IQN* would sit if the paper's difference to each
+    baseline held (diamonds on the compared row)."""
+    from priqn.analysis.figures import legend_above, plt, seed_dot_handles, seed_dots
 
     seq = exp.sequential
     policies = [p.name for p in exp.policies]
     fig, ax = plt.subplots(figsize=(7.5, 0.55 * len(policies) + 1.6))
     means = {}
+    any_resumed = False
     for i, policy in enumerate(policies):
         mine = scores[scores["policy"] == policy]
         x = mine["score"].to_numpy(float)
         prior = mine["seed"].isin(seq.prior_seeds).to_numpy()
-        ax.plot(x[~prior], np.full((~prior).sum(), i), "o", color="tab:blue", ms=5, alpha=0.8)
-        ax.plot(x[prior], np.full(prior.sum(), i), "o", mfc="none", mec="tab:blue", ms=5)
+        resumed = np.array([resumed_before(d) for d in mine["run_dir"]], dtype=bool)
+        seed_dots(ax, x, i, "tab:blue", prior, resumed)
+        any_resumed |= bool(resumed.any())
         if len(x):
             means[policy] = float(x.mean())
             ax.plot([x.mean()] * 2, [i - 0.3, i + 0.3], color="black", lw=1.8)
@@ -144,10 +147,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     ax.grid(axis="x", color="0.9")
     ax.set_xlabel("hold-out success rate, mean over densities (one dot per training seed)")
     handles = [
-        plt.Line2D([], [], ls="", marker="o", color="tab:blue", label="seed (this experiment)"),
-        plt.Line2D(
-            [], [], ls="", marker="o", mfc="none", mec="tab:blue", label="seed (prior grid)"
-        ),
+        *seed_dot_handles("tab:blue", reused=True, resumed=any_resumed),
         plt.Line2D([], [], color="black", lw=1.8, label="mean; thin: 95 % t interval"),
         plt.Line2D(
             [],
