@@ -42,7 +42,7 @@ def train_and_evaluate(cell: Cell) -> None:
     eval_cfg = build_eval_config(cell)
     for name in ("", *cell.controls):  # each returns at once if already complete
         evaluate_run(cell.run_dir, control_config(eval_cfg, name))
-    for budget in RunFolder(cell.run_dir).config().checkpoint.keep_at:  # each kept snapshot
+    for budget in cell.snapshots:  # each kept snapshot the cell counts (its keep_at)
         evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, snapshot=budget))
 
 
