@@ -34,7 +34,8 @@ from priqn.sweep import (
     load_experiment,
     run_sweep,
 )
-from priqn.sweep.cells import time_left, training_fraction_done
+from priqn.sweep import cells as sweep_cells
+from priqn.sweep.cells import time_left, training_fraction_done, training_minutes_to_go
 from priqn.sweep.commit import commit_complete_cells
 from priqn.sweep.scheduler import SweepFolder
 
@@ -747,6 +748,33 @@ def test_list_says_how_far_each_started_cell_is(tmp_path: Path) -> None:
     assert time_left(load_experiment(exp_path), left, slots=1).hours == pytest.approx(
         (6.75 + 1 + 10) / 60
     )
+
+
+def test_list_says_how_long_a_training_cell_has_to_go_at_its_recent_pace(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A cell resumed at 400 of 2,000 decisions: its rows up to the resume do not count
+    (their wall clock is another session's); since then 500 -> 800 took 40 s and
+    800 -> 1,000 took 100 s. Over the whole session 500 decisions in 140 s, so 1,000 to go
+    take 280 s; over a 200-decision window 2 decisions a second, so 500 s."""
+    exp_path = write_experiment(tmp_path, ["a"], [0])
+    (cell,) = expand(load_experiment(exp_path))
+    meta = {"status": "running", "pid": 1, "host": socket.gethostname(), "total_steps": 2000,
+            "sessions": [{"from_step": 0}, {"from_step": 400}]}  # fmt: skip
+    atomic_write_json(cell.run_dir / "meta.json", meta)
+    assert training_minutes_to_go(cell) is None  # nothing logged yet
+    (cell.run_dir / "metrics.csv").write_text(
+        "kind,step,wall_s\ntrain,200,5000\ntrain,400,9000\n"
+        "train,500,10\ntrain,800,50\ntrain,900,100\ntrain,1000,150\n"
+    )
+    assert training_minutes_to_go(cell) == pytest.approx(280 / 60)
+    monkeypatch.setattr(sweep_cells, "PACE_WINDOW", 200)
+    assert training_minutes_to_go(cell) == pytest.approx(500 / 60)
+    assert sweep_cells.cell_progress(cell, Status.RUNNING) == (
+        "1,000/2,000 decisions, about 8 min of training to go"
+    )
+    # A stopped cell has no pace: it resumes when a sweep starts it again.
+    assert sweep_cells.cell_progress(cell, Status.INTERRUPTED) == "1,000/2,000 decisions"
 
 
 @pytest.mark.parametrize("backend", ["local", pytest.param("ray", marks=pytest.mark.ray)])

@@ -291,13 +291,45 @@ def training_fraction_done(cell: Cell) -> float:
     return min(1.0, logged / total) if total else 0.0
 
 
+PACE_WINDOW: int = 20_000
+"""Decisions over which ``--list`` measures a training cell's recent pace."""
+
+
+def training_minutes_to_go(cell: Cell) -> float | None:
+    """Wall minutes a training cell still needs at its recent pace: the decisions its
+    ``metrics.csv`` logged over the last :data:`PACE_WINDOW` decisions of its current
+    session (``wall_s``; meta.json ``sessions``), per second. None until that session has
+    logged two rows a second apart."""
+    folder = RunFolder(cell.run_dir)
+    _, total = training_progress(cell)
+    sessions = folder.meta().get("sessions") or []
+    since = int(sessions[-1].get("from_step") or 0) if sessions else 0
+    rows = [
+        (int(float(r["step"])), float(r["wall_s"]))
+        for r in folder.read_metrics()
+        if r.get("wall_s") not in (None, "") and int(float(r["step"])) > since
+    ]
+    if not total or len(rows) < 2:
+        return None
+    last_step, last_wall = rows[-1]
+    first_step, first_wall = next((s, w) for s, w in rows if s >= last_step - PACE_WINDOW)
+    if last_wall - first_wall < 1 or last_step <= first_step:
+        return None
+    per_second = (last_step - first_step) / (last_wall - first_wall)
+    return max(0, total - last_step) / per_second / 60.0
+
+
 def cell_progress(cell: Cell, state: Status) -> str:
     """Where a started cell stands, in words (``priqn sweep --list``): the decisions
     logged of its budget while it trains, or stopped training; the evaluations
     (``eval/``, ``eval-<name>/``) still missing once trained; "" when new or complete."""
     if state in (Status.RUNNING, Status.INTERRUPTED, Status.FAILED):
         logged, total = training_progress(cell)
-        return f"{logged:,}/{total:,} decisions" if total else f"{logged:,} decisions"
+        if not total:
+            return f"{logged:,} decisions"
+        eta = training_minutes_to_go(cell) if state == Status.RUNNING else None
+        to_go = f", about {eta:,.0f} min of training to go" if eta is not None else ""
+        return f"{logged:,}/{total:,} decisions{to_go}"
     if state == Status.TRAINED:
         folder = RunFolder(cell.run_dir)
         missing = [
