@@ -757,8 +757,10 @@ def test_list_says_how_long_a_training_cell_has_to_go_at_its_recent_pace(
     (their wall clock is another session's); since then 500 -> 800 took 40 s and
     800 -> 1,000 took 100 s. Over the whole session 500 decisions in 140 s, so 1,000 to go
     take 280 s; over a 200-decision window 2 decisions a second, so 500 s."""
-    exp_path = write_experiment(tmp_path, ["a"], [0])
-    (cell,) = expand(load_experiment(exp_path))
+    exp_path = write_experiment(tmp_path, ["a"], [0, 1])
+    cell, done = expand(load_experiment(exp_path))
+    atomic_write_json(done.run_dir / "meta.json", {"status": "complete", "wall_s": 540})
+    atomic_write_json(done.run_dir / "eval" / "meta.json", {"status": "complete", "wall_s": 60})
     meta = {"status": "running", "pid": 1, "host": socket.gethostname(), "total_steps": 2000,
             "sessions": [{"from_step": 0}, {"from_step": 400}]}  # fmt: skip
     atomic_write_json(cell.run_dir / "meta.json", meta)
@@ -773,6 +775,9 @@ def test_list_says_how_long_a_training_cell_has_to_go_at_its_recent_pace(
     assert sweep_cells.cell_progress(cell, Status.RUNNING) == (
         "1,000/2,000 decisions, about 8 min of training to go"
     )
+    # Time left counts it by that pace, plus its row's evaluation (1 min), not by the
+    # row's 9 min of training less the half logged.
+    assert time_left(load_experiment(exp_path), [cell], 1).hours == pytest.approx((500 + 60) / 3600)
     # A stopped cell has no pace: it resumes when a sweep starts it again.
     assert sweep_cells.cell_progress(cell, Status.INTERRUPTED) == "1,000/2,000 decisions"
 

@@ -402,7 +402,8 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
     logged (also when interrupted: it resumes), a trained one only its row's median
     evaluation. A row with no complete cell is timed by its group's complete cells at
     another budget (reused ones too), scaled by decisions. An estimate from the cells'
-    own history, for planning only."""
+    own history, for planning only; a training cell with a measured pace
+    (:func:`training_minutes_to_go`) by that pace instead."""
     import heapq
     import statistics
 
@@ -428,6 +429,8 @@ def time_left(exp: Experiment, cells: list[Cell], slots: int) -> TimeLeft:
 
     def minutes_left(c: Cell) -> float:
         whole, evaluation = per_cell[c.policy], per_eval[c.policy]
+        if state[c.name] == Status.RUNNING and (to_go := training_minutes_to_go(c)) is not None:
+            return to_go + evaluation  # at its own recent pace
         if state[c.name] in (Status.RUNNING, Status.INTERRUPTED):  # the share not yet logged
             return (whole - evaluation) * (1 - training_fraction_done(c)) + evaluation
         if state[c.name] == Status.TRAINED:  # trained, an evaluation missing
