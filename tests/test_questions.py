@@ -214,6 +214,10 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     # a: 0.1 -> 0.9 (+0.8), b: 0.6 -> 0.3 (-0.3): the difference grows by 1.1.
     assert (success["from"], success["to"], success["seeds"]) == (200, 400, 4)
     assert success["change"] == pytest.approx(1.1)
+    # Both questions compare a with b over the same long seeds: one row per endpoint, each
+    # naming both comparisons (not the same numbers twice).
+    assert len(changes) == 2 and set(changes["comparisons"]) == {"a vs b; a > b"}
+    assert "| a − b | success | 200 | 400 | 4 | +110.0 | [+110.0, +110.0] | a vs b; a > b |" in text
     assert second.read_text() == text
 
 

@@ -21,6 +21,7 @@ from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
+from priqn.labels import budget_text
 from priqn.runs import RunFolder, Status
 
 ENDPOINT_TEXT = {
@@ -174,7 +175,7 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
         ax.set_xlim(0, 1)
         ax.grid(axis="x", color="0.9")
         ax.set_title(
-            f"{q.name}: {ENDPOINT_TEXT[q.endpoint]} at {q.budget // 1000}k decisions",
+            f"{q.name}: {ENDPOINT_TEXT[q.endpoint]} at {budget_text(q.budget)} decisions",
             fontsize=8,
             loc="left",
         )
@@ -262,7 +263,7 @@ def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
             else _pts(r.paper_difference)
         )
         lines.append(
-            f"| {r.question} | {r.comparison} | {r.budget // 1000}k | {r.seeds_a} / {r.seeds_b} "
+            f"| {r.question} | {r.comparison} | {budget_text(r.budget)} | {r.seeds_a} / {r.seeds_b} "
             f"| {_pts(r.difference)} | [{_pts(r.lo)}, {_pts(r.hi)}] | {mdd} | {paper} "
             f"| {r.looks} | **{r.verdict}** |"
         )
@@ -320,14 +321,15 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
     )
     for (group, budget), r in summary.iterrows():
         lines.append(
-            f"| {group} | {budget // 1000}k | {int(r.seeds)} | {r.success:.3f} "
+            f"| {group} | {budget_text(budget)} | {int(r.seeds)} | {r.success:.3f} "
             f"| {r.violation:.3f} |"
         )
     return [*lines, ""]
 
 
 def _change_lines(changes: pd.DataFrame) -> list[str]:
-    """How each difference changes between budgets over the same seeds (none: no lines)."""
+    """How each difference changes between budgets over the same seeds, once per pair of
+    groups (the comparisons that compare them named beside it); none: no lines."""
     if not len(changes):
         return []
     lines = [
@@ -336,13 +338,14 @@ def _change_lines(changes: pd.DataFrame) -> list[str]:
         "Per seed, each group's change of the endpoint from the smaller budget; then the "
         "difference of the mean changes (a − b) with its Welch 95 % interval.",
         "",
-        "| comparison | endpoint | from | to | seeds | change [points] | Welch 95 % |",
-        "|---|---|---|---|---|---|---|",
+        "| a − b | endpoint | from | to | seeds | change [points] | Welch 95 % | comparisons |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    for r in changes.itertuples():
+    for r in changes.to_dict("records"):
         lines.append(
-            f"| {r.comparison} | {r.endpoint} | {r._3 // 1000}k | {r.to // 1000}k | {r.seeds} "
-            f"| {_pts(r.change)} | [{_pts(r.lo)}, {_pts(r.hi)}] |"
+            f"| {r['a']} − {r['b']} | {r['endpoint']} | {budget_text(r['from'])} | "
+            f"{budget_text(r['to'])} | {r['seeds']} | {_pts(r['change'])} | "
+            f"[{_pts(r['lo'])}, {_pts(r['hi'])}] | {r['comparisons']} |"
         )
     return [*lines, ""]
 
@@ -390,7 +393,9 @@ def _budget_tables(
         return None
     frame = budget_frame(exp, question)
     changes = [
-        change_frame(frame, c.a, c.b, endpoint).assign(comparison=c.name, endpoint=endpoint)
+        change_frame(frame, c.a, c.b, endpoint).assign(
+            comparison=c.name, endpoint=endpoint, a=c.a, b=c.b
+        )
         for c in question.comparisons
         for endpoint in questions.ENDPOINT_FLAGS
     ]
@@ -460,8 +465,14 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
         budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets
     )
     changes = pd.concat(change_frames, ignore_index=True) if change_frames else pd.DataFrame()
-    if len(changes):
-        changes = changes[["comparison", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]]
+    if len(changes):  # one row per pair of groups and budgets, naming the comparisons
+        keys = ["a", "b", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]
+        changes = (
+            changes.groupby(keys, sort=False, dropna=False)["comparison"]
+            .agg("; ".join)
+            .reset_index()
+            .rename(columns={"comparison": "comparisons"})
+        )
     csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
     all_scores = pd.concat(
         [s.assign(question=name) for name, s in scores_by_q.items()], ignore_index=True
