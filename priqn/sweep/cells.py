@@ -321,7 +321,8 @@ def training_minutes_to_go(cell: Cell) -> float | None:
 
 def cell_progress(cell: Cell, state: Status) -> str:
     """Where a started cell stands, in words (``priqn sweep --list``): the decisions
-    logged of its budget while it trains, or stopped training; the evaluations
+    logged of its budget while it trains (with the minutes to go at its recent pace,
+    :func:`training_minutes_to_go`), or stopped training; the evaluations
     (``eval/``, ``eval-<name>/``) still missing once trained; "" when new or complete."""
     if state in (Status.RUNNING, Status.INTERRUPTED, Status.FAILED):
         logged, total = training_progress(cell)
