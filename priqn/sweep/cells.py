@@ -274,14 +274,19 @@ def evaluation_minutes(cell: Cell) -> float:
     return seconds / 60.0
 
 
+def cell_budget(cell: Cell) -> int | None:
+    """A cell's training budget: its ``steps`` or, where the preset's applies, meta.json's
+    ``total_steps`` (None if neither)."""
+    total = (
+        cell.steps if cell.steps is not None else RunFolder(cell.run_dir).meta().get("total_steps")
+    )
+    return int(total) if isinstance(total, (int, float)) and total > 0 else None
+
+
 def training_progress(cell: Cell) -> tuple[int, int | None]:
-    """``(decisions its metrics.csv has logged, its budget)``: the budget is the cell's
-    ``steps`` or, where the preset's applies, meta.json's ``total_steps`` (None if neither)."""
-    folder = RunFolder(cell.run_dir)
-    rows = folder.read_metrics()
-    logged = int(float(rows[-1]["step"])) if rows else 0
-    total = cell.steps if cell.steps is not None else folder.meta().get("total_steps")
-    return logged, (int(total) if isinstance(total, (int, float)) and total > 0 else None)
+    """``(decisions its metrics.csv has logged, its budget)`` (:func:`cell_budget`)."""
+    rows = RunFolder(cell.run_dir).read_metrics()
+    return (int(float(rows[-1]["step"])) if rows else 0), cell_budget(cell)
 
 
 def training_fraction_done(cell: Cell) -> float:
@@ -301,7 +306,7 @@ def training_minutes_to_go(cell: Cell) -> float | None:
     session (``wall_s``; meta.json ``sessions``), per second. None until that session has
     logged two rows a second apart."""
     folder = RunFolder(cell.run_dir)
-    _, total = training_progress(cell)
+    total = cell_budget(cell)
     sessions = folder.meta().get("sessions") or []
     since = int(sessions[-1].get("from_step") or 0) if sessions else 0
     rows = [
@@ -382,7 +387,7 @@ def _scaled_minutes(
     group = {pol.name: pol.group_name for pol in exp.policies}
     rates: dict[str, list[tuple[float, float]]] = {}
     for c in complete:
-        budget = training_progress(c)[1]
+        budget = cell_budget(c)  # not from metrics.csv: a complete cell's is long
         if budget:
             per_eval = evaluation_minutes(c) / len(c.evaluations)
             rates.setdefault(group[c.policy], []).append((training_minutes(c) / budget, per_eval))
