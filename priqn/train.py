@@ -43,6 +43,7 @@ from priqn.train_config import (
     PRESETS,
     ExplorationConfig,
     TrainConfig,
+    cuda_determinism,
     default_run_name,
     policy_labels,
     resolve_config,
@@ -461,7 +462,10 @@ def _torch_device(cfg: TrainConfig) -> Any:
 
     if cfg.torch_threads > 0:
         torch.set_num_threads(cfg.torch_threads)
-    return select_device(cfg.device)
+    device = select_device(cfg.device)
+    if device.type == "cuda":
+        cuda_determinism(cfg.cuda_deterministic)
+    return device
 
 
 def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | None:

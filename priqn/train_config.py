@@ -11,6 +11,7 @@ train``). Torch is imported only by the functions that build something.
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -128,6 +129,11 @@ class TrainConfig:
     """Env worker processes (each runs one SUMO)."""
     device: str = "auto"
     """Torch device: auto (CUDA when present), cpu or cuda."""
+    cuda_deterministic: bool = True
+    """On CUDA, cuDNN's and cuBLAS's deterministic kernels, so one seed gives one run there as
+    it does on the CPU, and a kept snapshot is the shorter run's bit for bit. They cost eager
+    updates about a quarter of their speed on an H200, compiled ones nothing (`priqn bench
+    train --cuda-nondeterministic`); false trades the guarantee for that. No effect on the CPU."""
     torch_threads: int = 1
     """CPU threads for torch in the learner process (0 = torch's default). On a small CPU the
     env workers need the other cores: oversubscribed torch threads slow everything down."""
@@ -364,6 +370,19 @@ def select_device(name: str) -> Any:
     if name.startswith("cuda") and not torch.cuda.is_available():
         raise PriqnError(f"device: {name!r} requested but CUDA is not available here")
     return torch.device(name)
+
+
+def cuda_determinism(on: bool) -> None:
+    """Switch CUDA's deterministic kernels on or off for this process (cuDNN, cuBLAS and
+    ``torch.use_deterministic_algorithms``). Without them two CUDA runs of one seed wrote
+    the same metrics but different convolution weights (an H200, 2026-11-27)."""
+    import torch
+
+    if on:  # read when cuBLAS starts: set before the first CUDA matrix product
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.backends.cudnn.benchmark = False
+    torch.backends.cudnn.deterministic = on
+    torch.use_deterministic_algorithms(on)
 
 
 def build_network(

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from priqn.errors import PriqnError
 from priqn.metrics import METRIC_COLUMNS
@@ -26,6 +27,8 @@ from priqn.train_config import (
     policy_labels,
     resolve_config,
 )
+
+CUDA = torch.cuda.is_available()
 
 TINY = [
     "--set", "env.obs_size_px=32",
@@ -226,8 +229,6 @@ def test_smoke_baselines_write_a_complete_run_folder(tmp_path, agent):
     # A committed result keeps policy.pt, not checkpoints: the same greedy policy loads.
     import shutil
 
-    import torch
-
     with_ckpt = load_policy(tmp_path / agent).network.state_dict()
     shutil.rmtree(tmp_path / agent / "checkpoints")
     only_policy = load_policy(tmp_path / agent).network.state_dict()
@@ -235,13 +236,19 @@ def test_smoke_baselines_write_a_complete_run_folder(tmp_path, agent):
     assert all(torch.equal(v, only_policy[k]) for k, v in with_ckpt.items())
 
 
-@pytest.mark.slow
-def test_same_seed_same_training(tmp_path):
-    """Determinism: two runs with one seed give the same episodes and the same weights."""
-    import torch
+ON_DEVICES = pytest.mark.parametrize(
+    "device",
+    ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not CUDA, reason="no CUDA device"))],
+)
 
+
+@pytest.mark.slow
+@ON_DEVICES
+def test_same_seed_same_training(tmp_path, device):
+    """Determinism: two runs with one seed give the same episodes and the same weights
+    (on CUDA too, where a machine has it)."""
     common = ["--agent", "pr-iqn", "--steps", "200", "--num-envs", "2", "--runs-dir", str(tmp_path),
-              "--set", "evaluation.interval_steps=0", "--device", "cpu", *TINY]  # fmt: skip
+              "--set", "evaluation.interval_steps=0", "--device", device, *TINY]  # fmt: skip
     for name in ("a", "b"):
         out = cli(*common, "--name", name)
         assert out.returncode == 0, out.stderr
@@ -251,19 +258,21 @@ def test_same_seed_same_training(tmp_path):
         for n in "ab"
     ]
     assert rows[0] == rows[1]
-    sa, sb = (torch.load(tmp_path / n / "checkpoints/latest.pt", weights_only=True) for n in "ab")
+    sa, sb = (
+        torch.load(tmp_path / n / "checkpoints/latest.pt", weights_only=True, map_location="cpu")
+        for n in "ab"
+    )
     for k, v in sa["learner"]["online"].items():
         assert torch.equal(v, sb["learner"]["online"][k]), k
 
 
-def test_long_run_prefix_is_the_short_run(tmp_path):
+@ON_DEVICES
+def test_long_run_prefix_is_the_short_run(tmp_path, device):
     """Budgets within one run (issue 33): with ε decay fixed in decisions, the first 200
     decisions of a 400-decision run are a 200-decision run's, bit for bit -- its metrics
     (in-training evaluation included) and the snapshot it keeps at 200 equal the short
-    run's metrics and policy.pt."""
-    import torch
-
-    common = ["--agent", "pr-iqn", "--num-envs", "2", "--runs-dir", str(tmp_path), "--device", "cpu",
+    run's metrics and policy.pt. On CUDA too, where a machine has it."""
+    common = ["--agent", "pr-iqn", "--num-envs", "2", "--runs-dir", str(tmp_path), "--device", device,
               "--set", "evaluation.interval_steps=100", "--set", "evaluation.episodes=1", *TINY]  # fmt: skip
     short = cli(
         *common, "--steps", "200", "--name", "short", "--set", "exploration.decay_fraction=0.3"
@@ -280,8 +289,10 @@ def test_long_run_prefix_is_the_short_run(tmp_path):
     assert rows("short") and rows("short") == rows("long")
     assert any(r["kind"] == "eval" for r in rows("long"))
     assert any(int(r["step"]) > 200 for r in read_metrics(tmp_path / "long"))
-    final = torch.load(tmp_path / "short/policy.pt", weights_only=True)
-    kept = torch.load(tmp_path / "long/snapshots/policy-at200.pt", weights_only=True)
+    final = torch.load(tmp_path / "short/policy.pt", weights_only=True, map_location="cpu")
+    kept = torch.load(
+        tmp_path / "long/snapshots/policy-at200.pt", weights_only=True, map_location="cpu"
+    )
     assert kept["step"] == final["step"] == 200
     for k, v in final["online"].items():
         assert torch.equal(v, kept["online"][k]), k
@@ -431,3 +442,24 @@ def test_force_over_a_read_only_run_is_one_line_and_deletes_nothing(
     msg = str(info.value)
     assert "\n" not in msg and msg.startswith(f"{run / 'eval'}: read-only") and "--force" in msg
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+
+
+def test_cuda_determinism_switches_torch_and_cpu_training_leaves_it_alone(monkeypatch):
+    """cuda_deterministic: the switch sets cuDNN, cuBLAS's workspace and torch's flag, and
+    back; a CPU run never touches them (CPU training stays what it was, bit for bit)."""
+    from priqn.train import _torch_device
+    from priqn.train_config import TrainConfig, cuda_determinism
+
+    monkeypatch.delenv("CUBLAS_WORKSPACE_CONFIG", raising=False)
+    assert not torch.are_deterministic_algorithms_enabled()
+    try:
+        cuda_determinism(True)
+        assert torch.are_deterministic_algorithms_enabled()
+        assert torch.backends.cudnn.deterministic and not torch.backends.cudnn.benchmark
+        assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
+    finally:
+        cuda_determinism(False)
+    assert not torch.are_deterministic_algorithms_enabled()
+    assert not torch.backends.cudnn.deterministic
+    assert _torch_device(TrainConfig(device="cpu", torch_threads=0)).type == "cpu"
+    assert not torch.are_deterministic_algorithms_enabled()

@@ -69,6 +69,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also time every agent with learner.compile on, beside eager (part 1)",
     )
+    parser.add_argument(
+        "--cuda-nondeterministic",
+        action="store_true",
+        help="on CUDA, also time every case with cuda_deterministic off, beside training's "
+        "deterministic kernels (part 1)",
+    )
 
 
 def _obs_space(cfg: Any) -> Any:
@@ -166,6 +172,7 @@ def updates_per_second(
     rounds: int = 3,
     bf16: bool = False,
     compiled: bool = False,
+    nondeterministic: bool = False,
 ) -> list[dict[str, Any]]:
     """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
 
@@ -173,20 +180,32 @@ def updates_per_second(
     round counts, so load from other processes hits all cases alike. ``bf16`` adds each
     agent once more with ``learner.autocast_bf16`` on, right after its float32 case;
     ``compiled`` adds each of those once more with ``learner.compile = "on"`` (the others
-    run with ``"off"``: eager whatever the device).
+    run with ``"off"``: eager whatever the device). On CUDA every case runs with training's
+    deterministic kernels (``cuda_deterministic``), and ``nondeterministic`` adds each once
+    more without them.
     """
+    from priqn.train_config import cuda_determinism, select_device
+
+    cuda = select_device(device).type == "cuda"
     cases = [
-        (a, b, c)
+        (a, b, c, d)
         for a in agents
         for b in ((False, True) if bf16 else (False,))
         for c in ((False, True) if compiled else (False,))
+        for d in ((True, False) if nondeterministic and cuda else (cuda,))
     ]
+    if cuda:
+        cuda_determinism(True)  # before the first CUDA matrix product (cuBLAS's workspace)
     made = {c: _make_learner(preset, c[0], batch_size, device, c[1], c[2]) for c in cases}
     best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
         for c in cases:
             learner, (_, batches) = made[c]
+            if cuda:
+                cuda_determinism(c[3])
             best[c] = max(best[c], _time_updates(learner, batches, seconds / rounds))
+    if cuda:
+        cuda_determinism(True)
     out = []
     for c in cases:
         learner, (cfg, _) = made[c]
@@ -196,6 +215,7 @@ def updates_per_second(
                 "agent": c[0],
                 "bf16": c[1],
                 "compiled": c[2],
+                "deterministic": c[3],
                 "obs_px": cfg.env.obs_size_px,
                 "device": str(learner.device),
                 "updates_per_s": best[c],
@@ -283,20 +303,36 @@ def print_time_table(results: list[dict[str, Any]]) -> None:
         print(f"{what:<56}{''.join(cells)}")
 
 
-def compile_ratios(results: list[dict[str, Any]]) -> list[str]:
-    """One line per eager case that has a compiled twin: compiled / eager updates/s."""
-    by_case = {(r["agent"], r["bf16"], r["compiled"]): r for r in results}
+def _case_name(r: dict[str, Any]) -> str:
+    """``iqn bf16 comp nondet``: the agent and the switches a timed case has on."""
+    nondet = r["device"].startswith("cuda") and not r["deterministic"]
+    return r["agent"] + "".join(
+        f" {word}"
+        for word, on in (("bf16", r["bf16"]), ("comp", r["compiled"]), ("nondet", nondet))
+        if on
+    )
+
+
+def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
+    """One line per case that has a twin differing in one switch: compiled / eager, and
+    nondeterministic / deterministic kernels (CUDA), in updates/s."""
+    by_case = {(r["agent"], r["bf16"], r["compiled"], r["deterministic"]): r for r in results}
+    switches = (
+        (2, "compiled / eager", False),  # (index in the case, label, the baseline's value)
+        (3, "nondeterministic / deterministic", True),
+    )
     lines = []
-    for (agent, bf16, compiled), eager in by_case.items():
-        twin = by_case.get((agent, bf16, True))
-        if compiled or twin is None:
-            continue
-        ratio = twin["updates_per_s"] / eager["updates_per_s"]
-        lines.append(
-            f"{agent}{' bf16' if bf16 else ''}: compiled / eager on {eager['device']}: "
-            f"{ratio:.2f}x updates/s ({eager['ms_per_update']:.2f} -> "
-            f"{twin['ms_per_update']:.2f} ms/update)"
-        )
+    for case, base in by_case.items():
+        for i, label, base_value in switches:
+            twin = by_case.get(case[:i] + (not base_value,) + case[i + 1 :])
+            if case[i] != base_value or twin is None:
+                continue
+            name = _case_name(base)
+            ratio = twin["updates_per_s"] / base["updates_per_s"]
+            lines.append(
+                f"{name}: {label} on {base['device']}: {ratio:.2f}x updates/s "
+                f"({base['ms_per_update']:.2f} -> {twin['ms_per_update']:.2f} ms/update)"
+            )
     return lines
 
 
@@ -324,16 +360,17 @@ def run(args: argparse.Namespace) -> int:
             args.device,
             bf16=args.bf16,
             compiled=args.compile,
+            nondeterministic=args.cuda_nondeterministic,
         )
         base = results[0]["ms_per_update"]
         for r in results:
-            name = r["agent"] + (" bf16" if r["bf16"] else "") + (" comp" if r["compiled"] else "")
+            name = _case_name(r)
             print(
                 f"{preset:<8} {r['obs_px']:>4} {name:<18} {r['updates_per_s']:>10.1f} "
                 f"{r['ms_per_update']:>10.2f} {r['ms_per_update'] / base:>10.2f}",
                 flush=True,
             )
-        for line in compile_ratios(results):
+        for line in twin_ratios(results):
             print(f"{preset:<8} {line}", flush=True)
     if args.loop_steps > 0:
         print(
