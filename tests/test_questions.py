@@ -218,6 +218,13 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     # naming both comparisons (not the same numbers twice).
     assert len(changes) == 2 and set(changes["comparisons"]) == {"a vs b; a > b"}
     assert "| a − b | success | 200 | 400 | 4 | +110.0 | [+110.0, +110.0] | a vs b; a > b |" in text
+    # Every budget: the three outcomes of each group's episodes, summing to 1 (a at 200:
+    # 1 success, 8 violations, 1 timeout in 10; b at 400: 3, 1 and 6).
+    assert (
+        "| group | budget | seeds | success | violations | timeouts |\n|---|---|---|---|---|---|\n"
+        "| a | 200 | 8 | 0.100 | 0.800 | 0.100 |\n| a | 400 | 4 | 0.900 | 0.100 | 0.000 |\n"
+        "| b | 200 | 8 | 0.600 | 0.200 | 0.200 |\n| b | 400 | 4 | 0.300 | 0.100 | 0.600 |\n"
+    ) in text
     assert second.read_text() == text
 
 

@@ -40,6 +40,9 @@ ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
     "violation": ("collision", "off_road"),
 }
 """Episode flags each endpoint counts (one outcome per episode: :func:`resolve_outcomes`)."""
+OUTCOME_RATES: dict[str, tuple[str, ...]] = {**ENDPOINT_FLAGS, "timeout": ("timeout",)}
+"""The endpoints and the one remaining outcome, timeouts: the three rates sum to 1 (the
+reports' descriptive tables; a design's endpoint is one of :data:`ENDPOINT_FLAGS`)."""
 
 
 def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series, int]:
@@ -50,7 +53,7 @@ def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series,
         episodes = resolve_outcomes(pd.read_csv(csv))
     except (OSError, ValueError, KeyError) as exc:
         raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
-    hit = episodes[list(ENDPOINT_FLAGS[endpoint])].astype(bool).any(axis=1)
+    hit = episodes[list(OUTCOME_RATES[endpoint])].astype(bool).any(axis=1)
     return hit.groupby(episodes["density"]).mean().astype(float), len(episodes)
 
 

@@ -43,7 +43,7 @@ def budgets_of(exp: Experiment, group: str) -> list[int]:
 def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
     """Per (group, budget, training seed) of ``question``'s seeds: both endpoints where the
     cell's evaluation at that budget is complete. Columns: group, budget, train_seed,
-    success, violation, episodes."""
+    success, violation, timeout, episodes."""
     rows = []
     groups = [r.name for r in questions.view(question).policies]
     for group in groups:
@@ -58,11 +58,11 @@ def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
                 eval_dir = folder.evaluation_dir(where[2])
                 values = {
                     e: float(questions.endpoint_by_density(eval_dir, e)[0].mean())
-                    for e in questions.ENDPOINT_FLAGS
+                    for e in questions.OUTCOME_RATES
                 }
                 n = questions.endpoint_by_density(eval_dir, "success")[1]
-                rows.append((group, budget, seed, values["success"], values["violation"], n))
-    columns = ["group", "budget", "train_seed", "success", "violation", "episodes"]
+                rows.append((group, budget, seed, *values.values(), n))
+    columns = ["group", "budget", "train_seed", *questions.OUTCOME_RATES, "episodes"]
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -309,20 +309,22 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
         "## Every budget the cells reach (descriptive)",
         "",
         "Mean over the seeds complete at that budget, among the seeds of every question "
-        "whose groups reach more than one budget.",
+        "whose groups reach more than one budget. Every episode ends in one outcome, so "
+        "success, violations (collision or off-road) and timeouts sum to 1.",
         "",
-        "| group | budget | seeds | success | violations |",
-        "|---|---|---|---|---|",
+        "| group | budget | seeds | success | violations | timeouts |",
+        "|---|---|---|---|---|---|",
     ]
     summary = budgets.groupby(["group", "budget"]).agg(
         seeds=("train_seed", "nunique"),
         success=("success", "mean"),
         violation=("violation", "mean"),
+        timeout=("timeout", "mean"),
     )
     for (group, budget), r in summary.iterrows():
         lines.append(
             f"| {group} | {budget_text(budget)} | {int(r.seeds)} | {r.success:.3f} "
-            f"| {r.violation:.3f} |"
+            f"| {r.violation:.3f} | {r.timeout:.3f} |"
         )
     return [*lines, ""]
 
