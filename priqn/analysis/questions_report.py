@@ -466,6 +466,7 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     budgets = (
         budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets
     )
+    change_frames = [f for f in change_frames if len(f)]  # (pandas warns on empty ones)
     changes = pd.concat(change_frames, ignore_index=True) if change_frames else pd.DataFrame()
     if len(changes):  # one row per pair of groups and budgets, naming the comparisons
         keys = ["a", "b", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]
