@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from priqn.agent_config import COMPARATOR_NAMES, AgentConfig, agent_spec
@@ -130,6 +130,17 @@ def at_budget(label: PolicyLabel, budget: int) -> PolicyLabel:
 def budget_text(decisions: int) -> str:
     """A budget in decisions as the reports write it: ``60k``, or ``61500`` off the thousands."""
     return f"{decisions // 1000}k" if decisions % 1000 == 0 else str(decisions)
+
+
+def seeds_text(seeds: Iterable[int]) -> str:
+    """Training seeds as ranges: ``0–21``, ``0–19, 25, 30–31`` (sorted, each once)."""
+    runs: list[list[int]] = []
+    for seed in sorted(set(seeds)):
+        if runs and seed == runs[-1][1] + 1:
+            runs[-1][1] = seed
+        else:
+            runs.append([seed, seed])
+    return ", ".join(str(a) if a == b else f"{a}–{b}" for a, b in runs)
 
 
 _DERIVED_WORDS = re.compile(r"(?: near-greedy ε=\S+| @\d+k?)+$")

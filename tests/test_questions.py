@@ -221,9 +221,10 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     # Every budget: the three outcomes of each group's episodes, summing to 1 (a at 200:
     # 1 success, 8 violations, 1 timeout in 10; b at 400: 3, 1 and 6).
     assert (
-        "| group | budget | seeds | success | violations | timeouts |\n|---|---|---|---|---|---|\n"
-        "| a | 200 | 8 | 0.100 | 0.800 | 0.100 |\n| a | 400 | 4 | 0.900 | 0.100 | 0.000 |\n"
-        "| b | 200 | 8 | 0.600 | 0.200 | 0.200 |\n| b | 400 | 4 | 0.300 | 0.100 | 0.600 |\n"
+        "| group | budget | training seeds | success | violations | timeouts |\n"
+        "|---|---|---|---|---|---|\n"
+        "| a | 200 | 8 (0–7) | 0.100 | 0.800 | 0.100 |\n| a | 400 | 4 (0–3) | 0.900 | 0.100 | 0.000 |\n"
+        "| b | 200 | 8 (0–7) | 0.600 | 0.200 | 0.200 |\n| b | 400 | 4 (0–3) | 0.300 | 0.100 | 0.600 |\n"
     ) in text
     assert second.read_text() == text
 
@@ -258,3 +259,11 @@ def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> Non
         if line.get_marker() == "s"
     ]
     assert squares == [("safety", 1), ("long", 1)]
+
+
+def test_seeds_are_written_as_ranges() -> None:
+    from priqn.labels import seeds_text
+
+    assert seeds_text([3, 0, 1, 2, 7, 9, 10, 1]) == "0–3, 7, 9–10"
+    assert seeds_text([20, 21, *range(19, -1, -1)]) == "0–21"
+    assert seeds_text([5]) == "5" and seeds_text([]) == ""

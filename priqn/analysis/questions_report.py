@@ -21,7 +21,7 @@ from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
-from priqn.labels import budget_text
+from priqn.labels import budget_text, seeds_text
 from priqn.runs import RunFolder, Status
 
 ENDPOINT_TEXT = {
@@ -312,18 +312,18 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
         "whose groups reach more than one budget. Every episode ends in one outcome, so "
         "success, violations (collision or off-road) and timeouts sum to 1.",
         "",
-        "| group | budget | seeds | success | violations | timeouts |",
+        "| group | budget | training seeds | success | violations | timeouts |",
         "|---|---|---|---|---|---|",
     ]
     summary = budgets.groupby(["group", "budget"]).agg(
-        seeds=("train_seed", "nunique"),
+        seeds=("train_seed", lambda s: f"{s.nunique()} ({seeds_text(s)})"),
         success=("success", "mean"),
         violation=("violation", "mean"),
         timeout=("timeout", "mean"),
     )
     for (group, budget), r in summary.iterrows():
         lines.append(
-            f"| {group} | {budget_text(budget)} | {int(r.seeds)} | {r.success:.3f} "
+            f"| {group} | {budget_text(budget)} | {r.seeds} | {r.success:.3f} "
             f"| {r.violation:.3f} | {r.timeout:.3f} |"
         )
     return [*lines, ""]
