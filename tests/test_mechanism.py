@@ -177,3 +177,57 @@ def test_smoke_replay_of_a_committed_cell_matches_its_evaluation(tmp_path):
     assert all(evaluated.loc[k] == n for k, n in played.items())
     assert (out / "mechanism.png").stat().st_size > 0 and (out / "reliability.csv").is_file()
     assert "| run |" in (out / "mechanism.md").read_text()
+
+
+SNAPSHOT_GRID = """
+[experiment]
+name = "mech"
+net = "tjunction"
+steps = 400
+set = ["env.obs_size_px=32", "env.max_episode_steps=25", "network.latent_dim=64",
+       "network.hidden_dim=64", "replay.capacity=4000", "replay.learning_starts=64",
+       "evaluation.interval_steps=0", "exploration.decay_steps=60"]
+[evaluate]
+densities = [0.5]
+eval_runs = 1
+episodes_per_cell = 1
+num_workers = 1
+[[policy]]
+name = "pr-iqn"
+agent = "pr-iqn"
+seeds = [1]
+keep_at = [200]
+"""
+
+
+def test_a_kept_snapshot_replays_on_its_own_evaluation(tmp_path):
+    """--snapshot N replays the policy kept at N on the scenes of eval-at<N>/, and its
+    episodes end as that evaluation recorded; a budget never evaluated is one line."""
+    from priqn.sweep import expand, load_experiment
+    from priqn.sweep.child import train_and_evaluate
+
+    path = tmp_path / "mech.toml"
+    path.write_text(SNAPSHOT_GRID)
+    (cell,) = expand(load_experiment(path, runs_dir=tmp_path / "runs"))
+    train_and_evaluate(cell)
+    out = tmp_path / "mech"
+
+    def mechanism(*extra: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "priqn.cli", "mechanism", str(cell.run_dir), "--out", str(out)]
+        return subprocess.run([*cmd, *extra], capture_output=True, text=True, timeout=300)
+
+    res = mechanism("--snapshot", "200", "--episodes", "2")
+    assert res.returncode == 0, res.stderr[-3000:]
+    seed = pd.read_csv(out / "mechanism.csv").iloc[0]
+    assert seed["run"] == "pr-iqn__seed1@200" and seed["episodes"] == 2
+    assert seed["replay_matches"] == 1.0
+    evaluated = pd.read_csv(cell.run_dir / "eval-at200" / "episodes.csv")
+    assert seed["holdout_success"] == pytest.approx(evaluated["success"].astype(float).mean())
+    assert "eval-at200/ scenes" in (out / "mechanism.md").read_text()
+    res = mechanism("--snapshot", "300")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
+    assert "kept no policy at 300 decisions (checkpoint.keep_at = [200])" in res.stderr
+    (cell.run_dir / "eval-at200" / "meta.json").unlink()
+    res = mechanism("--snapshot", "200")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
+    assert "eval-at200 not evaluated; run priqn evaluate" in res.stderr

@@ -39,6 +39,7 @@ import numpy as np
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text, read_json
+from priqn.labels import budget_text
 from priqn.runs import RunFolder
 
 DEFAULT_EPISODES = 54
@@ -69,6 +70,14 @@ class MechanismConfig:
     """Hold-out success rate under which a seed counts as collapsed."""
     workers: int = 1
     """Env worker processes (one SUMO simulation each)."""
+    snapshot: int = 0
+    """0: each run's final policy on its ``eval/`` scenes; N: the policy it kept at N
+    decisions (``checkpoint.keep_at``) on the scenes of ``eval-at<N>/``."""
+
+    @property
+    def evaluation(self) -> str:
+        """The evaluation folder replayed: ``eval/`` or ``eval-at<N>/``."""
+        return f"eval-at{self.snapshot}/" if self.snapshot else "eval/"
 
 
 # ----------------------------------------------------------------------------- counting
@@ -231,26 +240,44 @@ class Cell:
     name: str
     """Its name (``<row>__seed<k>``)."""
     holdout_success: float
-    """Success rate over its whole ``eval/episodes.csv``."""
+    """Success rate over its whole evaluation (``eval/`` or ``eval-at<N>/``)."""
     episodes: Any
-    """Its ``eval/episodes.csv`` (pandas)."""
+    """That evaluation's ``episodes.csv`` (pandas)."""
     eval_config: Any
     """The :class:`priqn.evaluation.protocol.EvalConfig` it was evaluated with."""
     net_ids: tuple[str, ...]
     """The hold-out nets it was evaluated on."""
+    snapshot: int = 0
+    """0: the run's final policy and ``eval/``; N: the policy it kept at N decisions and
+    that policy's evaluation ``eval-at<N>/``."""
 
 
-def load_cell(path: Path) -> Cell:
-    """A run folder with a complete ``eval/``: its episodes and evaluation config."""
+def load_cell(path: Path, snapshot: int = 0) -> Cell:
+    """A run folder with a complete ``eval/`` (``snapshot`` N: ``eval-at<N>/``): its
+    episodes and evaluation config."""
     import pandas as pd
 
     from priqn.evaluation.protocol import EvalConfig
     from priqn.sim.scenario import manifest_hash
 
     run = RunFolder(path)
-    if not run.is_run() or not run.eval_meta_path.is_file():
+    evaluation = f"at{snapshot}" if snapshot else ""
+    eval_dir = run.evaluation_dir(evaluation)
+    meta_path = eval_dir / RunFolder.META
+    if snapshot and run.is_run():
+        keep_at = list(run.config().checkpoint.keep_at)
+        if snapshot not in keep_at:
+            raise PriqnError(
+                f"{path}: kept no policy at {snapshot} decisions (checkpoint.keep_at = {keep_at})"
+            )
+        if not meta_path.is_file():
+            raise PriqnError(
+                f"{path}: {run.rel(eval_dir)} not evaluated; "
+                f"run priqn evaluate {path} --snapshot {snapshot}"
+            )
+    if not run.is_run() or not meta_path.is_file():
         raise PriqnError(f"{path}: not an evaluated run folder (no config.toml or eval/meta.json)")
-    meta = read_json(run.eval_meta_path)
+    meta = read_json(meta_path)
     known = {f.name for f in dataclasses.fields(EvalConfig)}
     fields = {
         k: (tuple(v) if isinstance(v, list) else v)
@@ -259,20 +286,23 @@ def load_cell(path: Path) -> Cell:
     }
     eval_cfg = EvalConfig(**fields)
     if eval_cfg.nets or eval_cfg.acting != "own":
-        raise PriqnError(f"{path}: eval/ is not a hold-out evaluation of the policy's own acting")
+        raise PriqnError(
+            f"{path}: {run.rel(eval_dir)} is not a hold-out evaluation of the policy's own acting"
+        )
     if meta.get("holdout_hash") != manifest_hash(eval_cfg.family):
         raise PriqnError(
-            f"{run.eval_meta_path}: evaluated on another version of the {eval_cfg.family!r} nets "
+            f"{meta_path}: evaluated on another version of the {eval_cfg.family!r} nets "
             "(holdout_hash differs from the shipped manifest); its scenes cannot be replayed"
         )
-    episodes = pd.read_csv(run.evaluation_dir("") / RunFolder.EVAL_EPISODES)
+    episodes = pd.read_csv(eval_dir / RunFolder.EVAL_EPISODES)
     return Cell(
         run.path,
-        run.name,
+        run.name + (f"@{budget_text(snapshot)}" if snapshot else ""),
         float(episodes["success"].astype(float).mean()),
         episodes,
         eval_cfg,
         tuple(meta.get("holdout_nets") or ()),
+        snapshot,
     )
 
 
@@ -298,7 +328,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
     from priqn.evaluation.rollout import rollout
     from priqn.evaluation.targets import evaluation_env
 
-    policy = RunFolder(cell.path).load_policy(device="cpu")
+    policy = RunFolder(cell.path).load_policy(device="cpu", snapshot=cell.snapshot)
     agent = policy.agent
     if agent.subsets is None or agent.spec.reward_rule != "per-objective":
         raise PriqnError(f"{cell.path}: a {agent.name} run; the mechanism needs a Pr-IQN run")
@@ -401,7 +431,7 @@ def write_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig, 
             label=f"{name}: violation ≤{cfg.horizon} dec. after removal",
         )
     ax_a.axvline(cfg.collapsed_below, color="0.5", ls="--", lw=0.8)
-    ax_a.set_xlabel("hold-out success rate (whole eval/)")
+    ax_a.set_xlabel(f"hold-out success rate (whole {cfg.evaluation})")
     ax_a.set_ylabel("share of decisions")
     ax_a.set_title(f"{cfg.top} removes {cfg.lower}'s greedy action (dots)", fontsize=9)
     ax_a.legend(fontsize=7)
@@ -434,7 +464,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
 
     from priqn.evaluation.targets import find_runs
 
-    cells = [load_cell(p) for p in find_runs(paths)]
+    cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
     seeds, frames = [], {}
     total = sum(
         len(c.episodes) if not cfg.episodes else min(cfg.episodes, len(c.episodes)) for c in cells
@@ -479,7 +509,9 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
         "# Pr-IQN mechanism (priqn mechanism)",
         "",
         f"{len(cells)} seeds, {cfg.episodes or 'all'} episodes each (the first of each cell's "
-        f"eval/ scenes by eval run, episode, net, density), top level `{cfg.top}`, lower objective `{cfg.lower}`, violation "
+        f"{cfg.evaluation} scenes by eval run, episode, net, density"
+        + (f"; the policy each kept at {cfg.snapshot} decisions" if cfg.snapshot else "")
+        + f"), top level `{cfg.top}`, lower objective `{cfg.lower}`, violation "
         f"horizon {cfg.horizon} decisions; collapsed = hold-out success < "
         f"{cfg.collapsed_below:g}. Measures: docs/mechanism.md. Rates are over decisions "
         "unless named after episodes; group rows are means over their seeds.",
@@ -531,6 +563,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help=f"hold-out success below which a seed is collapsed (default {DEFAULT_COLLAPSED_BELOW})",
     )
     parser.add_argument("--workers", type=int, default=1, help="env worker processes (default 1)")
+    parser.add_argument(
+        "--snapshot",
+        type=int,
+        default=0,
+        metavar="N",
+        help="replay the policy each run kept at N decisions (checkpoint.keep_at) on the "
+        "scenes of its eval-at<N>/ (default: the final policy on eval/)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -540,6 +580,8 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(f"--horizon: expected >= 1 decision, got {args.horizon}")
     if args.workers < 1:
         raise PriqnError(f"--workers: expected >= 1, got {args.workers}")
+    if args.snapshot < 0:
+        raise PriqnError(f"--snapshot: expected a budget in decisions >= 1, got {args.snapshot}")
     if not 0.0 <= args.collapsed_below <= 1.0:
         raise PriqnError(
             f"--collapsed-below: expected a success rate in [0, 1], got {args.collapsed_below}"
@@ -551,6 +593,7 @@ def run(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         collapsed_below=args.collapsed_below,
         workers=args.workers,
+        snapshot=args.snapshot,
     )
     print(analyse(args.runs, Path(args.out), cfg))
     return 0
