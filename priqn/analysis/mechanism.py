@@ -581,7 +581,9 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise PriqnError(f"--workers: expected >= 1, got {args.workers}")
     if args.snapshot < 0:
-        raise PriqnError(f"--snapshot: expected a budget in decisions >= 1, got {args.snapshot}")
+        raise PriqnError(
+            f"--snapshot: expected a kept budget in decisions (0: the final policy), got {args.snapshot}"
+        )
     if not 0.0 <= args.collapsed_below <= 1.0:
         raise PriqnError(
             f"--collapsed-below: expected a success rate in [0, 1], got {args.collapsed_below}"
