@@ -226,6 +226,8 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
         "| a | 200 | 8 (0–7) | 0.100 | 0.800 | 0.100 |\n| a | 400 | 4 (0–3) | 0.900 | 0.100 | 0.000 |\n"
         "| b | 200 | 8 (0–7) | 0.600 | 0.200 | 0.200 |\n| b | 400 | 4 (0–3) | 0.300 | 0.100 | 0.600 |\n"
     ) in text
+    assert "![outcomes by budget](figures/outcomes_by_budget.png)" in text
+    assert (tmp_path / "r1" / "figures" / "outcomes_by_budget.png").stat().st_size > 0
     assert second.read_text() == text
 
 
@@ -267,3 +269,20 @@ def test_seeds_are_written_as_ranges() -> None:
     assert seeds_text([3, 0, 1, 2, 7, 9, 10, 1]) == "0–3, 7, 9–10"
     assert seeds_text([20, 21, *range(19, -1, -1)]) == "0–21"
     assert seeds_text([5]) == "5" and seeds_text([]) == ""
+
+
+def test_budget_outcomes_figure_stacks_each_groups_outcomes_per_budget(tmp_path: Path) -> None:
+    """One panel per group, one bar per budget (n seeds under it), its four outcomes
+    stacked to 1: a at 200 succeeds in 1 of 10 episodes, collides in 4 (even episodes
+    among the 8 violations), leaves the road in 4 and times out in 1."""
+    exp = grid(tmp_path)
+    budgets = pd.concat(
+        [questions_report.budget_frame(exp, q) for q in exp.questions], ignore_index=True
+    ).drop_duplicates(["group", "budget", "train_seed"])
+    fig = questions_report.budget_outcomes_figure(budgets)
+    a, b = fig.axes
+    assert (a.get_title(), b.get_title()) == ("a", "b")
+    assert [t.get_text() for t in a.get_xticklabels()] == ["200\nn = 8", "400\nn = 4"]
+    heights = [round(p.get_height(), 6) for p in a.patches]  # success, collision, off-road, timeout
+    assert heights == [0.1, 0.9, 0.4, 0.0, 0.4, 0.1, 0.1, 0.0]
+    assert sum(heights[::2]) == pytest.approx(1.0) and sum(heights[1::2]) == pytest.approx(1.0)

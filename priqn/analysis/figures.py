@@ -452,12 +452,14 @@ OUTCOME_COLORS: dict[str, str] = dict(
 """Bar colour of each episode outcome (:data:`priqn.analysis.tables.OUTCOMES`, in order)."""
 
 
-def outcomes_figure(frame: pd.DataFrame, order: list[str]) -> plt.Figure:
-    """Stacked bars: how each policy's episodes end, one bar per route command.
+def outcomes_figure(frame: pd.DataFrame, order: list[str], by: str = "command") -> plt.Figure:
+    """Stacked bars: how each policy's episodes end, one panel per policy (``label``), one
+    bar per value of ``by`` in the order they first appear (a route command, or a budget).
 
-    ``frame`` is :func:`priqn.analysis.tables.outcomes_by_command`'s table.
+    ``frame`` is :func:`priqn.analysis.tables.outcomes_by_command`'s table, or any with
+    the columns ``label``, ``by`` and the outcome rates :data:`OUTCOME_COLORS` names.
     """
-    commands = list(dict.fromkeys(frame["command"]))
+    commands = list(dict.fromkeys(frame[by]))
     labels = [label for label in order if label in set(frame["label"])]
     ncols = min(len(labels), 7)
     nrows = -(-len(labels) // ncols)
@@ -467,7 +469,7 @@ def outcomes_figure(frame: pd.DataFrame, order: list[str]) -> plt.Figure:
     for ax in axes.flat[len(labels) :]:
         ax.set_visible(False)
     for ax, label in zip(axes.flat, labels, strict=False):
-        mine = frame[frame["label"] == label].set_index("command").reindex(commands)
+        mine = frame[frame["label"] == label].set_index(by).reindex(commands)
         bottom = np.zeros(len(commands))
         for outcome, color in OUTCOME_COLORS.items():
             values = mine[outcome].fillna(0.0).to_numpy(float)

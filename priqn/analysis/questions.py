@@ -40,9 +40,15 @@ ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
     "violation": ("collision", "off_road"),
 }
 """Episode flags each endpoint counts (one outcome per episode: :func:`resolve_outcomes`)."""
-OUTCOME_RATES: dict[str, tuple[str, ...]] = {**ENDPOINT_FLAGS, "timeout": ("timeout",)}
-"""The endpoints and the one remaining outcome, timeouts: the three rates sum to 1 (the
-reports' descriptive tables; a design's endpoint is one of :data:`ENDPOINT_FLAGS`)."""
+OUTCOME_RATES: dict[str, tuple[str, ...]] = {
+    **ENDPOINT_FLAGS,
+    "timeout": ("timeout",),
+    "collision": ("collision",),
+    "off_road": ("off_road",),
+}
+"""The endpoints, the one remaining outcome (timeouts: success, violation and timeout sum
+to 1) and the violation's two parts, for the reports' descriptive tables and figures (a
+design's endpoint is one of :data:`ENDPOINT_FLAGS`)."""
 
 
 def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series, int]:

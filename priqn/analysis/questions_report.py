@@ -310,7 +310,8 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
         "",
         "Mean over the seeds complete at that budget, among the seeds of every question "
         "whose groups reach more than one budget. Every episode ends in one outcome, so "
-        "success, violations (collision or off-road) and timeouts sum to 1.",
+        "success, violations (collision or off-road) and timeouts sum to 1; the figure "
+        "below draws them per group, n training seeds under each bar.",
         "",
         "| group | budget | training seeds | success | violations | timeouts |",
         "|---|---|---|---|---|---|",
@@ -326,7 +327,31 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
             f"| {group} | {budget_text(budget)} | {r.seeds} | {r.success:.3f} "
             f"| {r.violation:.3f} | {r.timeout:.3f} |"
         )
-    return [*lines, ""]
+    return [*lines, "", "![outcomes by budget](figures/outcomes_by_budget.png)", ""]
+
+
+def budget_outcomes_figure(budgets: pd.DataFrame) -> Any:
+    """How each group's episodes end at every budget its cells reach: one panel per group,
+    one stacked bar per budget (means over the seeds complete there, as the table; the
+    number of training seeds under each bar, n)."""
+    from priqn.analysis.figures import outcomes_figure
+
+    by = budgets.groupby(["group", "budget"])
+    means = by[list(questions.OUTCOME_RATES)].mean().join(by["train_seed"].nunique())
+    means = means.reset_index().sort_values(["budget", "group"])
+    means = means.assign(label=means["group"], budget=[budget_text(b) for b in means["budget"]])
+    groups = sorted(set(means["group"]))
+    fig = outcomes_figure(means, groups, by="budget")
+    for ax, group in zip(fig.axes, groups, strict=False):
+        seeds = means[means["group"] == group].set_index("budget")["train_seed"]
+        ticks = [t.get_text() for t in ax.get_xticklabels()]
+        ax.set_xticks(
+            range(len(ticks)),
+            [f"{t}\nn = {seeds[t]}" if t in seeds else t for t in ticks],
+            rotation=0,
+            fontsize=7,
+        )
+    return fig
 
 
 def _change_lines(changes: pd.DataFrame) -> list[str]:
@@ -486,6 +511,8 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     atomic_write_text(out / "tables" / "budgets.csv", budgets.to_csv(**csv_kw))
     atomic_write_text(out / "tables" / "budget_changes.csv", changes.to_csv(**csv_kw))
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
+    if len(budgets):
+        save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")
     efficiency = _efficiency(exp, out)
     report = out / "report.md"
     text = report_markdown(
