@@ -24,6 +24,7 @@ from priqn.evaluation.rollout import RolloutStep
 from priqn.objectives import OBJECTIVES
 
 A, K = 4, 4
+SPEEDS_A = np.array([0.0, 0.0, 3.0, 6.0])  # target speed of each action [m/s]
 SAFETY, LANE = OBJECTIVES.index("safety"), OBJECTIVES.index("lane_keeping")
 CFG = MechanismConfig(horizon=2)
 CELL = Path(__file__).resolve().parents[1] / "results" / "headline" / "pr-iqn-qd-tp-eps0.2__seed19"
@@ -83,7 +84,7 @@ def episodes() -> list[list[RolloutStep]]:
 def rows() -> pd.DataFrame:
     out = []
     for ep in episodes():
-        out += decision_rows(ep, OBJECTIVES, OBJECTIVES, CFG, penalty=10.0, gamma=0.5)
+        out += decision_rows(ep, OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.5, SPEEDS_A)
     return pd.DataFrame(out)
 
 
@@ -103,6 +104,29 @@ def test_decision_rows_count_removals_outcomes_and_predictions_by_hand():
     # Realised discounted safety return-to-go with γ = 0.5: -10 at the last decision.
     assert d["return_to_go"].tolist() == [-1.25, -2.5, -5.0, -10.0, 0.0, 0.0]
     assert d["size_top"].tolist() == [4, 2, 2, 3, 2, 1]
+
+
+def test_waiting_measures_by_hand():
+    """Target speeds (actions 0, 1 stand still, 2 = 3 m/s, 3 = 6 m/s): episode 0 stands
+    still at every decision; at decisions 1 and 2 safety keeps only standing actions
+    ({0, 1}), at 0 and 3 it allows 6 m/s, lane keeping wanting 6 m/s throughout. Episode 1
+    drives at 3 m/s. A third episode, one decision, times out."""
+    d = rows()
+    assert d["speed_mps"].tolist() == [0.0, 0.0, 0.0, 0.0, 3.0, 3.0]
+    assert d["top_max_speed_mps"].tolist() == [6.0, 0.0, 0.0, 6.0, 6.0, 3.0]
+    assert d["lower_greedy_speed_mps"].tolist() == [6.0] * 4 + [3.0] * 2
+    s = seed_summary(d, CFG)
+    assert s["standstill"] == pytest.approx(4 / 6)
+    assert s["top_only_standstill"] == pytest.approx(2 / 6)  # safety forces the wait
+    assert s["standstill_top_allowed_moving"] == pytest.approx(2 / 6)  # chosen below it
+    assert s["standstill_lane_keeping_moving"] == pytest.approx(4 / 6)
+    assert s["timeout_episodes"] == 0.0
+    end = {"success": False, "collision": False, "off_road": False, "timeout": True}
+    waited = [step(scene(2), 0, 0, [0, 1, 2, 3], 3, [0.0] * K, end=end)]
+    d = pd.concat(
+        [d, pd.DataFrame(decision_rows(waited, OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.5, SPEEDS_A))]
+    )
+    assert seed_summary(d, CFG)["timeout_episodes"] == pytest.approx(1 / 3)
 
 
 def test_seed_summary_and_reliability_by_hand():
@@ -145,7 +169,7 @@ def test_group_rows_average_each_group_over_its_seeds():
 
 def test_an_unfinished_episode_is_refused():
     with pytest.raises(ValueError, match="whole episode"):
-        decision_rows(episodes()[0][:2], OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.99)
+        decision_rows(episodes()[0][:2], OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.99, SPEEDS_A)
 
 
 @pytest.mark.skipif(not (CELL / "policy.pt").is_file(), reason="headline cell not committed")

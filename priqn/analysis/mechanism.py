@@ -90,13 +90,15 @@ def decision_rows(
     cfg: MechanismConfig,
     penalty: float,
     gamma: float,
+    speeds_A: np.ndarray,
 ) -> list[dict[str, Any]]:
     """One episode's :class:`~priqn.evaluation.rollout.RolloutStep` records (in order, the last one
     with the episode's values) → one row per decision.
 
     ``objectives``: the heads' objectives (per-objective heads); ``levels``: the L axis of
     the decisions' subsets; ``penalty``: the safety penalty (> 0); ``gamma``: the top
-    objective's discount, for the realised return-to-go its head predicts.
+    objective's discount, for the realised return-to-go its head predicts; ``speeds_A``:
+    each action's target speed [m/s] (:func:`priqn.env.intersection.action_grid`).
     """
     if not steps or steps[-1].episode is None:
         raise ValueError("decision_rows: needs one whole episode (its last step ends it)")
@@ -127,6 +129,14 @@ def decision_rows(
             "decision": s.step,
             "action": s.action,
         }
+        keeps_A = subsets_LA[top_level]
+        row.update(
+            speed_mps=float(speeds_A[s.action]),
+            top_max_speed_mps=float(speeds_A[keeps_A].max()),
+            lower_greedy_speed_mps=float(
+                speeds_A[int(np.argmax(means_HA[objectives.index(cfg.lower)]))]
+            ),
+        )
         removed = []
         for o in lower:
             greedy = int(np.argmax(means_HA[objectives.index(o)]))
@@ -143,6 +153,7 @@ def decision_rows(
             episode_violation=violation,
             episode_off_road=bool(end["off_road"]),
             episode_collision=bool(end["collision"]),
+            episode_timeout=bool(end["timeout"]),
             violation_within=violation and left < cfg.horizon,
             off_road_within=bool(end["off_road"]) and left < cfg.horizon,
         )
@@ -162,6 +173,7 @@ def seed_summary(decisions: Any, cfg: MechanismConfig) -> dict[str, Any]:
     """
     d = decisions
     removes = d[f"removes_{cfg.lower}"].astype(bool)
+    standstill = d["speed_mps"] == 0.0
     by_episode = d.groupby(["eval_run", "net", "density", "episode"], sort=False)
     episode_removal = by_episode[f"removes_{cfg.lower}"].any()
     episode_violation = by_episode["episode_violation"].first()
@@ -187,6 +199,13 @@ def seed_summary(decisions: Any, cfg: MechanismConfig) -> dict[str, Any]:
             "brier": _rate((d["pred_violation"] - d["episode_violation"].astype(float)) ** 2),
             "pred_return": _rate(d["pred_return"]),
             "return_to_go": _rate(d["return_to_go"]),
+            "timeout_episodes": _rate(by_episode["episode_timeout"].first()),
+            "standstill": _rate(standstill),
+            "top_only_standstill": _rate(d["top_max_speed_mps"] == 0.0),
+            "standstill_top_allowed_moving": _rate(standstill & (d["top_max_speed_mps"] > 0.0)),
+            f"standstill_{cfg.lower}_moving": _rate(
+                standstill & (d["lower_greedy_speed_mps"] > 0.0)
+            ),
         }
     )
     return out
@@ -323,6 +342,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
     import pandas as pd
     import torch
 
+    from priqn.env.intersection import action_grid
     from priqn.env.vector import make_vector_env
     from priqn.evaluation.protocol import make_scenes
     from priqn.evaluation.rollout import rollout
@@ -343,6 +363,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
     reward = env_cfg.reward
     penalty = min(reward.collision_penalty, reward.off_road_penalty)
     gamma = float(RunFolder(cell.path).config().learner.gamma)
+    speeds_A = action_grid(env_cfg)[:, 0]
     expected = cell.episodes.set_index(["eval_run", "net", "density", "episode"])
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one state at a time: more threads only fight the env workers
@@ -355,7 +376,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
             if step.episode is None:
                 continue
             played = open_steps.pop(step.scene)
-            new = decision_rows(played, agent.objectives, levels, cfg, penalty, gamma)
+            new = decision_rows(played, agent.objectives, levels, cfg, penalty, gamma, speeds_A)
             want = expected.loc[step.scene.cell + (step.scene.episode,)]
             matches = int(want["steps"]) == len(played) and all(
                 bool(want[k]) == bool(step.episode[k]) for k in ("success", "collision", "off_road")
@@ -407,6 +428,10 @@ MARKDOWN_COLUMNS: tuple[str, ...] = (
     "pred_violation",
     "observed_violation",
     "brier",
+    "timeout_episodes",
+    "standstill",
+    "top_only_standstill",
+    "standstill_{lower}_moving",
 )
 """Columns of the seed table in mechanism.md (all of them are in mechanism.csv)."""
 
@@ -474,7 +499,8 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
             cached = out / "decisions" / f"{cell.name}.csv"
             want = min(cfg.episodes or len(cell.episodes), len(cell.episodes))
             frame = pd.read_csv(cached) if cached.is_file() else None
-            if frame is None or _episodes_in(frame) != want:
+            stale = frame is not None and not set(_NEWEST_COLUMNS) <= set(frame.columns)
+            if frame is None or stale or _episodes_in(frame) != want:
                 frame = replay_cell(cell, cfg, progress=bar)
                 atomic_write_text(cached, frame.to_csv(index=False, lineterminator="\n"))
             else:
@@ -530,6 +556,8 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
 
 
 _EPISODE = ["eval_run", "net", "density", "episode"]
+_NEWEST_COLUMNS = ("episode_timeout", "speed_mps")
+"""Decision columns an older priqn did not write: a cached file without them is replayed."""
 
 
 def _episodes_in(frame: Any) -> int:

@@ -355,15 +355,7 @@ class IntersectionEnv(gymnasium.Env):
         self._default_seed = None if seed is None else int(seed)
         self._seeded = False
 
-        self._speeds = np.linspace(0.0, cfg.max_speed_mps, cfg.n_speeds)
-        self._offsets = (
-            np.linspace(-cfg.max_offset_m, cfg.max_offset_m, cfg.n_offsets)
-            if cfg.n_offsets > 1
-            else np.zeros(1)
-        )
-        self._table = np.stack(
-            np.meshgrid(self._speeds, self._offsets, indexing="ij"), axis=-1
-        ).reshape(-1, 2)
+        self._table = action_grid(cfg)
         self.action_space = spaces.Discrete(len(self._table))
         self.objectives = EnvObjectives(cfg.objectives, cfg.reward)
         """The declared objectives, resolved (names, bounds, reward vector)."""
@@ -844,6 +836,18 @@ class IntersectionEnv(gymnasium.Env):
             "returns": ep.returns.copy(),
             "episode_steps": int(ep.steps),
         }
+
+
+def action_grid(cfg: EnvConfig) -> np.ndarray:
+    """``float64 [A, 2]``: ``(v_f [m/s], d_f [m])`` of every action index, speed-major
+    (action ``i`` has target speed index ``i // n_offsets``)."""
+    speeds = np.linspace(0.0, cfg.max_speed_mps, cfg.n_speeds)
+    offsets = (
+        np.linspace(-cfg.max_offset_m, cfg.max_offset_m, cfg.n_offsets)
+        if cfg.n_offsets > 1
+        else np.zeros(1)
+    )
+    return np.stack(np.meshgrid(speeds, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
 
 
 def make_config(
