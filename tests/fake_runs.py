@@ -135,3 +135,22 @@ def pr_value(seed, r, d, net, e):
         "return_risk": -3.0,
         "return_lane_keeping": 1.0 + seed,
     }
+
+
+def tiny_grid(name: str, steps: int) -> str:
+    """The head of an experiment TOML whose cells really train and evaluate, in about a
+    minute: a tiny network and episodes, one density, one episode per hold-out net."""
+    return f"""
+[experiment]
+name = "{name}"
+net = "tjunction"
+steps = {steps}
+set = ["env.obs_size_px=32", "env.max_episode_steps=25", "network.latent_dim=64",
+       "network.hidden_dim=64", "replay.capacity=4000", "replay.learning_starts=64",
+       "evaluation.interval_steps=0", "exploration.decay_steps=60"]
+[evaluate]
+densities = [0.5]
+eval_runs = 1
+episodes_per_cell = 1
+num_workers = 1
+"""

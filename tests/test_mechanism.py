@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from fake_runs import tiny_grid
 
 from priqn.agents.policy import Decision
 from priqn.analysis.mechanism import (
@@ -203,25 +204,16 @@ def test_smoke_replay_of_a_committed_cell_matches_its_evaluation(tmp_path):
     assert "| run |" in (out / "mechanism.md").read_text()
 
 
-SNAPSHOT_GRID = """
-[experiment]
-name = "mech"
-net = "tjunction"
-steps = 400
-set = ["env.obs_size_px=32", "env.max_episode_steps=25", "network.latent_dim=64",
-       "network.hidden_dim=64", "replay.capacity=4000", "replay.learning_starts=64",
-       "evaluation.interval_steps=0", "exploration.decay_steps=60"]
-[evaluate]
-densities = [0.5]
-eval_runs = 1
-episodes_per_cell = 1
-num_workers = 1
+SNAPSHOT_GRID = (
+    tiny_grid("mech", 400)
+    + """
 [[policy]]
 name = "pr-iqn"
 agent = "pr-iqn"
 seeds = [1]
 keep_at = [200]
 """
+)
 
 
 def test_a_kept_snapshot_replays_on_its_own_evaluation(tmp_path):

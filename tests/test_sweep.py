@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
+from fake_runs import tiny_grid
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
@@ -1296,19 +1297,9 @@ def test_commit_outside_a_git_work_tree_is_one_line(tmp_path: Path) -> None:
         commit_complete_cells(load_experiment(exp_path))
 
 
-BUDGETS_GRID = """
-[experiment]
-name = "budgets"
-net = "tjunction"
-steps = 200
-set = ["env.obs_size_px=32", "env.max_episode_steps=25", "network.latent_dim=64",
-       "network.hidden_dim=64", "replay.capacity=4000", "replay.learning_starts=64",
-       "evaluation.interval_steps=0", "exploration.decay_steps=60"]
-[evaluate]
-densities = [0.5]
-eval_runs = 1
-episodes_per_cell = 1
-num_workers = 1
+BUDGETS_GRID = (
+    tiny_grid("budgets", 200)
+    + """
 [[policy]]
 name = "iqn-400"
 group = "iqn"
@@ -1321,6 +1312,7 @@ name = "iqn"
 agent = "iqn"
 seeds = [2]
 """
+)
 
 
 def test_a_long_rows_cell_keeps_and_evaluates_its_snapshots(tmp_path: Path) -> None:
