@@ -459,7 +459,7 @@ def outcomes_figure(frame: pd.DataFrame, order: list[str], by: str = "command") 
     ``frame`` is :func:`priqn.analysis.tables.outcomes_by_command`'s table, or any with
     the columns ``label``, ``by`` and the outcome rates :data:`OUTCOME_COLORS` names.
     """
-    commands = list(dict.fromkeys(frame[by]))
+    bars = list(dict.fromkeys(frame[by]))
     labels = [label for label in order if label in set(frame["label"])]
     ncols = min(len(labels), 7)
     nrows = -(-len(labels) // ncols)
@@ -469,11 +469,11 @@ def outcomes_figure(frame: pd.DataFrame, order: list[str], by: str = "command") 
     for ax in axes.flat[len(labels) :]:
         ax.set_visible(False)
     for ax, label in zip(axes.flat, labels, strict=False):
-        mine = frame[frame["label"] == label].set_index(by).reindex(commands)
-        bottom = np.zeros(len(commands))
+        mine = frame[frame["label"] == label].set_index(by).reindex(bars)
+        bottom = np.zeros(len(bars))
         for outcome, color in OUTCOME_COLORS.items():
             values = mine[outcome].fillna(0.0).to_numpy(float)
-            ax.bar(commands, values, bottom=bottom, color=color, label=outcome.replace("_", "-"))
+            ax.bar(bars, values, bottom=bottom, color=color, label=outcome.replace("_", "-"))
             bottom += values
         ax.set_title(textwrap.fill(label, 14), fontsize=8)
         ax.tick_params(axis="x", labelsize=7, rotation=45)

@@ -41,9 +41,10 @@ def budgets_of(exp: Experiment, group: str) -> list[int]:
 
 
 def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
-    """Per (group, budget, training seed) of ``question``'s seeds: both endpoints where the
-    cell's evaluation at that budget is complete. Columns: group, budget, train_seed,
-    success, violation, timeout, episodes."""
+    """Per (group, budget, training seed) of ``question``'s seeds: every outcome rate where
+    the cell's evaluation at that budget is complete. Columns: group, budget, train_seed,
+    one per :data:`questions.OUTCOME_RATES` (success, violation, timeout, collision,
+    off_road), episodes."""
     rows = []
     groups = [r.name for r in questions.view(question).policies]
     for group in groups:
@@ -55,13 +56,8 @@ def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
                 folder = RunFolder(where[1])
                 if folder.recorded_eval_status(where[2]) != Status.COMPLETE:
                     continue
-                eval_dir = folder.evaluation_dir(where[2])
-                values = {
-                    e: float(questions.endpoint_by_density(eval_dir, e)[0].mean())
-                    for e in questions.OUTCOME_RATES
-                }
-                n = questions.endpoint_by_density(eval_dir, "success")[1]
-                rows.append((group, budget, seed, *values.values(), n))
+                rates, n = questions.outcome_rates(folder.evaluation_dir(where[2]))
+                rows.append((group, budget, seed, *rates.values(), n))
     columns = ["group", "budget", "train_seed", *questions.OUTCOME_RATES, "episodes"]
     return pd.DataFrame(rows, columns=columns)
 
