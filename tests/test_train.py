@@ -451,15 +451,17 @@ def test_cuda_determinism_switches_torch_and_cpu_training_leaves_it_alone(monkey
     from priqn.train_config import TrainConfig, cuda_determinism
 
     monkeypatch.delenv("CUBLAS_WORKSPACE_CONFIG", raising=False)
-    assert not torch.are_deterministic_algorithms_enabled()
+    before = (torch.are_deterministic_algorithms_enabled(), torch.backends.cudnn.deterministic)
     try:
         cuda_determinism(True)
         assert torch.are_deterministic_algorithms_enabled()
         assert torch.backends.cudnn.deterministic and not torch.backends.cudnn.benchmark
         assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
-    finally:
         cuda_determinism(False)
-    assert not torch.are_deterministic_algorithms_enabled()
-    assert not torch.backends.cudnn.deterministic
-    assert _torch_device(TrainConfig(device="cpu", torch_threads=0)).type == "cpu"
-    assert not torch.are_deterministic_algorithms_enabled()
+        assert not torch.are_deterministic_algorithms_enabled()
+        assert not torch.backends.cudnn.deterministic
+        assert _torch_device(TrainConfig(device="cpu", torch_threads=0)).type == "cpu"
+        assert not torch.are_deterministic_algorithms_enabled()
+    finally:  # as it was (an in-process CUDA run earlier in the session may have set it)
+        torch.use_deterministic_algorithms(before[0])
+        torch.backends.cudnn.deterministic = before[1]
