@@ -77,7 +77,12 @@ class MechanismConfig:
     @property
     def evaluation(self) -> str:
         """The evaluation folder replayed: ``eval/`` or ``eval-at<N>/``."""
-        return f"eval-at{self.snapshot}/" if self.snapshot else "eval/"
+        name = RunFolder.EVAL
+        return (
+            f"{name}-{RunFolder.snapshot_evaluation(self.snapshot)}/"
+            if self.snapshot
+            else f"{name}/"
+        )
 
 
 # ----------------------------------------------------------------------------- counting
@@ -130,22 +135,20 @@ def decision_rows(
             "action": s.action,
         }
         keeps_A = subsets_LA[top_level]
+        greedy_O = {o: int(np.argmax(means_HA[objectives.index(o)])) for o in lower}
         row.update(
             speed_mps=float(speeds_A[s.action]),
             top_max_speed_mps=float(speeds_A[keeps_A].max()),
-            lower_greedy_speed_mps=float(
-                speeds_A[int(np.argmax(means_HA[objectives.index(cfg.lower)]))]
-            ),
+            lower_greedy_speed_mps=float(speeds_A[greedy_O[cfg.lower]]),
         )
         removed = []
-        for o in lower:
-            greedy = int(np.argmax(means_HA[objectives.index(o)]))
+        for o, greedy in greedy_O.items():
             row[f"greedy_{o}"] = greedy
-            row[f"removes_{o}"] = not bool(subsets_LA[top_level, greedy])
+            row[f"removes_{o}"] = not bool(keeps_A[greedy])
             removed.append(row[f"removes_{o}"])
         row.update(
             removes_any=any(removed),
-            size_top=int(subsets_LA[top_level].sum()),
+            size_top=int(keeps_A.sum()),
             size_leaf=int(d.leaf_BA[0].sum()),
             pred_violation=float(np.mean(q_K <= -penalty / 2.0)),
             pred_return=float(q_K.mean()),
@@ -280,8 +283,7 @@ def load_cell(path: Path, snapshot: int = 0) -> Cell:
     from priqn.sim.scenario import manifest_hash
 
     run = RunFolder(path)
-    evaluation = f"at{snapshot}" if snapshot else ""
-    eval_dir = run.evaluation_dir(evaluation)
+    eval_dir = run.evaluation_dir(RunFolder.snapshot_evaluation(snapshot) if snapshot else "")
     meta_path = eval_dir / RunFolder.META
     if snapshot and run.is_run():
         keep_at = list(run.config().checkpoint.keep_at)
