@@ -168,6 +168,26 @@ def test_group_rows_average_each_group_over_its_seeds():
     assert groups.loc["healthy", "seed"] == 2
 
 
+def test_top_risk_counts_risk_removals_but_calibrates_the_safety_head():
+    """With --top risk the removals and S_top are risk's (all actions kept here: its subset
+    row is all ones), but the predictions stay the safety head's: the same numbers as with
+    --top safety, and the risk head's own quantiles (all -10, a certain "violation" if read
+    as safety's) are ignored."""
+    risk = OBJECTIVES.index("risk")
+    cfg = MechanismConfig(horizon=2, top="risk")
+    out = []
+    for ep in episodes():
+        for s in ep:
+            s.decision.quantiles_BHKA[0, risk] = -10.0
+        out += decision_rows(ep, OBJECTIVES, OBJECTIVES, cfg, 10.0, 0.5, SPEEDS_A)
+    d = pd.DataFrame(out)
+    assert d["removes_lane_keeping"].tolist() == [False] * 6
+    assert d["size_top"].tolist() == [4] * 6
+    assert d["pred_violation"].tolist() == [0.0, 0.5, 0.5, 0.0, 0.0, 0.0]
+    assert d["return_to_go"].tolist() == [-1.25, -2.5, -5.0, -10.0, 0.0, 0.0]
+    assert set(d["calibrated_head"]) == {"safety"}
+
+
 def test_an_unfinished_episode_is_refused():
     with pytest.raises(ValueError, match="whole episode"):
         decision_rows(episodes()[0][:2], OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.99, SPEEDS_A)

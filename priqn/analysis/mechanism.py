@@ -8,8 +8,8 @@ recorded) and measures per training seed (docs/mechanism.md):
    action a lower objective's head would take on its own (its greedy action), and how
    often an episode ends in a violation (collision or off-road) within a few decisions
    after such a removal, against the decisions without one;
-2. **calibration**: what the top head's quantiles predict at the executed action — the
-   predicted probability of the safety penalty (share of the K fixed-grid quantiles at
+2. **calibration**: what the safety head's quantiles predict at the executed action
+   (whatever the top level examined) — the predicted probability of the safety penalty (share of the K fixed-grid quantiles at
    or below half the penalty) and the predicted return — against whether the episode
    ended in a violation (a reliability table and curve);
 3. **collapsed vs healthy**: the same measures for seeds whose hold-out success (all of
@@ -50,6 +50,9 @@ RELIABILITY_EDGES: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 
 """Bin edges of the predicted violation probability (the last bin includes 1)."""
 GROUPS: tuple[str, ...] = ("collapsed", "healthy", "all")
 """Group rows of the table, in order."""
+CALIBRATED = "safety"
+"""The objective whose head's calibration is measured: its return is 0 or the violation
+penalty discounted, so its quantiles predict a violation whatever ``--top`` is."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +63,8 @@ class MechanismConfig:
     """Episodes per seed: the first of the cell's evaluation scenes in the order (eval run,
     episode, net, density) (:func:`replay_scenes`); 0 = all of them."""
     top: str = "safety"
-    """The level whose removals are counted and whose head's calibration is measured."""
+    """The level whose removals and standing still are counted. Calibration is always
+    the safety head's (:data:`CALIBRATED`), the one head that learns the violation penalty."""
     lower: str = "lane_keeping"
     """The lower objective whose greedy action's removal drives the violation measures."""
     horizon: int = 5
@@ -101,18 +105,18 @@ def decision_rows(
     with the episode's values) → one row per decision.
 
     ``objectives``: the heads' objectives (per-objective heads); ``levels``: the L axis of
-    the decisions' subsets; ``penalty``: the safety penalty (> 0); ``gamma``: the top
-    objective's discount, for the realised return-to-go its head predicts; ``speeds_A``:
+    the decisions' subsets; ``penalty``: the safety penalty (> 0); ``gamma``: the
+    discount, for the realised safety return-to-go the safety head predicts; ``speeds_A``:
     each action's target speed [m/s] (:func:`priqn.env.intersection.action_grid`).
     """
     if not steps or steps[-1].episode is None:
         raise ValueError("decision_rows: needs one whole episode (its last step ends it)")
     end = steps[-1].episode
     violation = bool(end["collision"] or end["off_road"])
-    top_head, top_level = objectives.index(cfg.top), levels.index(cfg.top)
+    safety_head, top_level = objectives.index(CALIBRATED), levels.index(cfg.top)
     lower = [o for o in levels if o != cfg.top]
-    rewards_T = np.array([float(s.reward_N[top_head]) for s in steps])
-    # Realised discounted return-to-go of the top objective, from each decision on.
+    rewards_T = np.array([float(s.reward_N[safety_head]) for s in steps])
+    # Realised discounted safety return-to-go, from each decision on.
     to_go_T = np.zeros(len(steps))
     acc = 0.0
     for t in range(len(steps) - 1, -1, -1):
@@ -124,7 +128,7 @@ def decision_rows(
         d = s.decision
         q_HKA, subsets_LA = d.quantiles_BHKA[0], d.subsets_BLA[0]
         means_HA = q_HKA.mean(axis=1)
-        q_K = q_HKA[top_head, :, s.action]
+        q_K = q_HKA[safety_head, :, s.action]
         left = len(steps) - 1 - t  # decisions after this one
         row: dict[str, Any] = {
             "eval_run": scene.eval_run,
@@ -150,6 +154,7 @@ def decision_rows(
             removes_any=any(removed),
             size_top=int(keeps_A.sum()),
             size_leaf=int(d.leaf_BA[0].sum()),
+            calibrated_head=CALIBRATED,
             pred_violation=float(np.mean(q_K <= -penalty / 2.0)),
             pred_return=float(q_K.mean()),
             return_to_go=float(to_go_T[t]),
@@ -360,6 +365,10 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
             raise PriqnError(
                 f"{what} {name}: not an objective of {cell.name} ({', '.join(levels)})"
             )
+    if CALIBRATED not in agent.objectives:
+        raise PriqnError(
+            f"{cell.path}: no {CALIBRATED} head to calibrate ({', '.join(agent.objectives)})"
+        )
     scenes = replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
     env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
     reward = env_cfg.reward
@@ -439,7 +448,7 @@ MARKDOWN_COLUMNS: tuple[str, ...] = (
 
 
 def write_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig, path: Path) -> None:
-    """``mechanism.png``: removal rate against hold-out success per seed, and the top
+    """``mechanism.png``: removal rate against hold-out success per seed, and the safety
     head's reliability curve per group."""
     import matplotlib
 
@@ -474,9 +483,9 @@ def write_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig, 
         )  # fmt: skip
     ax_b.set_xlim(0, 1)
     ax_b.set_ylim(0, 1)
-    ax_b.set_xlabel(f"predicted P(violation): {cfg.top} quantiles ≤ −penalty/2 at the action")
+    ax_b.set_xlabel(f"predicted P(violation): {CALIBRATED} quantiles ≤ −penalty/2 at the action")
     ax_b.set_ylabel("observed: episode ends in a violation")
-    ax_b.set_title(f"{cfg.top} head reliability (decisions)", fontsize=9)
+    ax_b.set_title(f"{CALIBRATED} head reliability (decisions)", fontsize=9)
     ax_b.legend(fontsize=7)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=130, metadata={"Software": None})
@@ -546,7 +555,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
         "",
         _markdown(full[columns]),
         "",
-        f"## Reliability of the {cfg.top} head (decisions)",
+        f"## Reliability of the {CALIBRATED} head (decisions)",
         "",
         _markdown(rel[["group", "bin", "n", "pred_violation", "observed_violation"]]),
         "",
@@ -558,8 +567,9 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
 
 
 _EPISODE = ["eval_run", "net", "density", "episode"]
-_NEWEST_COLUMNS = ("episode_timeout", "speed_mps")
-"""Decision columns an older priqn did not write: a cached file without them is replayed."""
+_NEWEST_COLUMNS = ("episode_timeout", "speed_mps", "calibrated_head")
+"""Decision columns an older priqn did not write: a cached file without them is replayed
+(before ``calibrated_head``, ``--top risk`` calibrated the risk head)."""
 
 
 def _episodes_in(frame: Any) -> int:
