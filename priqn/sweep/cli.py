@@ -198,7 +198,9 @@ def _forecast(exp: Any, sims: int) -> int:
     if exp.sequential is not None:
         scores = sequential.collect_scores(exp)
         have = forecast.committed_rows(exp, scores)
-        with tqdm(total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim") as bar:
+        with tqdm(
+            total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim", disable=None
+        ) as bar:
             table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
         _print_forecast(name, exp.sequential, have, table)
     for q in exp.questions:
@@ -209,7 +211,7 @@ def _forecast(exp: Any, sims: int) -> int:
             print(f"{name} {q.name}: not forecast ({str(exc).removeprefix('forecast: ')})")
             continue
         total = sims * len(questions.forecast_scenarios(q))
-        with tqdm(total=total, desc=f"forecast {q.name}", unit="sim") as bar:
+        with tqdm(total=total, desc=f"forecast {q.name}", unit="sim", disable=None) as bar:
             table = questions.forecast(q, scores, sims=sims, on_sim=bar.update)
         _print_forecast(f"{name} {q.name}", q, have, table)
     print(
