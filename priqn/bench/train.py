@@ -22,7 +22,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -148,6 +148,18 @@ def _make_learner(
     return learner, (cfg, batches)
 
 
+class Case(NamedTuple):
+    """One timed case of :func:`updates_per_second`: an agent and its switches."""
+
+    agent: str
+    bf16: bool
+    """``learner.autocast_bf16``."""
+    compiled: bool
+    """``learner.compile = "on"`` (else ``"off"``)."""
+    deterministic: bool
+    """Training's deterministic CUDA kernels (``cuda_deterministic``); False on the CPU."""
+
+
 def _time_updates(learner: Any, batches: list[Any], seconds: float) -> float:
     import torch
 
@@ -188,7 +200,7 @@ def updates_per_second(
 
     cuda = select_device(device).type == "cuda"
     cases = [
-        (a, b, c, d)
+        Case(a, b, c, d)
         for a in agents
         for b in ((False, True) if bf16 else (False,))
         for c in ((False, True) if compiled else (False,))
@@ -196,13 +208,15 @@ def updates_per_second(
     ]
     if cuda:
         cuda_determinism(True)  # before the first CUDA matrix product (cuBLAS's workspace)
-    made = {c: _make_learner(preset, c[0], batch_size, device, c[1], c[2]) for c in cases}
+    made = {
+        c: _make_learner(preset, c.agent, batch_size, device, c.bf16, c.compiled) for c in cases
+    }
     best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
         for c in cases:
             learner, (_, batches) = made[c]
             if cuda:
-                cuda_determinism(c[3])
+                cuda_determinism(c.deterministic)
             best[c] = max(best[c], _time_updates(learner, batches, seconds / rounds))
     if cuda:
         cuda_determinism(True)
@@ -212,10 +226,7 @@ def updates_per_second(
         out.append(
             {
                 "preset": preset,
-                "agent": c[0],
-                "bf16": c[1],
-                "compiled": c[2],
-                "deterministic": c[3],
+                **c._asdict(),
                 "obs_px": cfg.env.obs_size_px,
                 "device": str(learner.device),
                 "updates_per_s": best[c],
@@ -316,16 +327,16 @@ def _case_name(r: dict[str, Any]) -> str:
 def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
     """One line per case that has a twin differing in one switch: compiled / eager, and
     nondeterministic / deterministic kernels (CUDA), in updates/s."""
-    by_case = {(r["agent"], r["bf16"], r["compiled"], r["deterministic"]): r for r in results}
+    by_case = {Case(*(r[f] for f in Case._fields)): r for r in results}
     switches = (
-        (2, "compiled / eager", False),  # (index in the case, label, the baseline's value)
-        (3, "nondeterministic / deterministic", True),
+        ("compiled", "compiled / eager", False),  # (switch, label, the baseline's value)
+        ("deterministic", "nondeterministic / deterministic", True),
     )
     lines = []
     for case, base in by_case.items():
-        for i, label, base_value in switches:
-            twin = by_case.get(case[:i] + (not base_value,) + case[i + 1 :])
-            if case[i] != base_value or twin is None:
+        for field, label, base_value in switches:
+            twin = by_case.get(case._replace(**{field: not base_value}))
+            if getattr(case, field) != base_value or twin is None:
                 continue
             name = _case_name(base)
             ratio = twin["updates_per_s"] / base["updates_per_s"]
