@@ -9,9 +9,10 @@ recorded) and measures per training seed (docs/mechanism.md):
    often an episode ends in a violation (collision or off-road) within a few decisions
    after such a removal, against the decisions without one;
 2. **calibration**: what the safety head's quantiles predict at the executed action
-   (whatever the top level examined) — the predicted probability of the safety penalty (share of the K fixed-grid quantiles at
-   or below half the penalty) and the predicted return — against whether the episode
-   ended in a violation (a reliability table and curve);
+   (whatever the top level examined) — the predicted probability of the safety penalty
+   (share of the K fixed-grid quantiles at or below half the penalty) and the predicted
+   return — against whether the episode ended in a violation (a reliability table and
+   curve);
 3. **collapsed vs healthy**: the same measures for seeds whose hold-out success (all of
    their ``eval/episodes.csv``) is below a threshold, and for the others.
 
