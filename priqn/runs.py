@@ -188,9 +188,14 @@ class RunFolder:
         (its folder ``eval-at<budget>/``)."""
         return f"{SNAPSHOT_PREFIX}{budget}"
 
+    @classmethod
+    def evaluation_folder(cls, name: str = "") -> str:
+        """The folder name of evaluation ``name``: ``eval`` for "", else ``eval-<name>``."""
+        return f"{cls.EVAL}-{name}" if name else cls.EVAL
+
     def evaluation_dir(self, name: str = "") -> Path:
         """``eval/`` for ``name`` "", else ``eval-<name>/`` (e.g. ``eval-near-greedy``)."""
-        return self.eval_dir if not name else self.path / f"{self.EVAL}-{name}"
+        return self.path / self.evaluation_folder(name)
 
     def control_evaluations(self) -> list[str]:
         """Names of the control evaluations (``eval-<name>/`` folders beside ``eval/``), sorted."""

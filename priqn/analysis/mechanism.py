@@ -82,12 +82,8 @@ class MechanismConfig:
     @property
     def evaluation(self) -> str:
         """The evaluation folder replayed: ``eval/`` or ``eval-at<N>/``."""
-        name = RunFolder.EVAL
-        return (
-            f"{name}-{RunFolder.snapshot_evaluation(self.snapshot)}/"
-            if self.snapshot
-            else f"{name}/"
-        )
+        name = RunFolder.snapshot_evaluation(self.snapshot) if self.snapshot else ""
+        return f"{RunFolder.evaluation_folder(name)}/"
 
 
 # ----------------------------------------------------------------------------- counting
