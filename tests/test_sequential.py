@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -270,6 +271,38 @@ def test_adastop_boundary_is_two_sided() -> None:
     assert adastop_decision(fixed, *clear[::-1]) == "smaller"
     # If this fails, adastop has fixed its boundary: two_sided_comparator can go.
     assert adastop_decision(MultipleAgentsComparator, *close) == "larger"
+
+
+def test_adastop_spends_level_after_the_first_look_when_splits_outnumber_b() -> None:
+    """8 seeds a row a look: C(16, 8) = 12,870 splits > B 1,000, so every look draws random
+    splits. Look 1: a and b hold the same eight values (difference 0, undecided). Look 2:
+    a = .60 .. .95, b = .05 .. .40, every a above every b (difference +0.55). At α 0.3 over
+    K 3 looks, the level spent may reach 0.1 at look 1 and 0.2 at look 2. The mended
+    comparator spends about 0.2 by look 2 and decides "larger"; adastop's own divides
+    look 2's counts by 1, spends nothing more and keeps the largest split sum (the data's
+    own split among them) as its boundary, so it cannot decide."""
+    from adastop import MultipleAgentsComparator
+
+    same = np.linspace(0.1, 0.8, 8)
+    a = np.concatenate([same, np.linspace(0.60, 0.95, 8)])
+    b = np.concatenate([same, np.linspace(0.05, 0.40, 8)])
+
+    def two_looks(comparator_class: type) -> Any:
+        comparator = comparator_class(n=8, K=3, B=1000, alpha=0.3, beta=0.0, seed=0)
+        for k in (1, 2):
+            comparator.partial_compare({"a": a[: 8 * k], "b": b[: 8 * k]}, verbose=False)
+            if k == 1:
+                assert comparator.decisions["[0 1]"] == "continue"
+                assert 0.098 <= comparator.level_spent <= 0.1  # a split's 1/B short at most
+        return comparator
+
+    mended = two_looks(sequential.two_sided_comparator())
+    assert 0.196 <= mended.level_spent <= 0.2
+    assert mended.decisions["[0 1]"] == "larger"
+    # If these fail, adastop has mended its normalisation: the override can go.
+    own = two_looks(MultipleAgentsComparator)
+    assert own.level_spent <= 0.1
+    assert own.decisions["[0 1]"] == "continue"
 
 
 @pytest.mark.slow

@@ -24,6 +24,7 @@ Arrays: ``scores_S`` is one row's per-seed scores in seed order (seed 0 first).
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +216,16 @@ def two_sided_comparator() -> type:
     boundary is read from is the max of the absolute differences, as in the AdaStop paper;
     the signed sums the later looks add to are kept (docs/statistics.md, "Sequential
     experiments").
+
+    It also mends adastop's tail probabilities after the first look when a look has more
+    splits than ``B`` (n ≥ 8 seeds a row a look at B 10,000: C(16, 8) = 12,870): the first
+    look draws ``B`` random splits, but the later looks divide their counts by
+    ``n_splits ** floor(log B / log n_splits)`` = 1 instead of ``B``. No level is then
+    spent after the first look, and the boundary is the largest split sum, which no data
+    exceed: the explain design's safety question at 60k (10 seeds a look) could decide
+    only at its first look, and its last look would call "equal" whatever the data. Here
+    those looks divide by ``B``, the number of random paths (docs/statistics.md). With
+    n ≤ 7 (every look of the headline) nothing changes.
     """
     try:
         from adastop import MultipleAgentsComparator
@@ -226,6 +237,9 @@ def two_sided_comparator() -> type:
     class TwoSidedComparator(MultipleAgentsComparator):
         def compute_mean_diffs(self, k: int, Z: list) -> dict[str, np.ndarray]:  # noqa: N803
             signed = super().compute_mean_diffs(k, Z)  # kept in self.mean_diffs
+            a, b = self.current_comparisons[0]  # every row has the same seeds a look
+            if math.comb(self.n[a] + self.n[b], self.n[a]) > self.B:  # random from look 1
+                self.normalization = self.B
             return {comp: np.abs(np.asarray(d)) for comp, d in signed.items()}
 
     return TwoSidedComparator
