@@ -348,24 +348,26 @@ def test_headline_design_keeps_its_family_wise_error_under_the_null(
 @pytest.mark.slow
 def test_ten_seeds_a_look_keep_their_error_under_the_null_and_spend_it_at_every_look() -> None:
     """The explain design's safety question at 60k (3 looks of 10 seeds a row, α 0.10
-    two-sided) on 400 null data sets (both rows' 30 seeds from one normal, SD 0.13 like
-    the rows'): the share with a rejection is at most α plus two standard errors, and
-    looks 2 and 3 reject too (adastop's own counts, divided by 1 after look 1, cannot).
-    B 2,000 instead of 10,000 keeps it quick (C(20, 10) = 184,756 splits either way)."""
-    comparator_class = sequential.two_sided_comparator()
+    two-sided), replayed as registered on 400 null data sets (both rows' 30 seeds from one
+    normal, SD 0.13 like the rows'): the share with a rejection is at most α plus two
+    standard errors, and looks 2 and 3 reject too (adastop's own counts, divided by 1
+    after look 1, cannot). B 2,000 instead of 10,000 keeps it quick (C(20, 10) = 184,756
+    splits either way)."""
+    from priqn.analysis import questions
+
+    question = next(q for q in load_experiment("explain").questions if q.name == "safety-60k")
+    (comparison,) = question.comparisons
+    assert (question.seeds_per_look, len(question.interims), question.alpha) == (10, 3, 0.1)
+    design = dataclasses.replace(question, permutations=2000)
     sims = 400
     rejected_at = [0, 0, 0]
     rng = np.random.default_rng(0)
     for i in range(sims):
-        a, b = rng.normal(0.25, 0.13, 30), rng.normal(0.25, 0.13, 30)
-        comparator = comparator_class(n=10, K=3, B=2000, alpha=0.1, beta=0.0, seed=i)
-        for k in range(3):
-            comparator.partial_compare(
-                {"a": a[: 10 * (k + 1)], "b": b[: 10 * (k + 1)]}, verbose=False
-            )
-            if comparator.decisions["[0 1]"] in ("larger", "smaller"):
-                rejected_at[k] += 1
-                break
+        rates = {comparison.a: rng.normal(0.25, 0.13, 30), comparison.b: rng.normal(0.25, 0.13, 30)}
+        view = questions.view(dataclasses.replace(design, seed=i))
+        result = sequential.replay(view, scores_frame(rates))
+        if result.decisions[comparison.name] in ("larger", "smaller"):
+            rejected_at[len(result.looks) - 1] += 1
     print(f"rejections by look {rejected_at} of {sims}")
     assert sum(rejected_at) / sims <= 0.1 + 2 * np.sqrt(0.1 * 0.9 / sims), rejected_at
     assert rejected_at[1] > 0 and rejected_at[2] > 0, rejected_at
