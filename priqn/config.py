@@ -12,6 +12,7 @@ import ast
 import dataclasses
 import inspect
 import itertools
+import json
 import textwrap
 import tomllib
 import types
@@ -44,6 +45,15 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 def dumps_toml(data: Mapping[str, Any]) -> str:
     """Serialise a dict (e.g. from :func:`to_dict`) as TOML; ``None`` values are omitted."""
     return tomli_w.dumps(_drop_none(data))
+
+
+def toml_value(value: Any) -> str:
+    """A scalar or list as the TOML text a ``--set KEY=VALUE`` override takes."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
 
 
 def to_dict(obj: Any) -> Any:

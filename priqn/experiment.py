@@ -12,7 +12,6 @@ once (:func:`cell_dir_name`, :meth:`Experiment.cell_dir`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import re
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from priqn.agent_config import (
     agent_spec,
     resolve_spec,
 )
-from priqn.config import from_dict, load_toml
+from priqn.config import from_dict, load_toml, toml_value
 from priqn.errors import PriqnError
 from priqn.runs import RunFolder
 
@@ -58,6 +57,9 @@ class ExperimentSpec:
     """Training preset (``priqn train --preset``)."""
     steps: int | None = None
     """Training budget in agent decisions per cell; unset keeps the preset's."""
+    traffic: str | None = None
+    """A named traffic setting for every cell (``priqn train --traffic``; docs/environment.md,
+    "Traffic"), applied before ``set``; unset: the preset's traffic."""
     set: tuple[str, ...] = ()
     """TrainConfig overrides ``KEY=VALUE`` (as ``priqn train --set``) for every cell."""
     runs_dir: str = "runs"
@@ -81,6 +83,7 @@ class ExperimentSpec:
     controls are too. Pr-IQN cells have none."""
 
     def __post_init__(self) -> None:
+        _check_traffic(self.traffic)
         if self.order not in CELL_ORDERS:
             raise ValueError(f"order: expected one of {', '.join(CELL_ORDERS)}, got {self.order!r}")
         from priqn.evaluation.protocol import EvalConfig, control_config, evaluation_name
@@ -130,6 +133,9 @@ class PolicySpec:
     """Pr-IQN: objective preorder, ``total`` | ``partial`` or a preorder TOML file."""
     normalisation: str | None = None
     """Pr-IQN: quantile normalisation, ``zscore`` (the paper) | ``scaled`` (docs/preorder.md)."""
+    traffic: str | None = None
+    """A named traffic setting for this row's cells (``priqn train --traffic``), applied after
+    the experiment's ``set``, before the row's own."""
     set: tuple[str, ...] = ()
     """Further TrainConfig overrides ``KEY=VALUE`` for this row (after the experiment's)."""
     cost: float = 1.0
@@ -153,10 +159,22 @@ class PolicySpec:
     ``{"results/headline" = [3, 4, ...]}`` (folder relative to the working directory ->
     seeds; the cell is ``<folder>/<row name>__seed<k>``)."""
 
+    def __post_init__(self) -> None:
+        _check_traffic(self.traffic)
+
     @property
     def group_name(self) -> str:
         """:attr:`group`, or the row's own name."""
         return self.group or self.name
+
+
+def _check_traffic(name: str | None) -> None:
+    from priqn.env.traffic import TRAFFIC_SETTINGS
+
+    if name is not None and name not in TRAFFIC_SETTINGS:
+        raise ValueError(
+            f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
+        )
 
 
 SEQUENTIAL_METHODS: tuple[str, ...] = ("adastop",)
@@ -252,6 +270,69 @@ class SequentialSpec:
         return out
 
 
+OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
+"""How an episode ends, one of four (an episode.csv row has exactly one of them true)."""
+
+
+@dataclass(frozen=True)
+class CalibrationSpec:
+    """The ``[calibration]`` table: a pre-registered rule that picks one row (a setting) of
+    the grid by how near its outcome mix is to a target mix (docs/environment.md, "Traffic").
+
+    A row's mix is, per evaluation density, the share of its hold-out episodes ending in each
+    of :data:`OUTCOMES`, averaged over its training seeds (each seed's rate first): 4
+    outcomes x the densities. The rule: the row whose mix has the smallest L1 distance (sum
+    of absolute differences over all those numbers) to the target; a tie goes to the row
+    first in the file. Nothing else (no method's result) enters the choice.
+    """
+
+    target: str
+    """What the target mix is, as the report prints it (the paper's IQN row, Table II)."""
+    densities: tuple[float, ...]
+    """The evaluation densities the target gives, in the order of the lists below."""
+    success: tuple[float, ...]
+    """Target success rate per density."""
+    collision: tuple[float, ...]
+    """Target collision rate per density."""
+    off_road: tuple[float, ...]
+    """Target off-road rate per density."""
+    timeout: tuple[float, ...]
+    """Target timeout rate per density (the paper's: 1 - success - collision - off-road)."""
+    code_commits: tuple[str, ...] = ()
+    """Git commits the cells may have trained at (``meta.json`` ``git_sha``); the report
+    refuses any other, and a dirty checkout. Empty: not checked."""
+
+    def __post_init__(self) -> None:
+        n = len(self.densities)
+        if n == 0:
+            raise ValueError("densities: expected at least one density")
+        for name in OUTCOMES:
+            values = getattr(self, name)
+            if len(values) != n:
+                raise ValueError(f"{name}: expected {n} rates (one per density), got {len(values)}")
+            if any(not 0.0 <= v <= 1.0 for v in values):
+                raise ValueError(f"{name}: expected rates in [0, 1], got {list(values)}")
+        for i, d in enumerate(self.densities):
+            total = sum(getattr(self, name)[i] for name in OUTCOMES)
+            if abs(total - 1.0) > 1e-6:
+                raise ValueError(
+                    f"density {d}: the four rates sum to {total:.4f}; expected 1 (one outcome "
+                    "per episode)"
+                )
+
+    def target_mix(self) -> dict[tuple[str, float], float]:
+        """``(outcome, density) -> target rate``."""
+        return {
+            (name, d): getattr(self, name)[i]
+            for name in OUTCOMES
+            for i, d in enumerate(self.densities)
+        }
+
+    def code_problem(self, git_sha: str) -> str | None:
+        """As :meth:`SequentialSpec.code_problem`: ``"unlisted"``, ``"dirty"`` or None."""
+        return SequentialSpec((), code_commits=self.code_commits).code_problem(git_sha)
+
+
 _PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
 
 # Policy option -> TrainConfig key (``priqn train --set`` name).
@@ -284,6 +365,8 @@ class Experiment:
     questions: tuple[SequentialSpec, ...] = ()
     """Several pre-registered sequential designs over one grid (``[[question]]``), each
     with its own endpoint, budget, seeds and looks, its comparisons naming row groups."""
+    calibration: CalibrationSpec | None = None
+    """A pre-registered rule choosing one row by its outcome mix (``[calibration]``)."""
 
     @property
     def designs(self) -> tuple[SequentialSpec, ...]:
@@ -292,13 +375,16 @@ class Experiment:
 
     @property
     def code_commits(self) -> tuple[str, ...]:
-        """Every commit a design lets a cell train at (empty: not checked)."""
-        return tuple(dict.fromkeys(c for d in self.designs for c in d.code_commits))
+        """Every commit a design or the calibration lets a cell train at (empty: not checked)."""
+        commits = [c for d in self.designs for c in d.code_commits]
+        if self.calibration is not None:
+            commits += self.calibration.code_commits
+        return tuple(dict.fromkeys(commits))
 
     def code_problem(self, git_sha: str) -> str | None:
         """:meth:`SequentialSpec.code_problem` over :attr:`code_commits` (``"unlisted"``,
-        ``"dirty"`` or None); None for a grid without a design."""
-        if not self.designs:
+        ``"dirty"`` or None); None for a grid without a design or calibration."""
+        if not self.designs and self.calibration is None:
             return None
         return SequentialSpec((), code_commits=self.code_commits).code_problem(git_sha)
 
@@ -327,8 +413,16 @@ class Experiment:
         )
 
     def row_overrides(self, policy: PolicySpec) -> tuple[str, ...]:
-        """``policy``'s row's ``--set`` overrides: ``[experiment].set``, then the row's own."""
-        return (*self.experiment.set, *policy_overrides(policy))
+        """``policy``'s row's ``--set`` overrides: ``[experiment]`` traffic and set, then the
+        row's traffic, options and set."""
+        from priqn.env.traffic import traffic_overrides
+
+        return (
+            *traffic_overrides(self.experiment.traffic),
+            *self.experiment.set,
+            *traffic_overrides(policy.traffic),
+            *policy_overrides(policy),
+        )
 
     def group(self, name: str) -> list[PolicySpec]:
         """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""
@@ -404,7 +498,9 @@ def load_experiment(
     """
     p = resolve_experiment_path(path)
     data = load_toml(p)
-    sections = {"experiment", "policy", "evaluate", "resources", "sequential", "question"}
+    sections = {
+        "experiment", "policy", "evaluate", "resources", "sequential", "question", "calibration",
+    }  # fmt: skip
     unknown = sorted(set(data) - sections)
     if unknown:
         raise PriqnError(
@@ -451,6 +547,17 @@ def load_experiment(
         if sequential is not None:
             raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
         out = dataclasses.replace(out, questions=_load_questions(data["question"], out))
+    if "calibration" in data:
+        if out.designs:
+            raise PriqnError(f"{p}: [calibration] and a sequential design: use one or the other")
+        cal = from_dict(CalibrationSpec, data["calibration"], where=f"{p} [calibration]")
+        wanted = tuple(float(d) for d in out.evaluate.get("densities", ()))
+        if wanted and sorted(wanted) != sorted(cal.densities):
+            raise PriqnError(
+                f"{p} [calibration].densities: {list(cal.densities)} are not the evaluated "
+                f"densities {list(wanted)}"
+            )
+        out = dataclasses.replace(out, calibration=cal)
     return out
 
 
@@ -708,15 +815,7 @@ def policy_overrides(policy: PolicySpec) -> list[str]:
     for opt in _PREORDER_OPTIONS:
         value = getattr(policy, opt)
         if value is not None:
-            out.append(f"{_TRAIN_KEYS[opt]}={_toml_value(value)}")
+            out.append(f"{_TRAIN_KEYS[opt]}={toml_value(value)}")
     if policy.keep_at:
         out.append(f"checkpoint.keep_at={list(policy.keep_at)!r}")
     return out + list(policy.set)
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    return repr(value)

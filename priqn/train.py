@@ -31,6 +31,7 @@ import numpy as np
 
 from priqn.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.config import describe, flatten, to_dict
+from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_overrides
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
 from priqn.metrics import metric_columns, metrics_row
@@ -602,6 +603,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help=f"{' | '.join(PRESETS)} (priqn/presets/train_<name>.toml; default: default)",
     )
     parser.add_argument("--steps", type=int, help="training budget in env decisions (total_steps)")
+    parser.add_argument(
+        "--traffic",
+        metavar="NAME",
+        help="a named traffic setting, applied before --set: "
+        + "; ".join(f"{k}: {v.description}" for k, v in TRAFFIC_SETTINGS.items())
+        + " (docs/environment.md, 'Traffic')",
+    )
     parser.add_argument("--config", metavar="FILE", help="TOML file merged over the preset")
     parser.add_argument(
         "--set",
@@ -635,7 +643,9 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         run_dir = Path(args.resume)
         cfg = RunFolder(run_dir).config()
-        changed = [f for f in ("net", "agent", "seed", "config", "num_envs") if getattr(args, f)]
+        changed = [
+            f for f in ("net", "agent", "seed", "config", "num_envs", "traffic") if getattr(args, f)
+        ]
         if changed or args.set or args.preset != "default" or args.force:
             raise PriqnError(
                 "--resume continues a run with its own config.toml; only --steps and --device may change"
@@ -652,7 +662,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             net=args.net,
             steps=args.steps,
-            overrides=args.set,
+            overrides=[*traffic_overrides(args.traffic), *args.set],
             config_file=args.config,
             num_envs=args.num_envs,
             device=args.device,

@@ -41,7 +41,7 @@ from priqn.env import rewards as R
 from priqn.env.objective_terms import DecisionContext, EnvObjectives
 from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
-from priqn.env.traffic import Traffic
+from priqn.env.traffic import Traffic, TrafficBehaviour
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 from priqn.sim.roadmap import COMMANDS, EgoRoute, wrap_rad
@@ -120,6 +120,9 @@ class EnvConfig:
     """Radius around the ego within which actors are read from SUMO each step [m]."""
     reward: R.RewardConfig = dataclasses.field(default_factory=R.RewardConfig)
     """Reward term parameters."""
+    traffic: TrafficBehaviour = dataclasses.field(default_factory=TrafficBehaviour)
+    """How the NPCs treat the ego: giving way at the junction, top-up, impatience (the
+    defaults are SUMO's polite drivers; named settings: ``priqn train --traffic``)."""
     objectives: tuple[str, ...] = OBJECTIVES
     """The objectives, in reward-vector / head order: built-in names (safety, risk,
     lane_keeping, progress, comfort, right_of_way), ``package.module:NAME`` of your own
@@ -620,7 +623,9 @@ class IntersectionEnv(gymnasium.Env):
         """Ego, obstacles and traffic into the freshly loaded simulation; returns the traffic."""
         cfg, sim = self.config, self._session.sim
         spec = scene.traffic
-        traffic = Traffic(sim, spec, scene.roadmap.npc_routes, density, trng)
+        traffic = Traffic(
+            sim, spec, scene.roadmap.npc_routes, density, trng, cfg.traffic, ego_id=EGO_ID
+        )
         traffic.setup()
         sim.vehicletype.copy("DEFAULT_VEHTYPE", EGO_TYPE)
         sim.vehicletype.setLength(EGO_TYPE, cfg.ego_length_m)

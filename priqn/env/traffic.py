@@ -17,6 +17,11 @@ the junction is a known SUMO artefact). Offsets need SUMO's sublane model
 Static obstacles are stopped vehicles (speed 0, lane-change and speed modes 0)
 parked towards the right edge of a lane so that in-lane traffic can squeeze past
 (sublane model) while a centred car cannot pass without an offset to the left.
+
+How the NPCs treat the ego is :class:`TrafficBehaviour` (``EnvConfig.traffic``): whether
+each gives way to it at the junction, whether the scene is topped up, SUMO's impatience.
+:data:`TRAFFIC_SETTINGS` names whole settings a user picks (``priqn train --traffic``);
+docs/environment.md says which CARLA behaviour each knob stands in for.
 """
 
 from __future__ import annotations
@@ -24,10 +29,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
 from priqn.checks import check_density
+from priqn.config import toml_value
 from priqn.errors import PriqnError
 from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
@@ -40,6 +47,85 @@ NPC_TYPE = "priqn_npc"
 """SUMO vehicle type of traffic vehicles (a copy of SUMO's default car)."""
 OBSTACLE_TYPE = "priqn_obstacle"
 """SUMO vehicle type of static obstacles."""
+IGNORE_IDS_PARAM = "junctionModel.ignoreIDs"
+"""SUMO vehicle parameter: foes (space-separated ids) its junction model ignores."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrafficBehaviour:
+    """How the NPCs drive with respect to the ego (``EnvConfig.traffic``, docs/environment.md).
+
+    The defaults are SUMO's drivers as every committed result used them: each NPC gives
+    way to the ego wherever the junction gives the ego priority, the scene is topped up to
+    its density every decision, no impatience. A non-default value draws from its own
+    generator, so the defaults leave every episode bit for bit as it was.
+    """
+
+    yield_to_ego_prob: float = 1.0
+    """Probability that an NPC gives way to the ego at the junction, drawn once per NPC at
+    its insertion. An NPC that does not (``0`` = none does) has the ego in its SUMO
+    ``junctionModel.ignoreIDs``: it takes its right of way, or a gap, as if the ego were not
+    there, in the approach and inside the junction. Its car-following still brakes for an
+    ego ahead of it in its own lane. CARLA's Traffic Manager drives so: the ego is not
+    registered with it, so its NPCs brake only for what is in their own path ahead."""
+    top_up: bool = True
+    """Keep the requested density by adding NPCs at the arm starts as others leave. False:
+    the scene's NPCs are the ones placed at reset, so a waiting ego eventually finds the
+    junction clear (the realised density then falls during the episode)."""
+    impatience: float = 0.0
+    """SUMO's vType ``impatience`` of the NPCs in [0, 1] (0 = SUMO's default): how readily an
+    NPC that has waited forces its way past vehicles with priority, the ego included."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.yield_to_ego_prob <= 1.0:
+            raise ValueError(
+                f"traffic.yield_to_ego_prob: expected a probability in [0, 1], got "
+                f"{self.yield_to_ego_prob}"
+            )
+        if not 0.0 <= self.impatience <= 1.0:
+            raise ValueError(
+                f"traffic.impatience: expected a value in [0, 1], got {self.impatience}"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class TrafficSetting:
+    """A named traffic setting: the env fields it sets (``priqn train --traffic NAME``)."""
+
+    description: str
+    """What it is, in one line (``priqn train --help`` lists them)."""
+    env: tuple[tuple[str, Any], ...] = ()
+    """``(EnvConfig key, value)`` pairs, nested keys dotted (``traffic.top_up``)."""
+
+    def overrides(self) -> tuple[str, ...]:
+        """The setting as ``--set`` overrides of a TrainConfig (``env.<key>=<TOML value>``)."""
+        return tuple(f"env.{key}={toml_value(value)}" for key, value in self.env)
+
+
+_RUDE = (("traffic.yield_to_ego_prob", 0.0),)
+_FINITE = (("traffic.top_up", False),)
+_LONG = (("max_episode_steps", 200),)
+TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
+    "sumo": TrafficSetting("SUMO's drivers: every NPC gives way to the ego (the default)"),
+    "rude": TrafficSetting("no NPC gives way to the ego at the junction", _RUDE),
+    "rude-long": TrafficSetting("rude, episodes of 200 decisions (100 s)", _RUDE + _LONG),
+    "rude-finite": TrafficSetting("rude, no top-up: the reset's NPCs only", _RUDE + _FINITE),
+    "rude-finite-long": TrafficSetting("rude, no top-up, 200 decisions", _RUDE + _FINITE + _LONG),
+    "sumo-finite-long": TrafficSetting("polite NPCs, no top-up, 200 decisions", _FINITE + _LONG),
+}
+"""Named traffic settings (issue 48's calibration candidates; docs/environment.md)."""
+
+
+def traffic_overrides(name: str | None) -> tuple[str, ...]:
+    """The ``--set`` overrides of the named traffic setting (none for None); an unknown
+    name is a one-line error listing the valid ones."""
+    if name is None:
+        return ()
+    if name not in TRAFFIC_SETTINGS:
+        raise PriqnError(
+            f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
+        )
+    return TRAFFIC_SETTINGS[name].overrides()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,7 +173,8 @@ class Traffic:
 
     ``routes``: NPC routes as edge-id lists (first edge = an incoming arm, whose end is
     the junction: lateral offsets fade out before it). ``rng`` draws everything random
-    about the traffic (the env derives it from the episode seed).
+    about the traffic (the env derives it from the episode seed). ``behaviour``: how the
+    NPCs treat the ego (``ego_id``).
     """
 
     def __init__(
@@ -97,6 +184,8 @@ class Traffic:
         routes: Sequence[Sequence[str]],
         density: float,
         rng: np.random.Generator,
+        behaviour: TrafficBehaviour = TrafficBehaviour(),
+        ego_id: str = "ego",
     ) -> None:
         if not routes:
             raise PriqnError("traffic: the net has no NPC routes")
@@ -108,6 +197,12 @@ class Traffic:
         self.target_count = int(round(self.density * spec.max_actors))
         """Number of NPCs the density asks for (round(density * max_actors); 0 for tiny densities)."""
         self.rng = rng
+        self.behaviour = behaviour
+        self.ego_id = ego_id
+        self.rude: set[str] = set()
+        """NPCs inserted so far that do not give way to the ego (``yield_to_ego_prob``)."""
+        # Its own stream, spawned only when used: the default draws nothing from ``rng``.
+        self._yield_rng = rng.spawn(1)[0] if behaviour.yield_to_ego_prob < 1.0 else None
         self.routes = [tuple(r) for r in routes]
         self._route_ids = [f"priqn_route.{i}" for i in range(len(self.routes))]
         self._first_edge_len: dict[str, float] = {}
@@ -134,6 +229,8 @@ class Traffic:
         sim.vehicletype.setLateralAlignment(NPC_TYPE, "arbitrary")
         sim.vehicletype.setMinGapLat(NPC_TYPE, 0.3)
         sim.vehicletype.setMaxSpeedLat(NPC_TYPE, 1.0)
+        if self.behaviour.impatience:
+            sim.vehicletype.setImpatience(NPC_TYPE, self.behaviour.impatience)
         sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
         sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
 
@@ -166,6 +263,10 @@ class Traffic:
         sim.vehicle.setLength(vid, float(rng.uniform(*spec.vehicle_length_m)))
         sim.vehicle.setWidth(vid, float(rng.uniform(*spec.vehicle_width_m)))
         sim.vehicle.setSpeedFactor(vid, float(rng.uniform(*spec.speed_factor)))
+        if self._yield_rng is not None:
+            if self._yield_rng.random() >= self.behaviour.yield_to_ego_prob:
+                sim.vehicle.setParameter(vid, IGNORE_IDS_PARAM, self.ego_id)
+                self.rude.add(vid)
         offset = float(rng.uniform(*spec.lateral_offset_m))
         if offset != 0.0:
             first = self.routes[route_index][0]
@@ -242,7 +343,10 @@ class Traffic:
         self._density_steps += 1
 
     def top_up(self) -> int:
-        """Add NPCs at arm starts until running + waiting NPCs reach the target; returns how many."""
+        """Add NPCs at arm starts until running + waiting NPCs reach the target; returns how
+        many (none with ``behaviour.top_up`` off)."""
+        if not self.behaviour.top_up:
+            return 0
         missing = self.target_count - self.active - self._pending()
         for _ in range(max(0, missing)):
             self._add_npc(int(self.rng.integers(len(self.routes))), None)
