@@ -51,7 +51,7 @@ to 1) and the violation's two parts, for the reports' descriptive tables and fig
 design's endpoint is one of :data:`ENDPOINT_FLAGS`)."""
 
 
-def _episodes(eval_dir: str | Path) -> pd.DataFrame:
+def episodes_table(eval_dir: str | Path) -> pd.DataFrame:
     """``<eval_dir>/episodes.csv`` with one outcome per episode (:func:`resolve_outcomes`)."""
     csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
     try:
@@ -68,14 +68,14 @@ def _rate_by_density(episodes: pd.DataFrame, outcome: str) -> pd.Series:
 def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series, int]:
     """An evaluation's ``endpoint`` rate per density (index: density, sorted) and the
     number of episodes behind it, from ``<eval_dir>/episodes.csv``."""
-    episodes = _episodes(eval_dir)
+    episodes = episodes_table(eval_dir)
     return _rate_by_density(episodes, endpoint), len(episodes)
 
 
 def outcome_rates(eval_dir: str | Path) -> tuple[dict[str, float], int]:
     """Every rate of :data:`OUTCOME_RATES` for one evaluation, each averaged over the
     densities as the endpoints are, and the number of episodes (one read of the table)."""
-    episodes = _episodes(eval_dir)
+    episodes = episodes_table(eval_dir)
     rates = {o: float(_rate_by_density(episodes, o).mean()) for o in OUTCOME_RATES}
     return rates, len(episodes)
 

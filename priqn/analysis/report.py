@@ -698,9 +698,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
-    """The experiment with a ``[sequential]`` design whose runs live in ``runs``: the one
-    named ``name``, else the experiment file named like the folder (``results/headline`` ->
-    ``headline``) if it has such a design; None otherwise."""
+    """The experiment with a ``[sequential]``, ``[[question]]`` or ``[calibration]`` design
+    whose runs live in ``runs``: the one named ``name``, else the experiment file named like
+    the folder (``results/headline`` -> ``headline``) if it has such a design; None otherwise."""
     from priqn.experiment import load_experiment
 
     folder = Path(runs)
@@ -709,17 +709,31 @@ def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
             exp = load_experiment(folder.name, runs_dir=folder.parent)
         except PriqnError:
             return None
-        return exp if exp.designs else None
+        return exp if exp.designs or exp.calibration else None
     exp = load_experiment(name, runs_dir=folder.parent)
-    if not exp.designs:
+    if not exp.designs and exp.calibration is None:
         raise PriqnError(
-            f"--experiment {name}: {exp.path} has no [sequential] or [[question]] design"
+            f"--experiment {name}: {exp.path} has no [sequential], [[question]] or "
+            "[calibration] design"
         )
     if exp.runs_dir.resolve() != folder.resolve():
         raise PriqnError(
             f"--experiment {name}: its cells live in {exp.runs_dir.name}/, not {folder.name}/"
         )
     return exp
+
+
+def write_design_report(exp: Any, out: str | Path, command: str | None = None) -> Path:
+    """The report of a pre-registered experiment, by its kind (the one place a design's
+    writer is chosen): ``[calibration]``, ``[sequential]`` or ``[[question]]``."""
+    if exp.calibration is not None:
+        from priqn.analysis import calibration
+
+        return calibration.write_report(exp, out, command)
+    from priqn.analysis import questions_report, sequential_report
+
+    writer = sequential_report if exp.sequential is not None else questions_report
+    return writer.write_report(exp, out, command)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -730,11 +744,8 @@ def run(args: argparse.Namespace) -> int:
     if exp is not None:
         if args.reference:
             raise PriqnError("--reference: not for a sequential experiment's report")
-        from priqn.analysis import questions_report, sequential_report
-
-        writer = sequential_report if exp.sequential is not None else questions_report
         command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(writer.write_report(exp, out, command))
+        print(write_design_report(exp, out, command))
         return 0
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "

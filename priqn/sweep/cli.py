@@ -318,7 +318,6 @@ def _design_plan(exp: Any) -> tuple[list[tuple[str, int]], str]:
 def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
     """Pre-registered sequential designs: train the cells the next looks need, take the
     looks, and go on until every comparison is decided or the last look is taken."""
-    from priqn.analysis import questions_report, sequential_report
 
     while True:
         cells, where = _design_plan(exp)
@@ -331,8 +330,9 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
         if result.failed or result.interrupted:
             return _summarise(exp, result)
     if report:
-        writer = sequential_report if exp.sequential is not None else questions_report
-        path = writer.write_report(exp, exp.report_dir)
+        from priqn.analysis.report import write_design_report
+
+        path = write_design_report(exp, exp.report_dir)
         print(f"priqn sweep: report in {path}", file=sys.stderr)
     return 0
 

@@ -1,0 +1,243 @@
+"""The calibration report: which row (setting) of a grid has the outcome mix nearest a target.
+
+An experiment with a ``[calibration]`` table (:class:`priqn.experiment.CalibrationSpec`,
+``priqn/data/experiments/calibrate.toml``) trains one policy under several settings and
+chooses one by a rule fixed before its cells trained: a row's *mix* is, per evaluation
+density, the share of its hold-out episodes ending in each of
+:data:`~priqn.experiment.OUTCOMES` (one per episode), averaged over its training seeds
+(each seed's rate first); its *distance* is the L1 distance of those numbers to the
+target's; the chosen row has the smallest distance (a tie: the row first in the file).
+
+Descriptive, as the rule is: no interval decides anything here. Pure functions of the
+cells' ``eval/episodes.csv`` (:func:`cell_rates`, :func:`setting_mixes`,
+:func:`distances`, :func:`choose`), then :func:`write_report` (report.md, two CSVs, a
+figure and meta.json).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from priqn.analysis.questions import episodes_table
+from priqn.errors import PriqnError
+from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment
+from priqn.io import atomic_write_json, atomic_write_text
+from priqn.runs import RunFolder
+
+MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
+"""Columns of :func:`setting_mixes`: one row per (cell, outcome, density)."""
+
+
+def cell_rates(eval_dir: str | Path) -> pd.DataFrame:
+    """``float [densities x outcomes]``: the share of one evaluation's episodes ending in
+    each outcome, per density (index sorted); each row sums to 1."""
+    episodes = episodes_table(eval_dir)
+    flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
+    return flags.groupby(episodes["density"].astype(float)).mean()
+
+
+def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
+    """Every complete cell's rates (columns :data:`MIX_COLUMNS`) and the cells not counted
+    yet (``row__seed<k>: why``). A cell trained at a commit the calibration does not list,
+    or from a dirty checkout, is a one-line error."""
+    cal = _spec(exp)
+    rows, missing = [], []
+    for pol in exp.policies:
+        for seed in exp.row_seeds(pol):
+            run = RunFolder(exp.cell_dir(pol.name, seed))
+            if not run.evaluated():
+                missing.append(f"{run.path.name}: not complete")
+                continue
+            sha = str(run.meta().get("git_sha", ""))
+            problem = cal.code_problem(sha)
+            if problem:
+                raise PriqnError(
+                    f"{run.path}: trained at {sha[:12]} ({problem}); {exp.path} "
+                    f"[calibration].code_commits lists {', '.join(c[:12] for c in cal.code_commits)}"
+                )
+            rates = cell_rates(run.path / RunFolder.EVAL)
+            for density, by_outcome in rates.iterrows():
+                for outcome in OUTCOMES:
+                    rows.append(
+                        (pol.name, pol.traffic or "", seed, outcome, density, by_outcome[outcome])
+                    )
+    return pd.DataFrame(rows, columns=list(MIX_COLUMNS)), missing
+
+
+def mean_mix(mixes: pd.DataFrame) -> pd.DataFrame:
+    """``rate`` averaged over each row's seeds: one row per (row, outcome, density), with
+    ``seeds`` (how many)."""
+    grouped = mixes.groupby(["row", "outcome", "density"], sort=False)
+    return grouped.agg(rate=("rate", "mean"), seeds=("seed", "nunique")).reset_index()
+
+
+def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.DataFrame:
+    """Per row (in ``order``, those with cells): ``l1`` to the target mix over every
+    (outcome, density) the target gives, ``seeds``, and the four outcomes' parts of it.
+    A row that lacks one of the target's densities is a one-line error."""
+    target = cal.target_mix()
+    out = []
+    for row in order:
+        mine = mean[mean["row"] == row]
+        if mine.empty:
+            continue
+        have = _rates(mine)
+        lacking = [key for key in target if key not in have]
+        if lacking:
+            raise PriqnError(f"{row}: no episodes at density {lacking[0][1]} (the target has it)")
+        parts = {
+            o: sum(abs(have[(o, d)] - target[(o, d)]) for d in cal.densities) for o in OUTCOMES
+        }
+        out.append({"row": row, "l1": sum(parts.values()), "seeds": int(mine.seeds.min()), **parts})
+    return pd.DataFrame(out, columns=["row", "l1", "seeds", *OUTCOMES])
+
+
+def choose(dist: pd.DataFrame) -> str:
+    """The rule: the row with the smallest ``l1``; a tie goes to the row first in ``dist``."""
+    if dist.empty:
+        raise PriqnError("calibration: no complete cell to choose from")
+    return str(dist.loc[dist["l1"].idxmin(), "row"])  # idxmin: the first of equal minima
+
+
+def _rates(mine: pd.DataFrame) -> dict[tuple[str, float], float]:
+    """``(outcome, density) -> rate`` of one row's :func:`mean_mix` lines."""
+    keys = zip(mine.outcome, mine.density.astype(float), strict=True)
+    return dict(zip(keys, mine.rate.astype(float), strict=True))
+
+
+def _spec(exp: Experiment) -> CalibrationSpec:
+    if exp.calibration is None:
+        raise PriqnError(f"{exp.path}: no [calibration] table")
+    return exp.calibration
+
+
+def _mix_table(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], traffic: dict) -> str:
+    """Markdown: one line per row and the target's, outcome x density columns."""
+    cols = [(o, d) for o in OUTCOMES for d in cal.densities]
+    head = "| setting (row) | traffic | seeds | " + " | ".join(
+        f"{o.replace('_', '-')} {d:g}" for o, d in cols
+    )
+    lines = [head + " |", "|" + "---|" * (3 + len(cols))]
+    target = cal.target_mix()
+    lines.append("| **target** | – | – | " + " | ".join(f"{target[c]:.3f}" for c in cols) + " |")
+    for row in order:
+        mine = mean[mean["row"] == row]
+        if mine.empty:
+            continue
+        have = _rates(mine)
+        cells = " | ".join(f"{have[c]:.3f}" if c in have else "–" for c in cols)
+        lines.append(f"| {row} | {traffic[row]} | {int(mine.seeds.min())} | {cells} |")
+    return "\n".join(lines)
+
+
+def _distance_table(dist: pd.DataFrame, chosen: str) -> str:
+    lines = ["| setting (row) | seeds | L1 | success | collision | off-road | timeout |"]
+    lines.append("|---|---|---|---|---|---|---|")
+    for r in dist.itertuples(index=False):
+        name = f"**{r.row}** (chosen)" if r.row == chosen else r.row
+        lines.append(
+            f"| {name} | {r.seeds} | {r.l1:.3f} | {r.success:.3f} | {r.collision:.3f} | "
+            f"{r.off_road:.3f} | {r.timeout:.3f} |"
+        )
+    return "\n".join(lines)
+
+
+def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out: Path) -> None:
+    """``calibration.png`` / ``.pdf`` in ``out``: stacked outcome shares per density, the
+    target's bar, then each row's."""
+    from priqn.analysis.figures import plt, save_figure
+
+    colours = {"success": "#4c9a2a", "collision": "#c0392b", "off_road": "#e67e22",
+               "timeout": "#95a5a6"}  # fmt: skip
+    target = cal.target_mix()
+    rows = [r for r in order if not mean[mean["row"] == r].empty]
+    n = len(cal.densities)
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), sharey=True, squeeze=False)
+    names = ["target", *rows]
+    for ax, d in zip(axes[0], cal.densities, strict=True):
+        bottom = np.zeros(len(names))
+        for o in OUTCOMES:
+            values = np.array([target[(o, d)]] + [_rates(mean[mean.row == r]).get((o, d), 0.0)
+                                                  for r in rows])  # fmt: skip
+            ax.bar(range(len(names)), values, bottom=bottom, color=colours[o], label=o)
+            bottom += values
+        ax.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=8)
+        ax.set_title(f"density {d:g}")
+    axes[0, 0].set_ylabel("share of hold-out episodes")
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=4, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    save_figure(fig, out, "calibration")
+
+
+def write_report(exp: Experiment, out: str | Path, command: str | None = None) -> Path:
+    """report.md, ``mix.csv`` (every cell's rates), ``distances.csv``, ``calibration.png``
+    (and ``.pdf``) and ``meta.json`` (with ``command``, the one that regenerates it) into ``out``; returns report.md's path. Cells not complete yet are
+    named, and the choice is marked provisional until every cell is in."""
+    cal = _spec(exp)
+    mixes, missing = setting_mixes(exp)
+    if mixes.empty:
+        raise PriqnError(f"{exp.runs_dir}: no complete cell of {exp.experiment.name} yet")
+    order = [p.name for p in exp.policies]
+    traffic = {p.name: p.traffic or exp.experiment.traffic or "preset" for p in exp.policies}
+    mean = mean_mix(mixes)
+    dist = distances(mean, cal, order)
+    chosen = choose(dist)
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(folder / "mix.csv", mixes.to_csv(index=False, float_format="%.6f"))
+    atomic_write_text(folder / "distances.csv", dist.to_csv(index=False, float_format="%.6f"))
+    write_figure(mean, cal, order, folder)
+    budget = exp.experiment.steps
+    words = "chosen" if not missing else "provisionally nearest (cells missing)"
+    md = [
+        f"# {exp.experiment.name}: calibration",
+        "",
+        exp.experiment.description,
+        "",
+        f"Target: {cal.target}. Rule ({exp.path.name}, pre-registered): the row whose outcome "
+        "mix (success, collision, off-road, timeout per density, each seed's rate averaged "
+        "over its seeds) has the smallest L1 distance to the target's.",
+        "",
+        f"**{words}: {chosen}** (L1 {dist.l1.min():.3f}).",
+        "",
+        f"Budget: {budget:,} decisions per cell"
+        + (f" ({budget / 2_000_000:.0%} of the paper's 2M)" if budget else "")
+        + "; the target was measured after 2M decisions, and our IQN crashes less as it "
+        "trains, so a setting matched here is matched at this budget only.",
+        "",
+        "## Outcome mix per density",
+        "",
+        _mix_table(mean, cal, order, traffic),
+        "",
+        "![outcome mix per density](calibration.png)",
+        "",
+        "## Distance to the target",
+        "",
+        _distance_table(dist, chosen),
+        "",
+    ]
+    if missing:
+        md += ["## Cells not counted yet", "", *(f"- {m}" for m in missing), ""]
+    if command:
+        md[1:1] = ["", f"Made by `{command}` from the cells' run folders and the rule in "
+                   f"`{exp.path.name}` (committed before any of its cells trained)."]  # fmt: skip
+    path = folder / "report.md"
+    atomic_write_text(path, "\n".join(md))
+    atomic_write_json(
+        folder / "meta.json",
+        {
+            "experiment": exp.experiment.name,
+            "file": exp.path.name,
+            "command": command,
+            "chosen": chosen,
+            "final": not missing,
+            "cells": int(mixes.groupby(["row", "seed"]).ngroups),
+            "missing": missing,
+            "distances": {r.row: round(float(r.l1), 6) for r in dist.itertuples()},
+        },
+    )
+    return path

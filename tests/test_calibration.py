@@ -1,0 +1,158 @@
+"""The calibration rule (``[calibration]``, priqn.analysis.calibration) on a grid built by hand.
+
+Two rows, two seeds each, densities 0.5 and 1.0, 8 episodes per density and cell
+(``fake_runs.write_run``: 2 runs x 2 nets x 2 episodes):
+
+- row ``near``: at 0.5, seed 0 always succeeds and seed 1 collides in episode 0 (half);
+  at 1.0 both collide in episode 0. Its mix: success .75 / .5, collision .25 / .5.
+- row ``far``: at both densities episode 0 collides and episode 1 times out.
+  Its mix: success 0 / 0, collision .5 / .5, timeout .5 / .5.
+
+Target: success .75 / .5, collision .25 / .5, off-road 0 / 0, timeout 0 / 0. So the L1
+distance of ``near`` is 0; of ``far`` (.75 + .5) + (.25 + 0) + (.5 + .5) = 2.5.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from fake_runs import IQN, write_run
+
+from priqn.analysis import calibration
+from priqn.errors import PriqnError
+from priqn.experiment import CalibrationSpec, load_experiment
+
+SHA = "c" * 40
+DESIGN = """
+[experiment]
+name = "cal"
+seeds = [0, 1]
+steps = 1000
+runs_dir = "{runs}"
+
+[evaluate]
+densities = [0.5, 1.0]
+eval_runs = 2
+episodes_per_cell = 2
+
+[[policy]]
+name = "far"
+agent = "iqn"
+traffic = "rude"
+
+[[policy]]
+name = "near"
+agent = "iqn"
+
+[calibration]
+target = "a hand-made target"
+densities = [0.5, 1.0]
+success = [0.75, 0.5]
+collision = [0.25, 0.5]
+off_road = [0.0, 0.0]
+timeout = [0.0, 0.0]
+code_commits = ["{sha}"]
+"""
+
+
+def _near(seed, r, d, net, e):
+    crash = e == 0 and (d == 1.0 or seed == 1)
+    return {"success": not crash, "collision": crash}
+
+
+def _far(seed, r, d, net, e):
+    return {"collision": e == 0, "timeout": e == 1}
+
+
+def _grid(tmp_path: Path, rows=("far", "near"), sha: str = SHA):
+    runs = tmp_path / "results"
+    design = tmp_path / "cal.toml"
+    design.write_text(DESIGN.format(runs=runs, sha=SHA))
+    value = {"far": _far, "near": _near}
+    for row in rows:
+        for seed in (0, 1):
+            name = f"{row}__seed{seed}"
+            write_run(runs / "cal", name, "IQN", IQN, seed, value[row],
+                      eval_config={"densities": [0.5, 1.0], "eval_runs": 2,
+                                   "episodes_per_cell": 2})  # fmt: skip
+            meta = {"status": "complete", "git_sha": sha}
+            (runs / "cal" / name / "meta.json").write_text(json.dumps(meta))
+    return load_experiment(design)
+
+
+def test_the_rule_picks_the_row_nearest_the_target_by_l1(tmp_path: Path) -> None:
+    exp = _grid(tmp_path)
+    mixes, missing = calibration.setting_mixes(exp)
+    assert missing == []
+    mean = calibration.mean_mix(mixes)
+    near = mean[mean.row == "near"].set_index(["outcome", "density"]).rate
+    assert near[("success", 0.5)] == pytest.approx(0.75)
+    assert near[("collision", 1.0)] == pytest.approx(0.5)
+    dist = calibration.distances(mean, exp.calibration, ["far", "near"])
+    by_row = dist.set_index("row")
+    assert by_row.loc["near", "l1"] == pytest.approx(0.0)
+    assert by_row.loc["far", "l1"] == pytest.approx(2.5)
+    assert by_row.loc["far", "timeout"] == pytest.approx(1.0)
+    assert calibration.choose(dist) == "near"
+
+
+def test_a_tie_goes_to_the_row_first_in_the_file() -> None:
+    dist = pd.DataFrame({"row": ["b", "a", "c"], "l1": [0.3, 0.3, 0.5]})
+    assert calibration.choose(dist) == "b"
+
+
+def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> None:
+    exp = _grid(tmp_path)
+    out = tmp_path / "report"
+    path = calibration.write_report(exp, out, "priqn report results/cal --out report")
+    text = path.read_text()
+    assert "**chosen: near** (L1 0.000)" in text
+    assert "| far | rude | 2 |" in text
+    assert "| **paper** |" not in text and "| **target** |" in text
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["chosen"] == "near" and meta["final"] and meta["distances"]["far"] == 2.5
+    assert meta["command"] == "priqn report results/cal --out report"
+    first = {p.name: p.read_bytes() for p in out.iterdir()}
+    calibration.write_report(exp, out, "priqn report results/cal --out report")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == first
+    assert {"calibration.png", "calibration.pdf", "mix.csv", "distances.csv"} <= set(first)
+
+
+def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:
+    exp = _grid(tmp_path, rows=("far",))
+    text = calibration.write_report(exp, tmp_path / "r").read_text()
+    assert "provisionally nearest (cells missing): far" in text
+    assert "- near__seed0: not complete" in text
+
+
+def test_a_cell_from_an_unlisted_commit_is_refused(tmp_path: Path) -> None:
+    exp = _grid(tmp_path, sha="d" * 40)
+    with pytest.raises(PriqnError, match="trained at dddddddddddd \\(unlisted\\)"):
+        calibration.setting_mixes(exp)
+
+
+def test_a_target_whose_rates_do_not_sum_to_one_is_refused() -> None:
+    with pytest.raises(ValueError, match="density 0.5: the four rates sum to 0.9000"):
+        CalibrationSpec("t", (0.5,), (0.5,), (0.3,), (0.1,), (0.0,))
+    with pytest.raises(ValueError, match="collision: expected 2 rates"):
+        CalibrationSpec("t", (0.5, 1.0), (0.5, 0.5), (0.5,), (0.0, 0.0), (0.0, 0.5))
+
+
+def test_the_design_must_evaluate_the_target_densities(tmp_path: Path) -> None:
+    design = tmp_path / "cal.toml"
+    design.write_text(
+        DESIGN.format(runs=tmp_path, sha=SHA).replace("[0.5, 1.0]\neval", "[0.5]\neval")
+    )
+    with pytest.raises(PriqnError, match=r"\[calibration\].densities: \[0.5, 1.0\] are not"):
+        load_experiment(design)
+
+
+def test_the_shipped_design_parses_and_its_target_is_the_papers_iqn_row() -> None:
+    exp = load_experiment("calibrate")
+    cal = exp.calibration
+    assert cal.collision == (0.248, 0.472, 0.538) and cal.success == (0.737, 0.513, 0.434)
+    assert len(exp.policies) <= 6 and {p.agent for p in exp.policies} == {"iqn"}
+    assert all(len(exp.row_seeds(p)) == 3 and exp.row_steps(p) == 60000 for p in exp.policies)
