@@ -12,9 +12,10 @@ ego names the action and, for Pr-IQN, the size of each preorder level's optimal 
 |S_r| (also in the ego's parameter dialog, ``priqn.subset.<objective>``).
 
 ``--record DIR`` saves one sumo-gui screenshot per decision (``DIR/frames/NNNN.png``),
-assembles them into ``DIR/play.gif`` (imageio) and writes ``DIR/episodes.csv``;
-``--record FILE.gif`` / ``FILE.mp4`` writes just that animation. Without a display,
-``--record`` starts a virtual one (``Xvfb``) and stops it again; without ``--record`` it
+assembles them into ``DIR/play.gif`` (if imageio, the ``gui`` extra, is installed) and
+writes ``DIR/episodes.csv``; ``--record FILE.gif`` / ``FILE.mp4`` writes just that
+animation (needs imageio). The destination is checked before anything plays. Without a
+display, ``--record`` starts a virtual one (``Xvfb``) and stops it again; without ``--record`` it
 says how to get one (``xvfb-run -a priqn play ...``). See docs/play.md.
 """
 
@@ -49,23 +50,60 @@ class Record:
 
     frames_dir: Path
     """Folder of the per-decision screenshots ``NNNN.png``."""
-    animation: Path
-    """The assembled ``.gif`` or ``.mp4``."""
+    animation: Path | None
+    """The assembled ``.gif`` or ``.mp4`` (None: a folder without imageio, frames only)."""
     table: Path | None
     """``episodes.csv`` (recording into a folder only)."""
 
     @classmethod
     def of(cls, target: str, scratch: Path) -> Record:
-        """``--record DIR`` → frames, play.gif, episodes.csv in DIR; ``FILE.gif|.mp4`` → that file."""
+        """``--record DIR`` → frames, play.gif (with imageio), episodes.csv in DIR;
+        ``FILE.gif|.mp4`` → that file. :func:`check_destination` validates ``target``."""
         path = Path(target)
         if path.suffix.lower() in ANIMATIONS:
             return cls(scratch / "frames", path, None)
-        if path.suffix and not path.is_dir():
+        gif = path / "play.gif" if has_imageio() else None
+        return cls(path / "frames", gif, path / "episodes.csv")
+
+
+def has_imageio() -> bool:
+    """Whether imageio (the ``gui`` extra), which assembles the animations, is installed."""
+    try:
+        import imageio  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def check_destination(target: str) -> None:
+    """Fail in one line, before anything plays, unless ``--record target`` can be written:
+    a ``.gif``/``.mp4`` needs imageio and a folder it can write in (or create); anything
+    else is a folder, which must be one (or creatable). Creates nothing."""
+    path = Path(target)
+    animation = path.suffix.lower() in ANIMATIONS
+    if animation and not has_imageio():
+        raise PriqnError(
+            f"--record {target}: writing a {path.suffix} needs imageio; install the gui extra "
+            "(pip install -e '.[gui]'), or record into a folder (frames and episodes.csv)"
+        )
+    where = path
+    try:
+        if animation and path.is_dir():
+            raise PriqnError(f"--record {target}: is a folder; expected a file to write")
+        if not animation and path.suffix and not path.is_dir():
             raise PriqnError(
                 f"--record {target}: expected a folder, or a file ending in "
                 f"{' or '.join(ANIMATIONS)}"
             )
-        return cls(path / "frames", path / "play.gif", path / "episodes.csv")
+        folder = (path.parent if animation else path).absolute()
+        where = next(p for p in (folder, *folder.parents) if p.exists())
+        if not where.is_dir():
+            raise PriqnError(f"--record {target}: {where} is not a folder")
+        with tempfile.NamedTemporaryFile(dir=where, prefix=".priqn-play-"):
+            pass  # files (and folders) can be made there
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise PriqnError(f"--record {target}: cannot write in {where} ({reason})") from None
 
 
 @dataclasses.dataclass
@@ -202,16 +240,6 @@ def assemble(frames_dir: Path, out: Path, frame_ms: int = FRAME_MS) -> Path:
     return out
 
 
-def _check_imageio(record: str | None) -> None:
-    try:
-        import imageio  # noqa: F401
-    except ImportError:
-        raise PriqnError(
-            f"--record {record}: assembling the frames needs imageio; install the gui extra: "
-            "pip install -e '.[gui]'"
-        ) from None
-
-
 @contextlib.contextmanager
 def _display(record: bool) -> Iterator[None]:
     """Use the display there is; without one, a virtual one when recording, else one line."""
@@ -242,6 +270,8 @@ def play_run(
     from priqn.env.intersection import IntersectionEnv
 
     run_dir = Path(run_dir)
+    if record is not None:  # before the policy, the scenes and a long episode
+        check_destination(record)
     policy = load_policy(run_dir)
     scenes, eval_cfg = inspection_scenes(run_dir, cfg)
     env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=(), junction="")
@@ -250,7 +280,6 @@ def play_run(
     with tempfile.TemporaryDirectory(prefix="priqn-play-") as scratch:
         rec = None if record is None else Record.of(record, Path(scratch))
         if rec is not None:
-            _check_imageio(record)  # before a long episode, not after it
             rec.frames_dir.mkdir(parents=True, exist_ok=True)
             for old in rec.frames_dir.glob("*.png"):
                 old.unlink()
@@ -266,7 +295,8 @@ def play_run(
             finally:
                 env.close()
         if rec is not None and gui is not None:
-            assemble(rec.frames_dir, rec.animation)
+            if rec.animation is not None:
+                assemble(rec.frames_dir, rec.animation)
             if rec.table is not None:
                 _write_table(results, policy.agent.objectives, rec.table)
     return results
@@ -298,8 +328,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--record",
         metavar="DIR|FILE.gif|FILE.mp4",
-        help="save a screenshot per decision: DIR gets frames/, play.gif and episodes.csv; "
-        "a .gif or .mp4 file gets the animation (works without a display: starts Xvfb)",
+        help="save a screenshot per decision: DIR gets frames/, play.gif (with imageio) and "
+        "episodes.csv; a .gif or .mp4 file gets the animation (needs the gui extra); works "
+        "without a display (starts Xvfb)",
     )
 
 
@@ -316,4 +347,6 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.record:
         print(f"priqn play: recorded into {args.record}")
+        if Path(args.record).suffix.lower() not in ANIMATIONS and not has_imageio():
+            print("priqn play: no play.gif (needs imageio: pip install -e '.[gui]')")
     return 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -201,3 +202,60 @@ def test_without_a_display_it_says_how_to_get_one(tmp_path):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "xvfb-run -a priqn play" in lines[0], proc.stderr
+
+
+def test_a_folder_destination_needs_no_imageio(monkeypatch, tmp_path):
+    """Frames and episodes.csv need no imageio; only a .gif or .mp4 needs the gui extra."""
+    from priqn.errors import PriqnError
+    from priqn.play import Record, check_destination
+
+    monkeypatch.setitem(sys.modules, "imageio", None)  # 'import imageio' fails
+    folder = str(tmp_path / "rec")
+    check_destination(folder)
+    rec = Record.of(folder, tmp_path / "scratch")
+    assert rec.animation is None and rec.table == tmp_path / "rec" / "episodes.csv"
+    for name in ("play.gif", "play.mp4"):
+        with pytest.raises(PriqnError, match=r"needs imageio; install the gui extra") as err:
+            check_destination(str(tmp_path / name))
+        assert "\n" not in str(err.value)
+    assert sorted(tmp_path.iterdir()) == []  # the checks create nothing
+
+
+def test_an_unwritable_destination_is_one_line(tmp_path):
+    """``check_destination`` (run before the policy loads) names what is wrong in one line."""
+    from priqn.errors import PriqnError
+    from priqn.play import check_destination
+
+    (tmp_path / "file").write_text("")
+    (tmp_path / "dir.gif").mkdir()
+    bad = {
+        tmp_path / "file" / "x.gif": "file is not a folder",
+        tmp_path / "file" / "rec": "file is not a folder",
+        tmp_path / "file": "file is not a folder",
+        tmp_path / "dir.gif": "is a folder; expected a file to write",
+        tmp_path / "x.png": "expected a folder, or a file ending in .gif or .mp4",
+    }
+    if Path("/proc/self").is_dir():  # Linux: no files can be made in /proc, even by root
+        bad.update({Path("/proc/x.gif"): "cannot write in /proc", Path("/proc/x"): "in /proc"})
+    for target, why in bad.items():
+        with pytest.raises(PriqnError, match=f"^--record {re.escape(str(target))}: .*{why}"):
+            check_destination(str(target))
+    # Folders that do not exist yet are fine (made when recording); the check makes nothing.
+    check_destination(str(tmp_path / "new" / "deeper" / "x.mp4"))
+    check_destination(str(tmp_path / "new" / "rec"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.gif", "file"]
+
+
+@needs_cell
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="no /proc")
+def test_an_unwritable_destination_fails_before_anything_plays():
+    import time
+
+    start = time.monotonic()
+    proc = priqn("play", str(CELL), *SCENE, "--record", "/proc/x.gif", timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("priqn: error: --record /proc/x.gif: cannot write in /proc")
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
+    assert time.monotonic() - start < 60  # no episode was played (it takes minutes)
