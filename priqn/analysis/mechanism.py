@@ -78,6 +78,12 @@ class MechanismConfig:
     snapshot: int = 0
     """0: each run's final policy on its ``eval/`` scenes; N: the policy it kept at N
     decisions (``checkpoint.keep_at``) on the scenes of ``eval-at<N>/``."""
+    decisions: str = ""
+    """Folder of the per-decision files ("": ``<out>/decisions``)."""
+
+    def decisions_dir(self, out: Path) -> Path:
+        """Where the per-decision files go: :attr:`decisions`, else ``out/decisions``."""
+        return Path(self.decisions) if self.decisions else out / "decisions"
 
     @property
     def evaluation(self) -> str:
@@ -504,7 +510,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
     )
     with tqdm(total=total, desc="mechanism", unit="ep", disable=None) as bar:
         for cell in cells:
-            cached = out / "decisions" / f"{cell.name}.csv"
+            cached = cfg.decisions_dir(out) / f"{cell.name}.csv"
             want = min(cfg.episodes or len(cell.episodes), len(cell.episodes))
             frame = pd.read_csv(cached) if cached.is_file() else None
             stale = frame is not None and not set(_NEWEST_COLUMNS) <= set(frame.columns)
@@ -601,6 +607,19 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--workers", type=int, default=1, help="env worker processes (default 1)")
     parser.add_argument(
+        "--standstill",
+        action="store_true",
+        help="instead: why the policy stands still (does any go action reach progress's "
+        "choice, which level removed the last one, safety/risk stop-vs-go differences raw "
+        "and z-scored; IQN cells: greedy stop share); writes standstill.md/.csv/.png",
+    )
+    parser.add_argument(
+        "--decisions",
+        default="",
+        metavar="DIR",
+        help="folder of the per-decision files (default OUT/decisions)",
+    )
+    parser.add_argument(
         "--snapshot",
         type=int,
         default=0,
@@ -633,6 +652,25 @@ def run(args: argparse.Namespace) -> int:
         collapsed_below=args.collapsed_below,
         workers=args.workers,
         snapshot=args.snapshot,
+        decisions=args.decisions,
     )
+    if args.standstill:
+        print(_standstill(args.runs, Path(args.out), cfg))
+        return 0
     print(analyse(args.runs, Path(args.out), cfg))
     return 0
+
+
+def _standstill(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Path:
+    """``--standstill``: :func:`priqn.analysis.standstill.analyse` on the cells under
+    ``paths`` (any agent), each on the first ``cfg.episodes`` scenes of its evaluation."""
+    from priqn.analysis import standstill
+    from priqn.evaluation.protocol import make_scenes
+    from priqn.evaluation.targets import find_runs
+
+    cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
+
+    def scenes(cell: Cell) -> list[Any]:
+        return replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
+
+    return standstill.analyse(cells, out, cfg.decisions_dir(out), scenes)
