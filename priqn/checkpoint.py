@@ -99,16 +99,32 @@ class Checkpoint:
     config: dict[str, Any]
     """The run's :class:`~priqn.train_config.TrainConfig` as a dict (for the record)."""
     replay_file: str | None = None
-    """Name of the replay buffer file saved with it, in the same folder (None: none)."""
+    """Name of the uncompressed replay buffer file saved with it, in the same folder, by
+    checkpoints before issue 49 (None: none; newer ones use ``replay_chunks``)."""
     torch_version: str = ""
     """torch that wrote the file (filled by :func:`save`)."""
     objectives: list[str] = dataclasses.field(default_factory=lambda: list(OBJECTIVES))
     """The run's objective names (reward-vector and per-objective head order)."""
+    replay_chunks: list[dict[str, Any]] | None = None
+    """The replay buffer as compressed files of the rows each checkpoint added, in the order
+    written, each ``{"file": name, "end": [rows written per env when it was saved]}``
+    (:meth:`priqn.agents.replay.ReplayBuffer.save_rows`); files whose rows the ring has all
+    overwritten are dropped. None: no buffer saved this way (see ``replay_file``)."""
+    in_flight: list[dict[str, Any]] | None = None
+    """Per env worker, the episode it was in (``IntersectionEnv.episode_record``: the
+    generator state of its reset, its options, its actions): a resume plays them again and
+    goes on at the very decision. None: a checkpoint from before issue 49."""
+    logging: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """What the loop's logging carries across decisions: the in-flight episodes' optimal
+    subset size sums and counts, the latest update's statistics (``metrics.csv`` rows)."""
 
     OPTIONAL: ClassVar[dict[str, Callable[[], Any]]] = {
         "replay_file": lambda: None,
         "torch_version": str,
         "objectives": lambda: list(OBJECTIVES),
+        "replay_chunks": lambda: None,
+        "in_flight": lambda: None,
+        "logging": dict,
     }
     """Keys an older file may lack, with the factory of their default."""
 
@@ -240,6 +256,9 @@ _KINDS: dict[str, type | tuple[type, ...]] = {
     "config": Mapping,
     "replay_file": (str, type(None)),
     "torch_version": str,
+    "replay_chunks": (list, type(None)),
+    "in_flight": (list, type(None)),
+    "logging": Mapping,
 }
 """The kind of value each on-disk field must hold (what a loader may rely on)."""
 

@@ -304,10 +304,23 @@ class RunFolder:
 
     def resumed_at(self) -> list[int]:
         """The decisions at which training resumed after an interruption (meta.json
-        ``sessions``): each resume goes on from the last checkpoint, so the training after it
-        differs from an uninterrupted run's (its replay buffer is refilled unless saved)."""
+        ``sessions``) the old way: from the last checkpoint with fresh scenes (and a refilled
+        replay buffer unless saved), so the training after it differs from an uninterrupted
+        run's. An exact resume (:meth:`mark_resume_exact`) is not listed."""
         sessions = self.meta().get("sessions") or []
-        return [int(s["from_step"]) for s in sessions if s.get("resume") and "from_step" in s]
+        return [
+            int(s["from_step"])
+            for s in sessions
+            if s.get("resume") and "from_step" in s and not s.get("exact")
+        ]
+
+    def mark_resume_exact(self) -> None:
+        """Record that this session's resume restored the replay buffer and the episodes in
+        flight (meta.json ``sessions[-1].exact``): the run cannot tell it was stopped, so
+        :meth:`resumed_at` and the reports no longer list it."""
+        meta = self.meta()
+        meta["sessions"][-1]["exact"] = True
+        self.write_meta(meta)
 
     def trained_to(self) -> int:
         """Decisions the run has trained, as its meta.json records them: the budget
@@ -426,6 +439,13 @@ class RunFolder:
                 f"({', '.join(recorded)}) but {self.CONFIG} lists "
                 f"({', '.join(cfg.objective_names)}); restore it or start a new run"
             )
+        written_at = meta.get("git_sha")
+        if written_at and written_at != provenance.git_sha:
+            raise PriqnError(
+                f"{self.path}: --resume: its checkpoint was written by the code at "
+                f"{written_at[:12]}, this is {provenance.git_sha[:12]}; resume it with that "
+                "code (a worktree of it: docs/sweeps.md) so that it goes on as it would have"
+            )
         own_hash = provenance.manifest_hashes.get("own")
         if own_hash is not None and meta.get("manifest_hashes", {}).get("own") != own_hash:
             raise PriqnError(
@@ -476,21 +496,32 @@ class RunFolder:
         return [r for r in rows if int(float(r["step"])) <= max_step]
 
     # ---------------------------------------------------------------- checkpoints and policy
-    def save_checkpoint(self, state: Checkpoint, replay: Any, save_replay: bool) -> None:
-        """Replay file first, then latest.pt naming it, then old replay files removed.
+    def save_checkpoint(self, state: Checkpoint, replay: Any | None) -> Checkpoint:
+        """The replay rows added since the previous checkpoint (``state.replay_chunks``, the
+        previous one's list) as a new compressed file, then latest.pt naming every replay
+        file still needed, then the files it does not name removed. Returns the state as
+        saved (its ``replay_chunks`` are the next checkpoint's previous list).
 
-        Each file is atomic; latest.pt is the commit point, so a kill at any moment leaves
-        a consistent (latest.pt, replay file) pair. The format is :mod:`priqn.checkpoint`'s.
+        ``replay`` None saves no buffer (``checkpoint.save_replay = false``). Each file is
+        atomic and latest.pt is the commit point, so a kill at any moment, in the middle of
+        this too, leaves a latest.pt whose replay files are all there. The format is
+        :mod:`priqn.checkpoint`'s.
         """
-        replay_name = None
-        if save_replay:
-            replay_name = f"replay-{state.step:012d}.npz"
-            with atomic_open(self.checkpoint_dir / replay_name, "wb") as fh:
-                replay.save_to(fh)
-        checkpoint.save(dataclasses.replace(state, replay_file=replay_name), self.latest_checkpoint)
+        chunks = None
+        if replay is not None:
+            chunks = [c for c in state.replay_chunks or [] if not replay.overwritten(c["end"])]
+            since = chunks[-1]["end"] if chunks else [0] * replay.num_envs
+            name = f"replay-{state.step:012d}.npz"
+            with atomic_open(self.checkpoint_dir / name, "wb") as fh:
+                end = replay.save_rows(fh, since)
+            chunks.append({"file": name, "end": [int(n) for n in end]})
+        state = dataclasses.replace(state, replay_file=None, replay_chunks=chunks)
+        checkpoint.save(state, self.latest_checkpoint)
+        keep = {c["file"] for c in chunks or []}
         for old in self.checkpoint_dir.glob("replay-*.npz"):
-            if old.name != replay_name:
+            if old.name not in keep:
                 old.unlink(missing_ok=True)
+        return state
 
     def load_checkpoint(self, device: Any) -> Checkpoint:
         """The latest checkpoint (a damaged file is a one-line error saying what to do)."""
@@ -500,9 +531,13 @@ class RunFolder:
             f"delete the run folder's {self.CHECKPOINTS}/ and train again with --force",
         )
 
-    def replay_file(self, state: Checkpoint) -> Path | None:
-        """The replay buffer file a checkpoint names (None if it saved none)."""
-        return self.checkpoint_dir / state.replay_file if state.replay_file else None
+    def replay_files(self, state: Checkpoint) -> list[Path]:
+        """The replay buffer files a checkpoint names, in the order to load them: its
+        compressed chunks, or the one uncompressed file of an older checkpoint ([] if it
+        saved none)."""
+        if state.replay_chunks is not None:
+            return [self.checkpoint_dir / c["file"] for c in state.replay_chunks]
+        return [self.checkpoint_dir / state.replay_file] if state.replay_file else []
 
     def save_policy(self, state: PolicyState) -> None:
         """policy.pt: the final online weights and the agent's learned state (a few MB)."""

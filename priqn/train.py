@@ -32,6 +32,7 @@ import numpy as np
 from priqn.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.config import describe, flatten, to_dict
 from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_overrides
+from priqn.env.vector import restore_episodes
 from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
 from priqn.metrics import metric_columns, metrics_row
@@ -209,13 +210,8 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
         stack.callback(envs.close)
         t = Trainer(cfg, agent, envs, seeds, device)
         run.update_meta(**t.facts())
-        resume_obs = _resume(run, t, device) if resume else None
-        # Session 0: per-worker seeds derived from seeds["env"] by make_vector_env; a resume
-        # reseeds from (seeds["env"], session) so it does not replay the first scenes.
-        obs, _ = envs.reset(seed=_env_reset_seed(seeds["env"], session))
-        if resume_obs is not None:
-            # Episodes in flight at the checkpoint end there (truncated, bootstrapped).
-            t.replay.truncate_open_episodes(resume_obs)
+        resumed = _resume(run, t, device) if resume else None
+        obs = _start_episodes(run, t, envs, resumed, _env_reset_seed(seeds["env"], session))
         evaluation = None
         if cfg.evaluation.interval_steps > 0:
             evaluation = stack.enter_context(HoldoutEvaluation(cfg, seeds["eval_env"]))
@@ -235,7 +231,7 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
             if t.step in cfg.checkpoint.keep_at:
                 t.keep_snapshot(run)  # 7. keep the policy at a listed budget
             if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
-                t.checkpoint(run, logger, obs)  # 8. checkpoint
+                t.checkpoint(run, logger, envs, obs)  # 8. checkpoint
     _finish(run, t)
 
 
@@ -283,6 +279,8 @@ class Trainer:
         self.epsilon, self.wall = cfg.exploration.eps_start, 0.0
         self.latest_update_stats: dict[str, float] = {}
         """The latest learner update's statistics (loss, q_mean, target |S_r|), for logging."""
+        self.replay_chunks: list[dict[str, Any]] | None = None
+        """The replay files the latest checkpoint names (the next one adds to them)."""
 
     def facts(self) -> dict[str, Any]:
         """What meta.json records about this session's learner and replay buffer."""
@@ -425,8 +423,11 @@ class Trainer:
             }
             run.update_meta(snapshots=snapshots)
 
-    def checkpoint(self, run: RunFolder, logger: TrainLogger, obs: Mapping[str, Any]) -> None:
-        """checkpoints/latest.pt (+ the replay buffer), metrics and meta.json's progress."""
+    def checkpoint(
+        self, run: RunFolder, logger: TrainLogger, envs: Any, obs: Mapping[str, Any]
+    ) -> None:
+        """checkpoints/latest.pt (+ the replay rows added since the last one, and every
+        worker's episode in flight), metrics and meta.json's progress."""
         with self.clock("checkpoint"):
             self.next_ckpt = _next_multiple(self.step, self.cfg.checkpoint.interval_steps)
             wall = self.wall_before + time.perf_counter() - self.t0
@@ -442,8 +443,18 @@ class Trainer:
                 num_actions=self.num_actions,
                 config=to_dict(self.cfg),
                 objectives=list(self.objectives),
+                replay_chunks=self.replay_chunks,
+                in_flight=list(envs.call("episode_record")),
+                logging={
+                    "subset_sum": self.subset_sizes.sum_EN.tolist(),
+                    "subset_count": self.subset_sizes.count_E.tolist(),
+                    "update_stats": dict(self.latest_update_stats),
+                },
             )
-            run.save_checkpoint(state, self.replay, self.cfg.checkpoint.save_replay)
+            saved = run.save_checkpoint(
+                state, self.replay if self.cfg.checkpoint.save_replay else None
+            )
+            self.replay_chunks = saved.replay_chunks
             logger.checkpoint()
             run.update_meta(
                 steps_done=self.step, episodes_done=self.episodes, wall_s=round(wall, 1)
@@ -469,10 +480,9 @@ def _torch_device(cfg: TrainConfig) -> Any:
     return device
 
 
-def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | None:
-    """Restore the latest checkpoint into ``t``: the learner, both generators, the counters
-    and the replay buffer when it was saved. Returns the observations at the checkpoint
-    when the buffer was restored (its open episodes end there), else None."""
+def _resume(run: RunFolder, t: Trainer, device: Any) -> Checkpoint:
+    """Restore the latest checkpoint into ``t``: the learner, both generators, the counters,
+    the logging state and the replay buffer when it was saved. Returns the checkpoint."""
     state = run.load_checkpoint(device)
     if tuple(state.objectives) != tuple(t.objectives):
         raise PriqnError(
@@ -490,18 +500,54 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> dict[str, np.ndarray] | 
     t.rng_replay.bit_generator.state = state.rng_replay
     t.rng_act.bit_generator.state = state.rng_act
     t.step, t.episodes, t.wall_before = state.step, state.episodes, state.wall_s
-    replay_file = run.replay_file(state)
-    if replay_file is None:
-        return None
-    try:
-        t.replay.load_state_file(replay_file)
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-        raise PriqnError(
-            f"{replay_file}: damaged or unreadable replay buffer "
-            f"({type(exc).__name__}); the run cannot resume exactly: "
-            "train it again with --force"
-        ) from None
-    return state.obs
+    if state.logging:
+        t.subset_sizes.sum_EN[...] = np.asarray(state.logging["subset_sum"], dtype=np.float64)
+        t.subset_sizes.count_E[...] = np.asarray(state.logging["subset_count"], dtype=np.float64)
+        t.latest_update_stats = dict(state.logging["update_stats"])
+    t.replay_chunks = state.replay_chunks
+    for replay_file in run.replay_files(state):
+        try:
+            if state.replay_chunks is None:
+                t.replay.load_state_file(replay_file)
+            else:
+                t.replay.load_rows(replay_file)
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise PriqnError(
+                f"{replay_file}: damaged or unreadable replay buffer "
+                f"({type(exc).__name__}); the run cannot resume exactly: "
+                "train it again with --force"
+            ) from None
+    return state
+
+
+def _start_episodes(
+    run: RunFolder, t: Trainer, envs: Any, resumed: Checkpoint | None, reset_seed: int | None
+) -> dict[str, np.ndarray]:
+    """The observations the loop starts from, one per env worker.
+
+    A new run: fresh episodes (per-worker seeds derived from the env seed by
+    make_vector_env). An exact resume (the checkpoint holds the replay buffer in
+    ``replay_chunks`` and every worker's episode in flight): those episodes played again to
+    the very decision, their observation checked against the checkpoint's. Otherwise (a
+    checkpoint from before issue 49, or without its buffer): fresh episodes reseeded from
+    (env seed, session), and a restored buffer's open episodes end at the checkpoint
+    (truncated, bootstrapped).
+    """
+    if resumed is not None and resumed.in_flight is not None and resumed.replay_chunks:
+        obs = restore_episodes(envs, resumed.in_flight)
+        for key, saved in resumed.obs.items():
+            if not np.array_equal(obs[key], saved):
+                raise PriqnError(
+                    f"{run.path}: --resume: the episodes in flight, played again, do not reach "
+                    f"the checkpoint's observation ('{key}' differs): the code, the nets or "
+                    "SUMO changed since it was written; train it again with --force"
+                )
+        run.mark_resume_exact()
+        return obs
+    obs, _ = envs.reset(seed=reset_seed)
+    if resumed is not None and run.replay_files(resumed):
+        t.replay.truncate_open_episodes(resumed.obs)
+    return obs
 
 
 def _finish(run: RunFolder, t: Trainer) -> None:

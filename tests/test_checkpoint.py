@@ -3,6 +3,7 @@ one-line errors for damaged or foreign files."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +20,11 @@ from priqn.runs import RunFolder
 CHECKPOINT_KEYS = [
     "step", "episodes", "wall_s", "learner", "rng_replay", "rng_act", "obs", "obs_shapes",
     "num_actions", "config", "replay_file", "torch_version", "objectives",
+    "replay_chunks", "in_flight", "logging",
 ]  # fmt: skip
 """The keys of checkpoints/latest.pt since the first release (old files must keep loading),
-then the optional ``objectives`` (declared objectives; absent = the default five)."""
+then the optional ``objectives`` (declared objectives; absent = the default five) and the
+optional parts of an exact resume (issue 49: replay chunks, episodes in flight, logging)."""
 POLICY_KEYS = ["online", "agent", "obs_shapes", "num_actions", "step", "objectives"]
 """The keys of policy.pt (``agent`` and ``objectives`` optional); both files end in
 ``format`` since issue 35 (absent: format 1)."""
@@ -176,24 +179,57 @@ def test_a_foreign_torch_file_is_not_a_checkpoint(tmp_path: Path) -> None:
         checkpoint.load_policy_state(path)
 
 
-class FakeReplay:
-    """Writes a few bytes where a replay buffer writes its .npz."""
+def _replay_with(rows_per_env: int, capacity: int = 12):
+    """A 2-env buffer of 1-byte frames whose row p of env e holds 10 * e + p."""
+    from priqn.agents.replay import ReplayBuffer
 
-    def save_to(self, fh) -> None:
-        fh.write(b"replay")
+    replay = ReplayBuffer({"x": ((1,), np.uint8)}, num_envs=2, capacity=capacity)
+    for p in range(rows_per_env):
+        obs = {"x": np.array([[p], [10 + p]], np.uint8)}
+        replay.add(obs, np.array([p, p]), np.zeros((2, 5)), np.zeros(2, bool),
+                   np.zeros(2, bool), [None, None])  # fmt: skip
+    return replay
 
 
-def test_run_folder_saves_the_replay_file_first_and_names_it(tmp_path: Path) -> None:
+def test_replay_chunks_are_written_first_named_and_dropped_once_overwritten(
+    tmp_path: Path,
+) -> None:
+    from priqn.agents.replay import ReplayBuffer
+
     run = RunFolder(tmp_path / "run")
-    run.save_checkpoint(make_checkpoint(step=40), FakeReplay(), save_replay=True)
-    run.save_checkpoint(make_checkpoint(step=80), FakeReplay(), save_replay=True)
+    # Rings of 6 rows per env. Checkpoint 1 after 4 rows, 2 after 8 (rows 4-7), 3 after 12
+    # (rows 8-11): every row of chunk 1 (rows 0-3) is overwritten by then, chunk 2's rows
+    # 6 and 7 are not.
+    saved = run.save_checkpoint(make_checkpoint(step=40), _replay_with(4))
+    assert saved.replay_chunks == [{"file": "replay-000000000040.npz", "end": [4, 4]}]
+    saved = run.save_checkpoint(
+        dataclasses.replace(make_checkpoint(step=80), replay_chunks=saved.replay_chunks),
+        _replay_with(8),
+    )
+    replay = _replay_with(12)
+    saved = run.save_checkpoint(
+        dataclasses.replace(make_checkpoint(step=120), replay_chunks=saved.replay_chunks), replay
+    )
     back = run.load_checkpoint("cpu")
-    assert back.step == 80 and back.replay_file == "replay-000000000080.npz"
-    assert run.replay_file(back) == run.checkpoint_dir / "replay-000000000080.npz"
-    assert [p.name for p in run.checkpoint_dir.glob("replay-*.npz")] == [back.replay_file]
-    run.save_checkpoint(make_checkpoint(step=120), FakeReplay(), save_replay=False)
+    assert [c["file"] for c in back.replay_chunks] == [
+        "replay-000000000080.npz",
+        "replay-000000000120.npz",
+    ]
+    assert sorted(p.name for p in run.checkpoint_dir.glob("replay-*.npz")) == [
+        c["file"] for c in back.replay_chunks
+    ]
+    fresh = ReplayBuffer({"x": ((1,), np.uint8)}, num_envs=2, capacity=12)
+    for path in run.replay_files(back):
+        fresh.load_rows(path)
+    assert fresh.written.tolist() == [12, 12]
+    assert np.array_equal(fresh.obs["x"], replay.obs["x"])  # rows 6-11 of each env
+    assert fresh.obs["x"][1, :, 0].tolist() == [16, 17, 18, 19, 20, 21]
+    assert np.array_equal(fresh.action, replay.action) and np.array_equal(
+        fresh.starts, replay.starts
+    )
+    run.save_checkpoint(make_checkpoint(step=160), None)  # checkpoint.save_replay = false
     back = run.load_checkpoint("cpu")
-    assert back.replay_file is None and run.replay_file(back) is None
+    assert back.replay_chunks is None and run.replay_files(back) == []
     assert not list(run.checkpoint_dir.glob("replay-*.npz"))
     run.latest_checkpoint.write_bytes(b"")
     with pytest.raises(PriqnError, match=r"latest\.pt: damaged or unreadable checkpoint"):

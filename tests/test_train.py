@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from priqn import checkpoint
 from priqn.errors import PriqnError
 from priqn.metrics import METRIC_COLUMNS
 from priqn.runs import load_policy
@@ -203,7 +204,10 @@ def test_smoke_pr_iqn_kill9_then_resume(tmp_path):
     assert steps == sorted(steps) and max(steps) > killed_at
     assert [int(r["episode"]) for r in train_rows] == list(range(1, len(train_rows) + 1))
     assert any(r["kind"] == "eval" for r in rows)
-    assert len(list((run / "checkpoints").glob("replay-*.npz"))) == 1
+    chunks = checkpoint.load(run / "checkpoints" / "latest.pt").replay_chunks
+    assert sorted(p.name for p in (run / "checkpoints").glob("replay-*.npz")) == [
+        c["file"] for c in chunks
+    ]
 
     policy = load_policy(run)
     assert policy.labels["agent"] == "pr-iqn" and policy.labels["train_seed"] == 0

@@ -205,6 +205,56 @@ class ReplayBuffer:
         arrays["written"] = self.written
         np.savez(fh, **arrays)
 
+    def save_rows(self, fh: Any, since_E: Any) -> np.ndarray:
+        """Write, compressed, the rows written since ``since_E`` (per env, the absolute
+        positions :attr:`written` had at the previous save; zeros for the first) into the
+        open binary ``fh``; returns :attr:`written` now (the next save's ``since_E``).
+
+        One zip of zstd-compressed ``.npy`` members (:func:`write_arrays`): ``end`` ``[E]``, ``segments`` ``[S, 3]`` (env, first, last + 1
+        absolute row of each stretch that does not wrap around the ring) and each segment's
+        rows of every array (``obs.<key>.<s>``, ``action.<s>``, ...), written from views of
+        the ring, streamed (no copy of the rows). Rows the ring has overwritten since are
+        left out. :meth:`load_rows` applies such files in the order they were written. BEV
+        and LiDAR rasters are mostly empty: 24,576 bytes a row at 64 px become about 450
+        (docs/implementation-details.md §8, ``priqn bench replay``)."""
+        since = np.asarray(since_E, dtype=np.int64)
+        start = np.maximum(since, self.written - self.rows)
+        segments = [
+            (e, lo, hi)
+            for e in range(self.num_envs)
+            for lo, hi in _pieces(int(start[e]), int(self.written[e]), self.rows)
+        ]
+        arrays: dict[str, np.ndarray] = {
+            "end": self.written.copy(),
+            "segments": np.asarray(segments, dtype=np.int64).reshape(-1, 3),
+        }
+        for s, (e, lo, hi) in enumerate(segments):
+            rows = slice(lo % self.rows, lo % self.rows + hi - lo)
+            for k, a in self.obs.items():
+                arrays[f"obs.{k}.{s}"] = a[e, rows]
+            for name in _ROW_ARRAYS:
+                arrays[f"{name}.{s}"] = getattr(self, name)[e, rows]
+        write_arrays(fh, arrays)
+        return arrays["end"]
+
+    def load_rows(self, path: Any) -> None:
+        """Apply one file of :meth:`save_rows` (same env count and row shapes)."""
+        with ArrayFile(path) as data:
+            end, segments = data["end"], data["segments"]
+            if end.shape != (self.num_envs,):
+                raise ValueError(f"replay rows: saved for {end.shape[0]} envs, not {self.num_envs}")
+            for s, (e, lo, hi) in enumerate(segments.tolist()):
+                rows = slice(lo % self.rows, lo % self.rows + hi - lo)
+                for k, a in self.obs.items():
+                    _put(a[e, rows], data[f"obs.{k}.{s}"], f"obs.{k}")
+                for name in _ROW_ARRAYS:
+                    _put(getattr(self, name)[e, rows], data[f"{name}.{s}"], name)
+            self.written[:] = np.maximum(self.written, end)
+
+    def overwritten(self, end_E: Any) -> bool:
+        """Every row written before ``end_E`` (per env) has been overwritten in the ring."""
+        return bool(np.all(np.asarray(end_E) <= self.written - self.rows))
+
     def load_state_file(self, path: Any) -> None:
         """Restore from a file written by :meth:`save_to` (same env count and row shapes)."""
         with np.load(path) as data:
@@ -225,3 +275,71 @@ class ReplayBuffer:
             raise ValueError(f"replay {name}: saved {src.shape[1]} rows > capacity {dst.shape[1]}")
         else:
             dst[:, : src.shape[1]] = src
+
+
+_ROW_ARRAYS = ("action", "reward", "starts", "ended", "terminated")
+"""The per-row arrays beside the observations."""
+
+
+ZSTD_LEVEL = 3
+"""zstd level of the replay files: as small as zlib's level 6 on our rasters, 6x as fast
+(measured on 1,200 real observations at 64 and 128 px, docs/implementation-details.md §8)."""
+
+
+def write_arrays(fh: Any, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write ``arrays`` into the open binary ``fh``: a zip (stored) whose member
+    ``<name>.npy.zst`` is the array's ``.npy`` bytes compressed with zstd, streamed in
+    chunks (no whole copy of an array). :class:`ArrayFile` reads it."""
+    import zipfile
+
+    import zstandard
+
+    compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+    with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, array in arrays.items():
+            with zf.open(f"{name}.npy.zst", "w", force_zip64=True) as member:
+                with compressor.stream_writer(member, closefd=False) as out:
+                    np.lib.format.write_array(out, np.asanyarray(array), allow_pickle=False)
+
+
+class ArrayFile:
+    """The arrays of a :func:`write_arrays` file, read one by one: ``data[name]`` (a
+    damaged member is a ValueError, a missing one a KeyError, as with ``np.load``)."""
+
+    def __init__(self, path: Any) -> None:
+        import zipfile
+
+        self._zip = zipfile.ZipFile(path)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        import zstandard
+
+        try:
+            with self._zip.open(f"{name}.npy.zst") as member:
+                with zstandard.ZstdDecompressor().stream_reader(member) as raw:
+                    return np.lib.format.read_array(raw, allow_pickle=False)
+        except zstandard.ZstdError as exc:  # a damaged member: as numpy's own errors
+            raise ValueError(f"{name}: {exc}") from None
+
+    def __enter__(self) -> ArrayFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._zip.close()
+
+
+def _pieces(lo: int, hi: int, rows: int) -> list[tuple[int, int]]:
+    """Absolute rows ``lo:hi`` cut where they wrap around a ring of ``rows``."""
+    out = []
+    while lo < hi:
+        cut = min(hi, (lo // rows + 1) * rows)
+        out.append((lo, cut))
+        lo = cut
+    return out
+
+
+def _put(dst: np.ndarray, src: np.ndarray, name: str) -> None:
+    """``dst[...] = src`` for one segment's rows, refusing saved rows of another shape."""
+    if src.shape != dst.shape:
+        raise ValueError(f"replay {name}: saved rows {src.shape} do not fit {dst.shape}")
+    dst[...] = src

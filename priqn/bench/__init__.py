@@ -1,7 +1,7 @@
 """``priqn bench``: speed measured as ratios against a baseline run in the same command.
 
 Sub-benchmarks live in their own modules (``priqn.bench.env``, ``.preorder``,
-``.train``, ``.sweep``), each with ``configure_parser`` / ``run`` like a CLI command.
+``.train``, ``.sweep``, ``.replay``), each with ``configure_parser`` / ``run`` like a CLI command.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ BENCHES: dict[str, str] = {
     "preorder": "batched optimal subsets vs a per-state reference loop",
     "train": "updates/s of IQN vs Pr-IQN; env decisions/s with learning on",
     "sweep": "sweep cells per hour: one at a time vs two (--jobs) at a time",
+    "replay": "the replay buffer in a checkpoint: compressed, incremental vs the whole, uncompressed",
 }
 
 

@@ -26,6 +26,7 @@ termination, realised density).
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import os
 from collections.abc import Iterator, Mapping
@@ -410,6 +411,10 @@ class IntersectionEnv(gymnasium.Env):
             self._session = self.gui.session
         self._episode: _Episode | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
+        self._record: dict[str, Any] | None = None
+        """How the running episode came about: :meth:`episode_record`."""
+        self.pending_episode: dict[str, Any] | None = None
+        """A record for :meth:`restore_pending_episode` to play (vector envs set it)."""
 
     # ------------------------------------------------------------------ public
 
@@ -437,9 +442,52 @@ class IntersectionEnv(gymnasium.Env):
             seed = self._default_seed
         super().reset(seed=seed)
         self._seeded = True
+        return self._begin_episode(options)
+
+    def episode_record(self) -> dict[str, Any] | None:
+        """The running episode as plain data: the generator state its reset drew from, its
+        reset options and every action since (None before the first reset). With
+        :meth:`restore_episode` it restores the episode at the very decision: a training
+        checkpoint keeps one per worker, so a resumed run goes on as if never stopped."""
+        if self._record is None:
+            return None
+        return {
+            "rng": copy.deepcopy(self._record["rng"]),
+            "options": dict(self._record["options"]),
+            "actions": list(self._record["actions"]),
+        }
+
+    def restore_episode(self, record: Mapping[str, Any]) -> dict[str, np.ndarray]:
+        """Play the episode of an :meth:`episode_record` again, from its reset through its
+        actions, and return the observation it stands at; the env then goes on exactly as
+        the one that made the record (SUMO and the env are deterministic per seed)."""
+        self._seeded = True
+        self.np_random = np.random.Generator(np.random.PCG64())
+        self.np_random.bit_generator.state = copy.deepcopy(record["rng"])
+        obs, _ = self._begin_episode(dict(record["options"]) or None)
+        for action in record["actions"]:
+            obs, *_ = self.step(int(action))
+        return obs
+
+    def restore_pending_episode(self) -> dict[str, np.ndarray]:
+        """:meth:`restore_episode` of the record in ``self.pending_episode`` (set per worker
+        by :func:`priqn.env.vector.restore_episodes`, since a vector env's ``call`` gives
+        every worker the same arguments)."""
+        record, self.pending_episode = self.pending_episode, None
+        return self.restore_episode(record)
+
+    def _begin_episode(
+        self, options: dict[str, Any] | None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """The part of :meth:`reset` after seeding: every draw from ``self.np_random``."""
         self._episode = None
         cfg, rng = self.config, self.np_random
         opts = self._check_options(options)
+        self._record = {
+            "rng": copy.deepcopy(rng.bit_generator.state),
+            "options": dict(options or {}),
+            "actions": [],
+        }
 
         # Draws in a fixed order so a seed fixes the episode.
         pool = self._scenes.refs
@@ -493,6 +541,7 @@ class IntersectionEnv(gymnasium.Env):
     ) -> tuple[dict[str, np.ndarray], np.ndarray, bool, bool, dict[str, Any]]:
         ep = self._running_episode()
         action = self._check_action(action)
+        self._record["actions"].append(action)
         if self.config.ego_driver == "sumo":  # SUMO drives; what it did is measured as a plan
             with self._sumo_failure(ep):
                 plan, sim = self._drive_by_sumo(ep)

@@ -181,6 +181,18 @@ def make_vector_env(
     return venv
 
 
+def restore_episodes(venv: Any, records: Any) -> dict[str, np.ndarray]:
+    """Each worker plays again the episode of its record (``IntersectionEnv.episode_record``,
+    one per worker, in order) and the batched observations they stand at come back
+    (``[num_envs, ...]`` per key): how a training resume continues the episodes in flight."""
+    records = list(records)
+    if len(records) != venv.num_envs:
+        raise PriqnError(f"restore_episodes: {len(records)} records for {venv.num_envs} workers")
+    venv.set_attr("pending_episode", records)
+    obs = venv.call("restore_pending_episode")
+    return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+
+
 def make_vec(
     num_envs: int = 2,
     config: Any = None,
