@@ -333,6 +333,27 @@ class CalibrationSpec:
         return SequentialSpec((), code_commits=self.code_commits).code_problem(git_sha)
 
 
+def check_code(
+    design: SequentialSpec | CalibrationSpec, git_sha: str, cell: Any, where: str
+) -> None:
+    """One line when ``cell``, trained at ``git_sha``, cannot count for ``design`` (named
+    ``where``, e.g. ``<file> [sequential]``): a commit its ``code_commits`` does not list,
+    or a checkout with uncommitted changes. The reports and ``priqn sweep --commit`` apply
+    it to every cell of a pre-registered design, which never mixes code versions."""
+    problem = design.code_problem(git_sha)
+    if problem == "unlisted":
+        raise PriqnError(
+            f"{cell}: trained at commit {git_sha[:12]}, which {where}.code_commits does not "
+            "list; a pre-registered design never mixes code versions (retrain it at the "
+            "frozen commit)"
+        )
+    if problem == "dirty":
+        raise PriqnError(
+            f"{cell}: trained from a checkout with uncommitted changes ({git_sha}); "
+            "retrain it from the frozen commit"
+        )
+
+
 _PREORDER_OPTIONS = ("comparator", "train_preorder", "eps", "preorder", "normalisation")
 
 # Policy option -> TrainConfig key (``priqn train --set`` name).

@@ -146,3 +146,19 @@ def test_the_allow_list_is_current() -> None:
     unexplained = unexplained_long_functions()
     stale = sorted(name for name in UNEXPLAINED if name not in unexplained)
     assert not stale, f"drop these from UNEXPLAINED (gone, short or commented): {stale}"
+
+
+def test_one_reader_of_an_evaluations_episode_table() -> None:
+    """Every ``episodes.csv`` of an evaluation is read by ``priqn.analysis.load.read_episodes``
+    (one error message, one outcome rule). ``priqn diff`` keeps its own reader: it compares
+    the rows as the strings written, not as parsed values."""
+    readers = []
+    for path in sorted(ROOT.rglob("*.py")):
+        lines = path.read_text(encoding="utf-8").splitlines()
+        for i, line in enumerate(lines):
+            if "read_csv(" not in line:
+                continue
+            near = " ".join(lines[max(0, i - 3) : i + 1])
+            if any(k in near for k in ("EVAL_EPISODES", "episodes.csv", "eval_episodes_path")):
+                readers.append(str(path.relative_to(ROOT)))
+    assert readers == ["analysis/load.py", "diff.py"], readers

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from priqn.analysis.questions import episodes_table
+from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
-from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment
+from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.runs import RunFolder
 
@@ -34,7 +34,7 @@ MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
 def cell_rates(eval_dir: str | Path) -> pd.DataFrame:
     """``float [densities x outcomes]``: the share of one evaluation's episodes ending in
     each outcome, per density (index sorted); each row sums to 1."""
-    episodes = episodes_table(eval_dir)
+    episodes = read_episodes(eval_dir)
     flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
     return flags.groupby(episodes["density"].astype(float)).mean()
 
@@ -51,13 +51,9 @@ def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
             if not run.evaluated():
                 missing.append(f"{run.path.name}: not complete")
                 continue
-            sha = str(run.meta().get("git_sha", ""))
-            problem = cal.code_problem(sha)
-            if problem:
-                raise PriqnError(
-                    f"{run.path}: trained at {sha[:12]} ({problem}); {exp.path} "
-                    f"[calibration].code_commits lists {', '.join(c[:12] for c in cal.code_commits)}"
-                )
+            check_code(
+                cal, str(run.meta().get("git_sha", "")), run.path, f"{exp.path} [calibration]"
+            )
             rates = cell_rates(run.path / RunFolder.EVAL)
             for density, by_outcome in rates.iterrows():
                 for outcome in OUTCOMES:
@@ -133,11 +129,12 @@ def _mix_table(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], traff
     return "\n".join(lines)
 
 
-def _distance_table(dist: pd.DataFrame, chosen: str) -> str:
+def _distance_table(dist: pd.DataFrame, chosen: str, final: bool) -> str:
     lines = ["| setting (row) | seeds | L1 | success | collision | off-road | timeout |"]
     lines.append("|---|---|---|---|---|---|---|")
     for r in dist.itertuples(index=False):
-        name = f"**{r.row}** (chosen)" if r.row == chosen else r.row
+        mark = "chosen" if final else "nearest so far"
+        name = f"**{r.row}** ({mark})" if r.row == chosen else r.row
         lines.append(
             f"| {name} | {r.seeds} | {r.l1:.3f} | {r.success:.3f} | {r.collision:.3f} | "
             f"{r.off_road:.3f} | {r.timeout:.3f} |"
@@ -217,7 +214,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "",
         "## Distance to the target",
         "",
-        _distance_table(dist, chosen),
+        _distance_table(dist, chosen, final=not missing),
         "",
     ]
     if missing:

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from priqn.episodes import resolve_outcomes
+from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import snapshot_budget
 from priqn.runs import RunFolder, Status
@@ -99,11 +99,7 @@ def _as_float(v: Any) -> float:
 def evaluation_success(eval_dir: Path) -> tuple[float, int]:
     """A finished evaluation's success rate averaged over its densities (each weighted
     equally) and its number of episodes."""
-    csv = eval_dir / RunFolder.EVAL_EPISODES
-    try:
-        episodes = resolve_outcomes(pd.read_csv(csv))
-    except (OSError, ValueError, KeyError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+    episodes = read_episodes(eval_dir)
     per_density = episodes.groupby("density")["success"].mean().astype(float)
     return float(per_density.mean()), len(episodes)
 

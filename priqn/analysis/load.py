@@ -75,6 +75,18 @@ class Evaluation:
     """Run folders left out because their evaluation is not complete (``partial=True``)."""
 
 
+def read_episodes(eval_dir: str | Path, resolve: bool = True) -> pd.DataFrame:
+    """``<eval_dir>/episodes.csv``, the one reader of an evaluation's episode table: one
+    outcome per episode (:func:`priqn.episodes.resolve_outcomes`), or with ``resolve``
+    False the flags as written; an unreadable table is one line naming it."""
+    csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
+    try:
+        frame = pd.read_csv(csv)
+        return resolve_outcomes(frame) if resolve else frame
+    except (OSError, ValueError, KeyError) as exc:
+        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+
+
 def find_run_dirs(runs_dir: str | Path) -> list[Path]:
     """Run folders in ``runs_dir`` (a folder with ``config.toml`` or ``eval/``), sorted.
 
@@ -184,10 +196,7 @@ def read_evaluation(
             "('priqn evaluate --reference sumo|random --out DIR' makes one)"
         )
     csv = eval_dir / RunFolder.EVAL_EPISODES
-    try:
-        frame = pd.read_csv(csv, keep_default_na=True)
-    except (OSError, ValueError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from exc
+    frame = read_episodes(eval_dir, resolve=False)  # resolved once all are concatenated
     # The default columns, or those of the run's own objectives (env.objectives).
     columns = episode_columns(names_in_columns(list(frame.columns)) or OBJECTIVES)
     missing = [c for c in columns if c not in frame.columns]

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text, read_json
 from priqn.labels import budget_text
@@ -285,7 +286,6 @@ class Cell:
 def load_cell(path: Path, snapshot: int = 0) -> Cell:
     """A run folder with a complete ``eval/`` (``snapshot`` N: ``eval-at<N>/``): its
     episodes and evaluation config."""
-    import pandas as pd
 
     from priqn.evaluation.protocol import EvalConfig
     from priqn.sim.scenario import manifest_hash
@@ -323,7 +323,7 @@ def load_cell(path: Path, snapshot: int = 0) -> Cell:
             f"{meta_path}: evaluated on another version of the {eval_cfg.family!r} nets "
             "(holdout_hash differs from the shipped manifest); its scenes cannot be replayed"
         )
-    episodes = pd.read_csv(eval_dir / RunFolder.EVAL_EPISODES)
+    episodes = read_episodes(eval_dir, resolve=False)
     return Cell(
         run.path,
         run.name + (f"@{budget_text(snapshot)}" if snapshot else ""),

@@ -30,9 +30,15 @@ import pandas as pd
 
 from priqn.analysis import forecast as planning
 from priqn.analysis import sequential
-from priqn.episodes import resolve_outcomes
+from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
-from priqn.experiment import Experiment, PolicySpec, SequentialSpec, policy_difference
+from priqn.experiment import (
+    Experiment,
+    PolicySpec,
+    SequentialSpec,
+    check_code,
+    policy_difference,
+)
 from priqn.runs import RunFolder, Status
 
 ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
@@ -51,15 +57,6 @@ to 1) and the violation's two parts, for the reports' descriptive tables and fig
 design's endpoint is one of :data:`ENDPOINT_FLAGS`)."""
 
 
-def episodes_table(eval_dir: str | Path) -> pd.DataFrame:
-    """``<eval_dir>/episodes.csv`` with one outcome per episode (:func:`resolve_outcomes`)."""
-    csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
-    try:
-        return resolve_outcomes(pd.read_csv(csv))
-    except (OSError, ValueError, KeyError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
-
-
 def _rate_by_density(episodes: pd.DataFrame, outcome: str) -> pd.Series:
     hit = episodes[list(OUTCOME_RATES[outcome])].astype(bool).any(axis=1)
     return hit.groupby(episodes["density"]).mean().astype(float)
@@ -68,14 +65,14 @@ def _rate_by_density(episodes: pd.DataFrame, outcome: str) -> pd.Series:
 def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series, int]:
     """An evaluation's ``endpoint`` rate per density (index: density, sorted) and the
     number of episodes behind it, from ``<eval_dir>/episodes.csv``."""
-    episodes = episodes_table(eval_dir)
+    episodes = read_episodes(eval_dir)
     return _rate_by_density(episodes, endpoint), len(episodes)
 
 
 def outcome_rates(eval_dir: str | Path) -> tuple[dict[str, float], int]:
     """Every rate of :data:`OUTCOME_RATES` for one evaluation, each averaged over the
     densities as the endpoints are, and the number of episodes (one read of the table)."""
-    episodes = episodes_table(eval_dir)
+    episodes = read_episodes(eval_dir)
     rates = {o: float(_rate_by_density(episodes, o).mean()) for o in OUTCOME_RATES}
     return rates, len(episodes)
 
@@ -166,17 +163,7 @@ def _check_cell(
     sha: str,
 ) -> None:
     """One line when a cell cannot count for ``question`` (its code or its policy)."""
-    problem = question.code_problem(sha)
-    if problem == "unlisted":
-        raise PriqnError(
-            f"{folder.path}: trained at commit {sha[:12]}, which {exp.path} [[question]] "
-            f"{question.name}.code_commits does not list; a question never mixes code versions"
-        )
-    if problem == "dirty":
-        raise PriqnError(
-            f"{folder.path}: trained from a checkout with uncommitted changes ({sha}); "
-            "retrain it from the frozen commit"
-        )
+    check_code(question, sha, folder.path, f"{exp.path} [[question]] {question.name}")
     if seed in exp.row_seeds(pol):
         return  # trained by this grid: the sweep built its config from the row
     wanted = exp.row_config(pol, seed)

@@ -32,9 +32,9 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference
-from priqn.episodes import resolve_outcomes
+from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
-from priqn.experiment import cell_dir_name
+from priqn.experiment import cell_dir_name, check_code
 from priqn.runs import RunFolder, Status
 
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
@@ -61,11 +61,7 @@ class Score:
 def success_by_density(run_dir: str | Path) -> tuple[pd.Series, int]:
     """A cell's hold-out success rate per evaluation density (index: density, sorted) and
     the number of episodes behind it, from its ``eval/episodes.csv``."""
-    csv = RunFolder(run_dir).eval_episodes_path
-    try:
-        episodes = resolve_outcomes(pd.read_csv(csv))
-    except (OSError, ValueError, KeyError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+    episodes = read_episodes(RunFolder(run_dir).eval_dir)
     return episodes.groupby("density")["success"].mean().astype(float), len(episodes)
 
 
@@ -116,18 +112,7 @@ def collect_scores(exp: Any) -> pd.DataFrame:
             score = _cell_score(run_dir, pol.name, seed)
             if score is None:
                 continue
-            problem = seq.code_problem(score.git_sha)
-            if problem == "unlisted":
-                raise PriqnError(
-                    f"{run_dir}: trained at commit {score.git_sha[:12]}, which "
-                    f"{exp.path} [sequential].code_commits does not list; a sequential "
-                    "experiment never mixes code versions (retrain it at the frozen commit)"
-                )
-            if problem == "dirty":
-                raise PriqnError(
-                    f"{run_dir}: trained from a checkout with uncommitted changes "
-                    f"({score.git_sha}); retrain it from the frozen commit"
-                )
+            check_code(seq, score.git_sha, run_dir, f"{exp.path} [sequential]")
             rows.append(dataclasses.asdict(score))
     columns = [f.name for f in dataclasses.fields(Score)]
     return pd.DataFrame(rows, columns=columns)
