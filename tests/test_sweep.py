@@ -1175,6 +1175,21 @@ def test_bench_sweep_arithmetic() -> None:
         concurrency_ratio(0.0, 1.0)
 
 
+def test_bench_sweep_forecast_arithmetic() -> None:
+    """Per-cell 1000 / 800 / 500 decisions/s at 1 / 2 / 4 cells at a time, 33 runs of 2M:
+    one run alone 2000 s; the grid 33 x 2000 s = 18.3 h one at a time, 17 waves x 2500 s =
+    11.8 h two at a time, 9 waves x 4000 s = 10.0 h four at a time (the fewest)."""
+    from priqn.bench.sweep import grid_forecast
+
+    one, n, grid = grid_forecast({1: 1000.0, 2: 800.0, 4: 500.0}, 33, 2_000_000)
+    assert one == pytest.approx(2000 / 3600) and n == 4 and grid == pytest.approx(10.0)
+    assert grid_forecast({1: 1000.0, 2: 400.0}, 33, 2_000_000)[1:] == (1, pytest.approx(18 + 1 / 3))
+    assert grid_forecast({1: 1000.0, 2: 500.0}, 2, 3600)[1] == 1  # a tie: fewer cells
+    for bad in ({2: 800.0}, {1: 0.0}, {}):
+        with pytest.raises(ValueError):
+            grid_forecast(bad, 33, 2_000_000)
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -79,6 +79,26 @@ def scaling_ratios(aggregates: list[float | None]) -> list[float | None]:
     return [None if a is None else a / base for a in aggregates]
 
 
+def grid_forecast(
+    per_cell_rates: dict[int, float], runs: int, decisions: int
+) -> tuple[float, int, float]:
+    """``(hours of one run alone, cells at a time, hours of the grid)`` from measured
+    per-cell decisions/s at each level (cells at a time -> one cell's rate then).
+
+    One run alone: ``decisions`` at the rate of level 1. The grid: ``runs`` runs of
+    ``decisions`` each, ``n`` at a time, in ``ceil(runs / n)`` waves of
+    ``decisions / rate(n)`` seconds; the level with the fewest hours. A last wave of fewer
+    cells would run at least as fast, so the grid figure is an upper bound at that level.
+    """
+    if runs < 1 or decisions < 1 or not per_cell_rates or 1 not in per_cell_rates:
+        raise ValueError("expected runs, decisions >= 1 and a measured rate of one cell alone")
+    if min(per_cell_rates.values()) <= 0:
+        raise ValueError(f"expected decisions/s > 0, got {per_cell_rates}")
+    hours = {n: -(-runs // n) * decisions / rate / 3600.0 for n, rate in per_cell_rates.items()}
+    best = min(hours, key=lambda n: (hours[n], n))
+    return decisions / per_cell_rates[1] / 3600.0, best, hours[best]
+
+
 def parse_cells(text: str) -> list[int]:
     """``--cells``: one count (``2``) or a list of levels (``1,2,4,8``; 1 is put first)."""
     try:
@@ -318,12 +338,26 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--keep", action="store_true", help="keep the temporary runs folder (its path is printed)"
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    parser.add_argument(
+        "--forecast-decisions",
+        type=int,
+        default=2_000_000,
+        help="with a --cells list: forecast runs of this many decisions (default 2,000,000)",
+    )
+    parser.add_argument(
+        "--forecast-runs",
+        type=int,
+        default=33,
+        help="with a --cells list: forecast a grid of this many runs (default 33: Table II)",
+    )
 
 
 def _check(args: argparse.Namespace) -> list[int]:
     """One-line errors for options that cannot measure anything; the ``--cells`` counts."""
     if args.steps < 1:
         raise PriqnError(f"--steps {args.steps}: expected a positive number of decisions")
+    if args.forecast_runs < 1 or args.forecast_decisions < 1:
+        raise PriqnError("--forecast-runs, --forecast-decisions: expected positive numbers")
     counts = parse_cells(str(args.cells))
     if len(counts) > 1:
         return counts
@@ -479,6 +513,14 @@ def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
             else ""
         )
         print(f"most decisions/s: {n} cell(s) at a time ({ratios[best]:.2f}x one cell){share}")
+    rates = {n: a / n for n, a in zip(counts, aggregates, strict=True) if a is not None}
+    if 1 in rates:
+        one, n, grid = grid_forecast(rates, args.forecast_runs, args.forecast_decisions)
+        print(
+            f"forecast on this box: one {args.forecast_decisions:,}-decision run {one:.1f} h; "
+            f"{args.forecast_runs} such runs {grid:.1f} h at {n} cell(s) at a time (training "
+            f"loop only, from these {args.steps:,}-decision cells: no evaluation)"
+        )
     if args.json is not None:
         args.json.write_text(
             json.dumps(
