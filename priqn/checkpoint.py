@@ -2,7 +2,8 @@
 
 * :class:`Checkpoint` — ``checkpoints/latest.pt``: everything a resume restores (the
   learner's networks, Adam, τ generator and agent state, the replay and exploration
-  generators, the counters, the observation in flight) plus what loading a policy from
+  generators, the counters, the observation in flight, each env worker's episode in
+  flight, the logging state, the list of replay files) plus what loading a policy from
   it needs (``obs_shapes``, ``num_actions``).
 * :class:`PolicyState` — ``policy.pt``: the final online weights and the agent's learned
   state of a complete run (a few MB; all a committed result folder keeps).
