@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from priqn.analysis.load import read_episodes
+from priqn.analysis.standstill import EPISODE_KEYS, episodes_in
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text, read_json
 from priqn.labels import budget_text
@@ -514,7 +515,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
             want = min(cfg.episodes or len(cell.episodes), len(cell.episodes))
             frame = pd.read_csv(cached) if cached.is_file() else None
             stale = frame is not None and not set(_NEWEST_COLUMNS) <= set(frame.columns)
-            if frame is None or stale or _episodes_in(frame) != want:
+            if frame is None or stale or episodes_in(frame) != want:
                 frame = replay_cell(cell, cfg, progress=bar)
                 atomic_write_text(cached, frame.to_csv(index=False, lineterminator="\n"))
             else:
@@ -526,7 +527,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
                 "seed": int(RunFolder(cell.path).config().seed),
                 "holdout_success": cell.holdout_success,
                 "collapsed": cell.holdout_success < cfg.collapsed_below,
-                "replay_matches": _rate(frame.groupby(_EPISODE)["replay_matches"].first()),
+                "replay_matches": _rate(frame.groupby(EPISODE_KEYS)["replay_matches"].first()),
             }
             row.update(seed_summary(frame, cfg))
             seeds.append(row)
@@ -569,14 +570,9 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
     return out / "mechanism.csv"
 
 
-_EPISODE = ["eval_run", "net", "density", "episode"]
 _NEWEST_COLUMNS = ("episode_timeout", "speed_mps", "calibrated_head")
 """Decision columns an older priqn did not write: a cached file without them is replayed
 (before ``calibrated_head``, ``--top risk`` calibrated the risk head)."""
-
-
-def _episodes_in(frame: Any) -> int:
-    return int(frame.groupby(_EPISODE).ngroups) if len(frame) else 0
 
 
 # ----------------------------------------------------------------------------- CLI

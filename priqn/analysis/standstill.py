@@ -374,7 +374,7 @@ def analyse(
         for cell in cells:
             cached = decisions_dir / f"{cell.name}.csv"
             frame = pd.read_csv(cached) if cached.is_file() else None
-            if frame is None or _episodes_in(frame) != len(scenes[cell.name]):
+            if frame is None or episodes_in(frame) != len(scenes[cell.name]):
                 frame = replay(cell, scenes[cell.name], target, progress=bar)
                 atomic_write_text(cached, frame.to_csv(index=False, lineterminator="\n"))
             else:
@@ -412,22 +412,24 @@ def analyse(
     return out / "standstill.csv"
 
 
-_EPISODE = ["eval_run", "net", "density", "episode"]
+EPISODE_KEYS = ["eval_run", "net", "density", "episode"]
+"""The columns that name one replayed episode in a per-decision table."""
 
 
-def _episodes_in(frame: Any) -> int:
-    return int(frame.groupby(_EPISODE).ngroups) if len(frame) else 0
+def episodes_in(frame: Any) -> int:
+    """How many episodes a per-decision table holds (0 for an empty one)."""
+    return int(frame.groupby(EPISODE_KEYS).ngroups) if len(frame) else 0
 
 
 def replay_matches(frame: Any, evaluated: Any) -> float:
     """Share of replayed episodes whose length, success and timeout equal their row of
     the cell's ``eval/episodes.csv`` (``evaluated``, pandas)."""
-    played = frame.groupby(_EPISODE, sort=False).agg(
+    played = frame.groupby(EPISODE_KEYS, sort=False).agg(
         steps=("decision", "size"),
         success=("episode_success", "first"),
         timeout=("episode_timeout", "first"),
     )
-    want = evaluated.set_index(_EPISODE)[["steps", "success", "timeout"]]
+    want = evaluated.set_index(EPISODE_KEYS)[["steps", "success", "timeout"]]
     same = [
         int(want.loc[key, "steps"]) == int(r.steps)
         and bool(want.loc[key, "success"]) == bool(r.success)
