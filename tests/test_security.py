@@ -10,6 +10,7 @@ loads through the safe path.
 
 from __future__ import annotations
 
+import json
 import os
 import shlex
 import shutil
@@ -113,6 +114,13 @@ def test_inspect_refuses_a_crafted_policy(foreign, tmp_path):
 
 def test_train_resume_refuses_a_crafted_checkpoint(foreign):
     _, bad_latest, marker = foreign
+    # As if this code had written it: a resume refuses another commit's checkpoint before
+    # reading it, and the crafted file must meet the loader's own refusal.
+    from priqn.provenance import git_sha
+
+    meta = json.loads((bad_latest / "meta.json").read_text())
+    meta["git_sha"] = git_sha()
+    (bad_latest / "meta.json").write_text(json.dumps(meta))
     res = priqn("train", "--resume", str(bad_latest), "--device", "cpu")
     assert_refused(res, bad_latest / "checkpoints/latest.pt", marker)
 
