@@ -64,8 +64,21 @@ def git_sha(root: Path | None = None) -> str:
     return (sha or "unknown") + ("-dirty" if dirty else "")
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``, else ``platform.processor()``): float
+    results of the learner depend on it (SIMD kernels), so a run records it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def versions() -> dict[str, str]:
-    """Versions of priqn, Python, torch, numpy, gymnasium and SUMO (SUMO's never fatal)."""
+    """Versions of priqn, Python, torch, numpy, gymnasium and SUMO (SUMO's never fatal),
+    and the CPU model (``cpu``)."""
     import gymnasium
     import torch
 
@@ -77,6 +90,7 @@ def versions() -> dict[str, str]:
         "torch": torch.__version__,
         "numpy": np.__version__,
         "gymnasium": gymnasium.__version__,
+        "cpu": cpu_model(),
     }
     try:
         from priqn.sim.sumo import sumo_version

@@ -316,11 +316,22 @@ class RunFolder:
 
     def mark_resume_exact(self) -> None:
         """Record that this session's resume restored the replay buffer and the episodes in
-        flight (meta.json ``sessions[-1].exact``): the run cannot tell it was stopped, so
-        :meth:`resumed_at` and the reports no longer list it."""
+        flight on the CPU model of the session before (meta.json ``sessions[-1].exact``):
+        the run cannot tell it was stopped, so :meth:`resumed_at` and the reports no longer
+        list it."""
         meta = self.meta()
         meta["sessions"][-1]["exact"] = True
         self.write_meta(meta)
+
+    def same_cpu_as_before(self) -> bool:
+        """This session runs on the CPU model the previous one ran on (both recorded): the
+        learner's float results depend on it (measured: another Xeon / EPYC gave a loss
+        differing in its 7th digit after 2,552 decisions), so only then is a resume exact."""
+        sessions = self.meta().get("sessions") or []
+        if len(sessions) < 2:
+            return False
+        before, now = sessions[-2].get("cpu"), sessions[-1].get("cpu")
+        return bool(before) and before == now and before != "unknown"
 
     def trained_to(self) -> int:
         """Decisions the run has trained, as its meta.json records them: the budget
@@ -411,6 +422,7 @@ class RunFolder:
                 "started": datetime.now(UTC).isoformat(timespec="seconds"),
                 "resume": resume,
                 "from_step": int(meta.get("steps_done", 0)) if resume else 0,
+                "cpu": provenance.versions.get("cpu", "unknown"),
             }
         )
         self.write_meta(meta)

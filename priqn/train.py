@@ -281,6 +281,8 @@ class Trainer:
         """The latest learner update's statistics (loss, q_mean, target |S_r|), for logging."""
         self.replay_chunks: list[dict[str, Any]] | None = None
         """The replay files the latest checkpoint names (the next one adds to them)."""
+        self.same_learner = True
+        """A resume restored the learner on the device it was written on (τ generator too)."""
 
     def facts(self) -> dict[str, Any]:
         """What meta.json records about this session's learner and replay buffer."""
@@ -490,7 +492,10 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> Checkpoint:
             f"({', '.join(state.objectives)}) but {run.CONFIG} lists ({', '.join(t.objectives)}); "
             "restore the run's config.toml or start a new run"
         )
-    if not restore(lambda: t.learner.load_state_dict(state.learner), run.latest_checkpoint, REMEDY):
+    t.same_learner = restore(
+        lambda: t.learner.load_state_dict(state.learner), run.latest_checkpoint, REMEDY
+    )
+    if not t.same_learner:
         written_on = "cuda" if device.type == "cpu" else "cpu"
         print(
             f"priqn train: {run.path.name}: the checkpoint was written on {written_on}, this "
@@ -542,7 +547,14 @@ def _start_episodes(
                     f"the checkpoint's observation ('{key}' differs): the code, the nets or "
                     "SUMO changed since it was written; train it again with --force"
                 )
-        run.mark_resume_exact()
+        if t.same_learner and run.same_cpu_as_before():
+            run.mark_resume_exact()
+        else:
+            print(
+                f"priqn train: {run.path.name}: resumed with its episodes in flight and replay "
+                "buffer, but on another CPU model or device than the session before: the "
+                "learner's floats may differ from there on (not marked exact)"
+            )
         return obs
     obs, _ = envs.reset(seed=reset_seed)
     if resumed is not None and run.replay_files(resumed):

@@ -182,3 +182,20 @@ def test_bench_replay_measures_both_writes(tmp_path: Path) -> None:
     for mode in ("whole, uncompressed", "rows since last, compressed", "load whole, compressed"):
         assert f"    {mode} " in out.stdout, out.stdout
     assert not list(tmp_path.iterdir())  # its files went with their temporary folder
+
+
+def test_a_resume_on_another_cpu_model_is_not_exact(tmp_path: Path) -> None:
+    """The learner's floats depend on the CPU model: only a resume on the model of the
+    session before counts as exact (an unknown or missing model does not)."""
+    from priqn.runs import RunFolder
+
+    run = RunFolder(tmp_path / "run")
+    run.path.mkdir()
+    cases = [("Xeon", "Xeon", True), ("Xeon", "EPYC", False), (None, "Xeon", False),
+             ("unknown", "unknown", False)]  # fmt: skip
+    for before, now, same in cases:
+        sessions = [{"resume": False, "cpu": before}, {"resume": True, "cpu": now}]
+        run.write_meta({"sessions": [{k: v for k, v in s.items() if v} for s in sessions]})
+        assert run.same_cpu_as_before() is same, (before, now)
+    run.write_meta({"sessions": [{"resume": False, "cpu": "Xeon"}]})
+    assert run.same_cpu_as_before() is False
