@@ -200,7 +200,7 @@ class ReplayBuffer:
         """
         used = int(min(self.written.max(), self.rows))
         arrays = {f"obs.{k}": a[:, :used] for k, a in self.obs.items()}
-        for name in ("action", "reward", "starts", "ended", "terminated"):
+        for name in _ROW_ARRAYS:
             arrays[name] = getattr(self, name)[:, :used]
         arrays["written"] = self.written
         np.savez(fh, **arrays)
@@ -210,8 +210,9 @@ class ReplayBuffer:
         positions :attr:`written` had at the previous save; zeros for the first) into the
         open binary ``fh``; returns :attr:`written` now (the next save's ``since_E``).
 
-        One zip of zstd-compressed ``.npy`` members (:func:`write_arrays`): ``end`` ``[E]``, ``segments`` ``[S, 3]`` (env, first, last + 1
-        absolute row of each stretch that does not wrap around the ring) and each segment's
+        One zip of zstd-compressed ``.npy`` members (:func:`write_arrays`): ``end`` ``[E]``,
+        ``segments`` ``[S, 3]`` (env, first, last + 1 absolute row of each stretch that does
+        not wrap around the ring) and each segment's
         rows of every array (``obs.<key>.<s>``, ``action.<s>``, ...), written from views of
         the ring, streamed (no copy of the rows). Rows the ring has overwritten since are
         left out. :meth:`load_rows` applies such files in the order they were written. BEV
@@ -261,7 +262,7 @@ class ReplayBuffer:
             self._copy(self.written, data["written"], "written")
             for k in self.obs:
                 self._copy(self.obs[k], data[f"obs.{k}"], f"obs.{k}")
-            for name in ("action", "reward", "starts", "ended", "terminated"):
+            for name in _ROW_ARRAYS:
                 self._copy(getattr(self, name), data[name], name)
 
     @staticmethod
@@ -278,7 +279,7 @@ class ReplayBuffer:
 
 
 _ROW_ARRAYS = ("action", "reward", "starts", "ended", "terminated")
-"""The per-row arrays beside the observations."""
+"""The per-row arrays beside the observations (every file format writes them in this order)."""
 
 
 ZSTD_LEVEL = 3
