@@ -28,7 +28,7 @@ COMPARATOR_NAMES: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd
 ``priqn.preorder.COMPARATOR_FUNCTIONS``)."""
 PREORDER_PRESETS: tuple[str, ...] = ("total", "partial", "right-of-way")
 """Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
-COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
+COMPILE_MODES: tuple[str, ...] = ("auto", "graphs", "on", "off")
 """Values of ``learner.compile`` (``priqn.agents.learner.resolve_compile``)."""
 
 
@@ -143,7 +143,7 @@ class LearnerConfig:
     autocast_bf16: bool = False
     """Run the network's forward passes in bfloat16 autocast (loss, targets and subsets stay float32); faster on CPUs with bf16 support, see docs/implementation-details.md."""
     compile: str = "auto"
-    """torch.compile the update (target forward; online forward, loss and backward; CUDA graphs on CUDA): auto (eager everywhere for now: on this project's 2-core CPU it did not pay; on an H100 it gave 1.6-2.0x updates/s but failed CUDA resume/device-move tests: docs/implementation-details.md §12), on (compile; opt in on a GPU), or off (the eager update, bit for bit)."""
+    """How the update runs: auto (CUDA graphs on CUDA, eager elsewhere), graphs (the update's network passes and backward replayed from CUDA graphs: the eager kernels without their launch cost; CUDA only), on (torch.compile; CUDA graphs on CUDA), or off (the eager update, bit for bit). docs/implementation-details.md §12."""
 
     def __post_init__(self) -> None:
         if self.compile not in COMPILE_MODES:

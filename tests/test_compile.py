@@ -4,7 +4,8 @@ The compiled update runs the same operations as the eager one, so it may differ 
 float rounding (kernel fusion reorders sums): on CPU the losses of 8 updates agree within
 1e-5 relative and the weights within 1e-5 absolute. τ are drawn eagerly from the same
 generator either way, so the τ stream (and the global RNG) is left exactly as eager
-leaves it. On CUDA (mode "reduce-overhead": CUDA graphs) the same check runs with
+leaves it. On CUDA (``on``: mode "reduce-overhead", CUDA graphs; ``graphs``: the eager
+kernels recorded as CUDA graphs, the default there) the same check runs with
 looser bounds (cuDNN may pick other algorithms): losses within 1e-3 relative, weights
 within 1e-4 (Adam's ε = 3.125e-4 keeps a rounding difference in a gradient from moving
 a weight by more than about 3x that difference a step); skipped without CUDA.
@@ -59,10 +60,10 @@ def run_updates(
 
 
 def assert_same_training(
-    name: str, device: torch.device, loss_rtol: float, weight_atol: float
+    name: str, device: torch.device, loss_rtol: float, weight_atol: float, setting: str = "on"
 ) -> None:
     eager_losses, eager, eager_rng = run_updates(name, "off", device)
-    comp_losses, comp, comp_rng = run_updates(name, "on", device)
+    comp_losses, comp, comp_rng = run_updates(name, setting, device)
     assert not eager.compiled and comp.compiled
     np.testing.assert_allclose(comp_losses, eager_losses, rtol=loss_rtol)
     comp_state = comp.online.state_dict()
@@ -85,17 +86,22 @@ def test_compile_settings_resolve_by_device(monkeypatch: pytest.MonkeyPatch) -> 
         LearnerConfig(compile="yes")
     with pytest.raises(PriqnError, match="learner.compile: unknown 'yes'"):
         resolve_compile("yes", CPU)
-    assert resolve_compile("auto", CPU) is False  # it did not pay on the project's CPU
-    assert resolve_compile("off", CPU) is False
-    assert resolve_compile("on", CPU) is True
+    assert resolve_compile("auto", CPU) == "eager"  # it did not pay on the project's CPU
+    assert resolve_compile("off", CPU) == "eager"
+    assert resolve_compile("on", CPU) == "inductor"
+    with pytest.raises(PriqnError, match="'graphs' records CUDA graphs, not possible with a cpu"):
+        resolve_compile("graphs", CPU)
+    assert resolve_compile("auto", CUDA) == "graphs"  # the default on a GPU
+    assert resolve_compile("auto", CUDA, bf16=True) == "eager"  # autocast is not recorded
+    with pytest.raises(PriqnError, match="not possible with bf16 autocast"):
+        resolve_compile("graphs", CUDA, bf16=True)
+    assert resolve_compile("graphs", CUDA) == "graphs"
+    assert resolve_compile("off", CUDA) == "eager"
     monkeypatch.setattr(learner_mod, "has_compiler", lambda device: True)
-    assert resolve_compile("auto", CUDA) is False  # opt-in until CUDA resume works compiled
-    assert resolve_compile("on", CUDA) is True
-    monkeypatch.setattr(learner_mod, "COMPILE_AUTO_DEVICES", ("cuda",))
-    assert resolve_compile("auto", CUDA) is True  # auto follows COMPILE_AUTO_DEVICES
-    assert resolve_compile("off", CUDA) is False
+    assert resolve_compile("on", CUDA) == "inductor"
+    monkeypatch.setattr(learner_mod, "AUTO_UPDATE", {})
+    assert resolve_compile("auto", CUDA) == "eager"  # auto follows AUTO_UPDATE
     monkeypatch.setattr(learner_mod, "has_compiler", lambda device: False)
-    assert resolve_compile("auto", CUDA) is False  # no Triton: eager, silently
     with pytest.raises(PriqnError, match="no back-end for cuda"):
         resolve_compile("on", CUDA)
 
@@ -106,7 +112,7 @@ def test_the_default_presets_learner_is_eager_on_cpu() -> None:
 
     for preset in ("default", "paper"):
         cfg = resolve_config(preset=preset, agent="pr-iqn")
-        assert resolve_compile(cfg.learner.compile, CPU) is False
+        assert resolve_compile(cfg.learner.compile, CPU) == "eager"
     agent = make_agent("iqn")
     learner = Learner(small_net(1), agent, LearnerConfig(), CPU, tau_seed=0)
     assert not learner.compiled and learner._target_forward is learner.target
@@ -133,8 +139,49 @@ def test_compiled_update_equals_eager_on_cuda(name: str) -> None:
 
 
 @needs_cuda
-def test_auto_leaves_the_cuda_update_eager() -> None:
-    """Opt-in for now (learner.COMPILE_AUTO_DEVICES): CUDA resume failed compiled."""
+@pytest.mark.parametrize("name", ["iqn", "ensemble-iqn", "pr-iqn"])
+def test_graphed_update_equals_eager_on_cuda(name: str) -> None:
+    """The CUDA graphs replay the eager kernels: same losses and weights within the CUDA
+    bounds (target syncs every 3 updates reach the recorded target network)."""
+    assert_same_training(name, CUDA, LOSS_RTOL_CUDA, WEIGHT_ATOL_CUDA, setting="graphs")
+
+
+@needs_cuda
+def test_auto_records_cuda_graphs() -> None:
     agent = make_agent("pr-iqn")
     learner = Learner(small_net(agent.num_heads), agent, LearnerConfig(), CUDA, tau_seed=0)
-    assert learner.compiled is False
+    assert learner.update_kind == "graphs" and learner.compiled
+
+
+@needs_cuda
+def test_graphed_learners_side_by_side_each_train_as_alone() -> None:
+    """Several learners in one process (as in tests and notebooks), their updates
+    interleaved, a batch size changing half-way (a second pair of graphs) and one learner
+    resumed in place from the other's state: each follows its eager twin."""
+
+    def learners(setting: str) -> list[Learner]:
+        cfg = LearnerConfig(lr=1e-3, num_tau_samples=8, num_tau_prime_samples=8,
+                            num_quantiles=8, target_update_interval=3, compile=setting)  # fmt: skip
+        out = []
+        for seed, name in enumerate(("pr-iqn", "iqn", "pr-iqn")):
+            agent = make_agent(name)
+            torch.manual_seed(seed)
+            out.append(Learner(small_net(agent.num_heads), agent, cfg, CUDA, tau_seed=seed))
+        return out
+
+    def train(group: list[Learner]) -> list[float]:
+        rng = np.random.default_rng(0)
+        losses = []
+        for step in range(10):
+            batch = random_batch(rng, 16 if step < 5 else 8, discount=0.9)
+            losses += [learner.update(batch)["loss"] for learner in group]
+            if step == 6:  # the third resumes from the first's state, in place
+                group[2].load_state_dict(group[0].state_dict())
+        return losses
+
+    eager, graphed = learners("off"), learners("graphs")
+    assert all(g.update_kind == "graphs" for g in graphed)
+    np.testing.assert_allclose(train(graphed), train(eager), rtol=LOSS_RTOL_CUDA)
+    for e, g in zip(eager, graphed, strict=True):
+        for a, b in zip(e.online.parameters(), g.online.parameters(), strict=True):
+            torch.testing.assert_close(b, a, rtol=0, atol=WEIGHT_ATOL_CUDA)

@@ -100,17 +100,19 @@ def test_bench_train_twin_ratios_pair_each_case_with_its_one_switch() -> None:
     nondeterministic case, even when asked."""
     from priqn.bench.train import twin_ratios, updates_per_second
 
-    def case(agent: str, compiled: bool, det: bool, ups: float) -> dict:
-        return {"agent": agent, "bf16": False, "compiled": compiled, "deterministic": det,
+    def case(agent: str, compile_: str, det: bool, ups: float) -> dict:
+        return {"agent": agent, "bf16": False, "compile": compile_, "deterministic": det,
                 "device": "cuda", "updates_per_s": ups, "ms_per_update": 1000 / ups}  # fmt: skip
 
-    rows = [case("iqn", False, True, 100.0), case("iqn", False, False, 140.0),
-            case("iqn", True, True, 300.0), case("iqn", True, False, 280.0)]  # fmt: skip
+    rows = [case("iqn", "off", True, 100.0), case("iqn", "off", False, 140.0),
+            case("iqn", "on", True, 300.0), case("iqn", "on", False, 280.0),
+            case("iqn", "graphs", True, 250.0)]  # fmt: skip
     assert twin_ratios(rows) == [
-        "iqn: compiled / eager on cuda: 3.00x updates/s (10.00 -> 3.33 ms/update)",
+        "iqn: on / eager on cuda: 3.00x updates/s (10.00 -> 3.33 ms/update)",
+        "iqn: graphs / eager on cuda: 2.50x updates/s (10.00 -> 4.00 ms/update)",
         "iqn: nondeterministic / deterministic on cuda: 1.40x updates/s (10.00 -> 7.14 ms/update)",
-        "iqn nondet: compiled / eager on cuda: 2.00x updates/s (7.14 -> 3.57 ms/update)",
-        "iqn comp: nondeterministic / deterministic on cuda: 0.93x updates/s (3.33 -> 3.57 ms/update)",
+        "iqn nondet: on / eager on cuda: 2.00x updates/s (7.14 -> 3.57 ms/update)",
+        "iqn on: nondeterministic / deterministic on cuda: 0.93x updates/s (3.33 -> 3.57 ms/update)",
     ]
     assert twin_ratios(rows[:1]) == []
     cpu = updates_per_second("default", ["iqn"], 4, 0.05, "cpu", rounds=1, nondeterministic=True)

@@ -1196,6 +1196,9 @@ def test_bench_sweep_forecast_arithmetic() -> None:
         (["--steps", "0"], "--steps 0: expected a positive number"),
         (["--jobs", "1"], "--jobs 1: expected 2 or more"),
         (["--cells", "2", "--jobs", "3"], "--cells 2: expected at least --jobs (3) cells"),
+        (["--workers", "4,8", "--cells", "1,2"], "--workers 4,8: a list of worker counts needs"),
+        (["--workers", "share"], "--workers share: expected a --cells list"),
+        (["--workers", "0"], "--workers 0: expected a positive number"),
     ],
 )
 def test_bench_sweep_rejects_options_that_measure_nothing(argv: list[str], message: str) -> None:
@@ -1540,9 +1543,38 @@ def test_bench_sweep_scaling_arithmetic_and_cells_option() -> None:
 
 
 def test_bench_sweep_cells_take_further_overrides(tmp_path: Path) -> None:
-    from priqn.bench.sweep import train_command
+    import argparse
+
+    from priqn.bench.sweep import _workers, configure_parser, parse_workers, train_command
 
     cmd = train_command(tmp_path, "c", 3, "iqn", "tjunction", 800, "cuda", ("learner.compile=off",))
     sets = [cmd[i + 1] for i, arg in enumerate(cmd) if arg == "--set"]
     assert sets[-1] == "learner.compile=off" and "replay.learning_starts=200" in sets
     assert cmd[cmd.index("--device") + 1] == "cuda"
+    assert cmd[cmd.index("--preset") + 1] == "default"
+    paper = train_command(tmp_path, "c", 0, "pr-iqn", "tjunction", 800, "cuda", preset="paper")
+    assert paper[paper.index("--preset") + 1] == "paper"
+    # Env workers per cell: the preset's, a number, or the cores split over a level's cells.
+    assert parse_workers("") == [] and parse_workers("share") == []
+    assert parse_workers("16,4,8") == [16, 4, 8]
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    assert _workers(parser.parse_args([]), 4, 16) == ()
+    assert _workers(parser.parse_args(["--workers", "6"]), 4, 16) == ("num_envs=6",)
+    share = parser.parse_args(["--workers", "share"])
+    assert [_workers(share, n, 16) for n in (1, 2, 4, 8, 32)] == [
+        ("num_envs=16",), ("num_envs=8",), ("num_envs=4",), ("num_envs=2",), ("num_envs=1",)
+    ]  # fmt: skip
+
+
+def test_bench_sweep_steady_rate_leaves_the_start_out() -> None:
+    """Episodes end at decisions 100, 400, 600, 1000 at 10, 12, 14, 18 s of wall time: the
+    second half starts with the episode at 600 (>= 500), so the steady rate is
+    (1000 - 600) / (18 - 14) = 100 decisions/s, while the whole run gave 1000 / 18 = 55.6."""
+    from priqn.bench.sweep import steady_rate
+
+    episodes = [(100, 10.0), (400, 12.0), (600, 14.0), (1000, 18.0)]
+    assert steady_rate(episodes) == pytest.approx(100.0)
+    assert steady_rate(episodes, from_fraction=0.0) == pytest.approx(900 / 8)
+    assert steady_rate(episodes[:1]) is None  # one episode: no interval
+    assert steady_rate([]) is None

@@ -15,6 +15,7 @@ from typing import Any
 import torch
 
 from priqn.agent_config import COMPILE_MODES, LearnerConfig
+from priqn.agents.graphs import GraphedPasses
 from priqn.agents.loss import quantile_huber_loss
 from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
@@ -43,16 +44,21 @@ def _own_group(quantiles_BHTA: torch.Tensor, groups: int) -> torch.Tensor:
     return torch.diagonal(blocks, dim1=1, dim2=2).permute(0, 3, 1, 2)
 
 
-COMPILE_AUTO_DEVICES: tuple[str, ...] = ()
-"""Device types where ``learner.compile = "auto"`` compiles the update: none, so compiling
-is opt-in (``"on"``). Not ``cpu``: on this project's 2-core CPU the compiled update was no
-faster than the eager one. Not ``cuda`` yet, although it pays there: on an H100
-(2026-11-26, ``priqn bench train --device cuda --compile``) compiled / eager was 1.81x
-(IQN) and 1.77x (Pr-IQN) updates/s at the default preset, 2.02x and 1.62x at the paper's;
-but with CUDA graphs, ``tests/test_cuda.py``'s resume and device-move cases (several
-learners in one process) failed inside torch's cudagraph trees and the process aborted at
-exit (docs/implementation-details.md §12). One learner per process, as ``priqn train``
-runs, was not shown to fail; it was not shown end to end either."""
+AUTO_UPDATE: dict[str, str] = {"cuda": "graphs"}
+"""What ``learner.compile = "auto"`` runs, by device type (any other device: ``eager``).
+
+- ``cuda``: ``graphs`` (:mod:`priqn.agents.graphs`). At batch 32 the update is
+  launch-bound there; recording its passes as CUDA graphs removes the launches without
+  changing a kernel. torch.compile (``on``) was faster on an H100 (1.6-2.0x eager,
+  2026-11-26) but its shared CUDA-graph trees failed ``tests/test_cuda.py``'s resume and
+  device-move cases and aborted the process at exit (docs/implementation-details.md §12).
+- ``cpu``: eager. On this project's 2-core CPU the compiled update was no faster, and the
+  eager update keeps seeded runs bit for bit.
+"""
+
+UPDATE_KINDS: tuple[str, ...] = ("eager", "graphs", "inductor")
+"""How an update runs (:func:`resolve_compile`): the eager kernels; the same kernels
+replayed from CUDA graphs; or torch.compile's inductor kernels (CUDA graphs on CUDA)."""
 
 
 def has_compiler(device: torch.device) -> bool:
@@ -67,27 +73,37 @@ def has_compiler(device: torch.device) -> bool:
     return device.type == "cpu"
 
 
-def resolve_compile(setting: str, device: torch.device) -> bool:
-    """``learner.compile`` on ``device``: True to compile the update.
+def resolve_compile(setting: str, device: torch.device, bf16: bool = False) -> str:
+    """``learner.compile`` on ``device`` → the update's kind (:data:`UPDATE_KINDS`).
 
-    ``"auto"`` compiles on the device types of :data:`COMPILE_AUTO_DEVICES` where a
-    compiler is available; ``"on"`` always (a missing compiler is a one-line error);
-    ``"off"`` never (the eager update, bit for bit).
+    ``"auto"`` runs :data:`AUTO_UPDATE` for the device type (eager where bf16 autocast is
+    on, which the graphs do not record); ``"graphs"`` the CUDA graphs (a CPU device or
+    bf16 is a one-line error); ``"on"`` torch.compile (a missing compiler is a one-line
+    error); ``"off"`` the eager update, bit for bit.
     """
     if setting not in COMPILE_MODES:
         raise PriqnError(
             f"learner.compile: unknown {setting!r} (valid: {', '.join(COMPILE_MODES)})"
         )
     if setting == "off":
-        return False
+        return "eager"
     if setting == "auto":
-        return device.type in COMPILE_AUTO_DEVICES and has_compiler(device)
+        kind = AUTO_UPDATE.get(device.type, "eager")
+        return "eager" if kind == "graphs" and bf16 else kind
+    if setting == "graphs":
+        if device.type != "cuda" or bf16:
+            why = "bf16 autocast" if device.type == "cuda" else f"a {device.type} device"
+            raise PriqnError(
+                f"learner.compile = 'graphs' records CUDA graphs, not possible with {why}; "
+                "set learner.compile = 'auto' or 'off'"
+            )
+        return "graphs"
     if not has_compiler(device):
         raise PriqnError(
             f"learner.compile = 'on': torch.compile has no back-end for {device.type} here "
             "(CUDA needs the triton package); set learner.compile = 'auto' or 'off'"
         )
-    return True
+    return "inductor"
 
 
 def _online_loss(
@@ -119,11 +135,13 @@ def _online_loss(
 class Learner:
     """Online + target network, Adam, and one IQN update per :meth:`update` call.
 
-    With ``cfg.compile`` resolving to on (:func:`resolve_compile`), the target network's
-    forward pass and the online forward + loss (and so its backward) run through
-    ``torch.compile`` — mode ``"reduce-overhead"`` (CUDA graphs) on CUDA. τ are drawn
-    eagerly from the same generator either way, and the target rules (Algorithm 1 for
-    Pr-IQN), Adam and gradient clipping stay eager.
+    How the update runs is ``cfg.compile`` resolved on the device (:func:`resolve_compile`):
+    eager; ``graphs`` (CUDA, the default there), where the target network's forward pass
+    and the online forward + loss + backward are replayed from this learner's own CUDA
+    graphs (:mod:`priqn.agents.graphs`); or ``inductor`` (``on``), where they run through
+    ``torch.compile`` (mode ``"reduce-overhead"`` on CUDA). τ are drawn eagerly from the
+    same generator in every kind, and the target rules (Algorithm 1 for Pr-IQN), Adam and
+    gradient clipping stay eager.
     """
 
     def __init__(
@@ -144,11 +162,17 @@ class Learner:
         self.tau_generator.manual_seed(int(tau_seed))
         self.grid_K = tau_grid(cfg.num_quantiles, device)
         self.updates = 0
-        self.compiled = resolve_compile(cfg.compile, device)
-        """Whether the update runs compiled (``cfg.compile`` resolved on ``device``)."""
+        self.update_kind = resolve_compile(cfg.compile, device, cfg.autocast_bf16)
+        """How the update runs (:data:`UPDATE_KINDS`; ``cfg.compile`` resolved on ``device``)."""
+        self.compiled = self.update_kind != "eager"
+        """Whether the update runs other than eagerly."""
         self._target_forward: Callable[..., torch.Tensor] = self.target
         self._loss: Callable[..., tuple[torch.Tensor, torch.Tensor]] = _online_loss
-        if self.compiled:
+        self._graphs: GraphedPasses | None = None
+        if self.update_kind == "graphs":
+            self._graphs = GraphedPasses(self.online, self.target, _online_loss)
+            self._target_forward = self._graphs.target_forward
+        elif self.update_kind == "inductor":
             mode = "reduce-overhead" if device.type == "cuda" else None
             self._target_forward = torch.compile(self.target, mode=mode, dynamic=False)
             self._loss = torch.compile(_online_loss, mode=mode, dynamic=False)
@@ -175,7 +199,7 @@ class Learner:
         G = H if self.agent.spec.own_taus else 1
         taus_BGN = torch.rand(B, G, N, generator=self.tau_generator, device=dev)
         taus_prime_BGNp = torch.rand(B, G, Np, generator=self.tau_generator, device=dev)
-        if self.compiled and dev.type == "cuda":
+        if self.update_kind == "inductor" and dev.type == "cuda":
             torch.compiler.cudagraph_mark_step_begin()  # last update's graph outputs are free
 
         with torch.no_grad(), self._autocast():
@@ -196,17 +220,21 @@ class Learner:
             discount_BH = self.agent.head_discounts(discount_BO)
             target_BHNp = reward_BH[:, :, None] + discount_BH[:, :, None] * next_BHNp
 
-        loss, pred_BHN = self._run(
-            self._loss, self.online, obs, taus_BGN, action_B, target_BHNp, cfg.kappa,
-            cfg.autocast_bf16,
-        )  # fmt: skip
-
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        if self._graphs is not None:  # forward, loss and backward in one replay
+            loss, pred_BHN = self._graphs.loss_and_backward(
+                obs, taus_BGN, action_B, target_BHNp, cfg.kappa
+            )
+        else:
+            loss, pred_BHN = self._run(
+                self._loss, self.online, obs, taus_BGN, action_B, target_BHNp, cfg.kappa,
+                cfg.autocast_bf16,
+            )  # fmt: skip
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
         if cfg.grad_clip_norm > 0:
             torch.nn.utils.clip_grad_norm_(self.online.parameters(), cfg.grad_clip_norm)
         self.optimizer.step()
-        if self.compiled:  # gradients may live in CUDA-graph memory: drop them with the step
+        if self.update_kind == "inductor":  # gradients in CUDA-graph-tree memory: drop them
             self.optimizer.zero_grad(set_to_none=True)
         self.updates += 1
         if self.updates % cfg.target_update_interval == 0:
@@ -219,7 +247,7 @@ class Learner:
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)``; a compiled ``fn`` that fails to build is one line naming the fix."""
-        if not self.compiled:
+        if self.update_kind != "inductor":
             return fn(*args)
         try:
             return fn(*args)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
 import json
 import os
 import shutil
@@ -114,6 +115,29 @@ def parse_cells(text: str) -> list[int]:
     return sorted(set(counts) | {1})
 
 
+def parse_workers(text: str) -> list[int]:
+    """``--workers``: ``[]`` (the preset's, or ``share``), one count, or a list of counts."""
+    if text in ("", "share"):
+        return []
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        raise PriqnError(
+            f"--workers {text}: expected a positive number, a list such as 4,8,16, or 'share'"
+        )
+    return counts
+
+
+def _workers(args: argparse.Namespace, cells: int, cores: int) -> tuple[str, ...]:
+    """The ``num_envs`` override of a level of ``cells`` cells at a time (none: the preset's)."""
+    if args.workers == "share":
+        return (f"num_envs={max(1, cores // cells)}",)
+    counts = parse_workers(args.workers)
+    return (f"num_envs={counts[0]}",) if len(counts) == 1 else ()
+
+
 def usable_cores() -> int:
     """CPU cores this process may run on (what ``priqn sweep``'s local default divides)."""
     if hasattr(os, "sched_getaffinity"):
@@ -145,8 +169,9 @@ def train_command(
     steps: int,
     device: str,
     extra: tuple[str, ...] = (),
+    preset: str = "default",
 ) -> list[str]:
-    """The ``priqn train`` command of one benchmark cell: default preset, ``steps``
+    """The ``priqn train`` command of one benchmark cell: ``preset``, ``steps``
     decisions, learning from decision ``min(500, steps // 4)`` on, no evaluation during
     training, one checkpoint (the last, without the replay buffer); ``extra`` are further
     ``KEY=VALUE`` overrides (``--set``)."""
@@ -159,7 +184,7 @@ def train_command(
     ]
     return [
         sys.executable, "-m", "priqn.cli", "train",
-        "--preset", "default", "--agent", agent, "--net", net, "--seed", str(seed),
+        "--preset", preset, "--agent", agent, "--net", net, "--seed", str(seed),
         "--steps", str(steps), "--device", device,
         "--runs-dir", str(runs_dir), "--name", name,
         *(arg for s in sets for arg in ("--set", s)),
@@ -257,6 +282,32 @@ def _decisions_per_s(run_dir: Path) -> float | None:
         return None
 
 
+def steady_rate(steps_wall: list[tuple[int, float]], from_fraction: float = 0.5) -> float | None:
+    """Decisions/s over the last part of a run, from its episodes' ``(step, wall_s)``:
+    between the first episode ending at or after ``from_fraction`` of the last step and the
+    last episode. Start-up (SUMO, the first CUDA graphs or kernels) and the updates-free
+    start are left out, which is what a long run's hours are made of. None with fewer than
+    two such episodes."""
+    if not steps_wall:
+        return None
+    last_step, last_wall = steps_wall[-1]
+    later = [(s, w) for s, w in steps_wall if s >= from_fraction * last_step]
+    first_step, first_wall = later[0]
+    if len(later) < 2 or last_wall <= first_wall:
+        return None
+    return (last_step - first_step) / (last_wall - first_wall)
+
+
+def _steady_decisions_per_s(run_dir: Path) -> float | None:
+    """:func:`steady_rate` of a finished run's training episodes (``metrics.csv``)."""
+    try:
+        with (run_dir / "metrics.csv").open(newline="") as fh:
+            rows = [r for r in csv.DictReader(fh) if r.get("kind") == "train"]
+        return steady_rate([(int(r["step"]), float(r["wall_s"])) for r in rows])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def measure_mode(
     root: Path,
     mode: str,
@@ -268,13 +319,14 @@ def measure_mode(
     device: str,
     gpus: list[str] | None = None,
     extra: tuple[str, ...] = (),
+    preset: str = "default",
 ) -> dict[str, Any]:
     """Run ``cells`` benchmark cells ``jobs`` at a time into ``root/mode``; their timings.
 
     ``gpus``: cell i sees only ``gpus[i % len(gpus)]`` (``CUDA_VISIBLE_DEVICES``)."""
     runs_dir = root / mode
     commands = [
-        train_command(runs_dir, f"cell{i}", i, agent, net, steps, device, extra)
+        train_command(runs_dir, f"cell{i}", i, agent, net, steps, device, extra, preset)
         for i in range(cells)
     ]
     logs = [runs_dir / f"cell{i}.log" for i in range(cells)]
@@ -301,7 +353,12 @@ def measure_mode(
         "wall_s": wall_s,
         "cells_per_hour": cells_per_hour(cells, wall_s),
         "cells": [
-            {"seed": r.index, "elapsed_s": r.elapsed_s, "decisions_per_s": r.decisions_per_s}
+            {
+                "seed": r.index,
+                "elapsed_s": r.elapsed_s,
+                "decisions_per_s": r.decisions_per_s,
+                "steady_decisions_per_s": _steady_decisions_per_s(runs_dir / f"cell{r.index}"),
+            }
             for r in runs
         ],
     }
@@ -322,6 +379,16 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "aggregate decisions/s against one cell",
     )
     parser.add_argument("--agent", default="iqn", help="agent every cell trains (default iqn)")
+    parser.add_argument(
+        "--preset", default="default", help="training preset of every cell (default default)"
+    )
+    parser.add_argument(
+        "--workers",
+        default="",
+        help="env workers per cell (num_envs; default the preset's): a number; a list such as "
+        "4,8,16 with --cells 1 (one cell per count, decisions/s against the first); or "
+        "'share' with a --cells list (each level's cells split the cores: cores // n each)",
+    )
     parser.add_argument("--net", default="tjunction", help="training pool (default tjunction)")
     parser.add_argument(
         "--jobs", type=int, default=2, help="cells at a time in the concurrent mode (default 2)"
@@ -359,7 +426,12 @@ def _check(args: argparse.Namespace) -> list[int]:
     if args.forecast_runs < 1 or args.forecast_decisions < 1:
         raise PriqnError("--forecast-runs, --forecast-decisions: expected positive numbers")
     counts = parse_cells(str(args.cells))
-    if len(counts) > 1:
+    workers = parse_workers(args.workers)
+    if len(workers) > 1 and counts != [1]:
+        raise PriqnError(f"--workers {args.workers}: a list of worker counts needs --cells 1")
+    if args.workers == "share" and len(counts) == 1:
+        raise PriqnError("--workers share: expected a --cells list such as 1,2,4,8")
+    if len(counts) > 1 or len(workers) > 1:
         return counts
     args.cells = counts[0]
     if args.jobs < 2:
@@ -373,10 +445,13 @@ def _check(args: argparse.Namespace) -> list[int]:
 
 
 def measure_modes(
-    args: argparse.Namespace, plans: list[tuple[str, int, int]], gpus: list[str] | None = None
+    args: argparse.Namespace,
+    plans: list[tuple[str, int, int, tuple[str, ...]]],
+    gpus: list[str] | None = None,
 ) -> list[dict[str, Any]]:
-    """:func:`measure_mode` for each ``(mode, jobs, cells)`` of ``plans`` in one scratch runs
-    folder, removed afterwards unless ``--keep`` or a cell failed (its log is in there)."""
+    """:func:`measure_mode` for each ``(mode, jobs, cells, overrides)`` of ``plans`` in one
+    scratch runs folder, removed afterwards unless ``--keep`` or a cell failed (its log is
+    in there). ``overrides`` are the plan's own ``--set``s, after ``--set``'s."""
     root = Path(tempfile.mkdtemp(prefix="priqn-bench-sweep-"))
     keep = args.keep
     try:
@@ -391,9 +466,10 @@ def measure_modes(
                 args.steps,
                 args.device,
                 gpus,
-                tuple(args.set),
+                (*args.set, *overrides),
+                args.preset,
             )  # fmt: skip
-            for mode, jobs, cells in plans
+            for mode, jobs, cells, overrides in plans
         ]
     except PriqnError:
         keep = True
@@ -411,17 +487,19 @@ def run(args: argparse.Namespace) -> int:
     from priqn.sweep.scheduler import default_jobs
 
     counts = _check(args)
+    if len(parse_workers(args.workers)) > 1:
+        return run_workers(args)
     if len(counts) > 1:
         return run_scaling(args, counts)
     cores = usable_cores()
     print(
         f"priqn bench sweep: {args.cells} {args.agent} cells on {args.net}, {args.steps} "
-        f"decisions each (default preset, no evaluation), one at a time then {args.jobs} at "
+        f"decisions each ({args.preset} preset, no evaluation), one at a time then {args.jobs} at "
         f"a time; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
         flush=True,
     )
     modes = measure_modes(
-        args, [("sequential", 1, args.cells), ("concurrent", args.jobs, args.cells)]
+        args, [("sequential", 1, args.cells, ()), ("concurrent", args.jobs, args.cells, ())]
     )
     seq, conc = modes
     ratio = concurrency_ratio(seq["cells_per_hour"], conc["cells_per_hour"])
@@ -475,34 +553,84 @@ def _cell_gpus(device: str) -> list[str] | None:
     return ids if len(ids) > 1 else None
 
 
+def _header(args: argparse.Namespace, what: str, cores: int, pinned: str = "") -> None:
+    print(
+        f"priqn bench sweep: {args.agent} cells on {args.net}, {args.steps} decisions each "
+        f"({args.preset} preset, no evaluation), {what} on device {args.device}{pinned}; "
+        f"{cores} cores, load average {os.getloadavg()[0]:.1f} at start",
+        flush=True,
+    )
+
+
+def _level_rates(level: dict[str, Any]) -> tuple[float | None, float | None]:
+    """(aggregate decisions/s start-up included, aggregate steady decisions/s) of a level."""
+    cells = level["cells"]
+    return (
+        aggregate_rate([c["decisions_per_s"] for c in cells]),
+        aggregate_rate([c["steady_decisions_per_s"] for c in cells]),
+    )
+
+
+def _print_levels(label: str, keys: list[int], levels: list[dict[str, Any]]) -> list[float | None]:
+    """The table of a scaling measurement; each level's steady aggregate (None: unmeasured).
+    Ratios are steady aggregate over the first level's."""
+    overall, steady = zip(*(_level_rates(m) for m in levels), strict=True)
+    ratios = scaling_ratios(list(steady))
+    print(
+        f"{label:>7} {'wall s':>8} {'decisions/s':>12} {'steady':>9} {'per cell':>9} {'x first':>8}"
+    )
+    for key, m, agg, st, ratio in zip(keys, levels, overall, steady, ratios, strict=True):
+        m.update(aggregate_decisions_per_s=agg, steady_decisions_per_s=st, ratio=ratio)
+        cells = len(m["cells"])
+        print(
+            f"{key:>7} {m['wall_s']:>8.1f} {_num(agg):>12} {_num(st):>9} "
+            f"{_num(None if st is None else st / cells):>9} "
+            f"{'-' if ratio is None else f'{ratio:.2f}x':>8}"
+        )
+    print(
+        "(decisions/s: steps / wall of each cell's training loop, start-up included; steady: "
+        "over the second half of its decisions; summed over a level's cells)"
+    )
+    return list(steady)
+
+
+def _num(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f}"
+
+
+def _write_json(args: argparse.Namespace, cores: int, **fields: Any) -> None:
+    if args.json is None:
+        return
+    head = {"agent": args.agent, "net": args.net, "preset": args.preset, "steps": args.steps,
+            "device": args.device, "cores": cores}  # fmt: skip
+    args.json.write_text(json.dumps({**head, **fields}, indent=2) + "\n")
+
+
+def run_workers(args: argparse.Namespace) -> int:
+    """``--workers 4,8,16 --cells 1``: one cell per worker count; decisions/s against the first."""
+    cores, counts = usable_cores(), parse_workers(args.workers)
+    _header(args, f"one cell with {', '.join(map(str, counts))} env workers", cores)
+    levels = measure_modes(args, [(f"w{w}", 1, 1, (f"num_envs={w}",)) for w in counts])
+    _print_levels("workers", counts, levels)
+    _write_json(args, cores, workers=counts, levels=levels)
+    return 0
+
+
 def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
-    """``--cells 1,2,4,...``: each level's cells at once; aggregate decisions/s vs one cell."""
+    """``--cells 1,2,4,...``: each level's cells at once; aggregate decisions/s vs one cell,
+    and the forecast of a grid on this box from the steady per-cell rates."""
     cores = usable_cores()
     gpus = _cell_gpus(args.device)
     pinned = f", pinned round-robin to GPUs {','.join(gpus)}" if gpus else ""
-    print(
-        f"priqn bench sweep: {args.agent} cells on {args.net}, {args.steps} decisions each "
-        f"(default preset, no evaluation), {', '.join(map(str, counts))} at a time on device "
-        f"{args.device}{pinned}; {cores} cores, load average {os.getloadavg()[0]:.1f} at start",
-        flush=True,
+    what = f"{', '.join(map(str, counts))} at a time" + (
+        " (each level's cells share the cores)" if args.workers == "share" else ""
     )
-    levels = measure_modes(args, [(f"x{n}", n, n) for n in counts], gpus)
-    aggregates = [aggregate_rate([c["decisions_per_s"] for c in m["cells"]]) for m in levels]
-    ratios = scaling_ratios(aggregates)
-    print(
-        f"{'cells':>5} {'wall s':>8} {'cells/h':>8} {'decisions/s':>12} {'per cell':>9} {'x one cell':>11}"
-    )
-    for n, m, agg, ratio in zip(counts, levels, aggregates, ratios, strict=True):
-        m["aggregate_decisions_per_s"], m["ratio"] = agg, ratio
-        per = "-" if agg is None else f"{agg / n:.1f}"
-        print(
-            f"{n:>5} {m['wall_s']:>8.1f} {m['cells_per_hour']:>8.1f} "
-            f"{'-' if agg is None else f'{agg:.1f}':>12} {per:>9} "
-            f"{'-' if ratio is None else f'{ratio:.2f}x':>11}"
-        )
+    _header(args, what, cores, pinned)
+    levels = measure_modes(args, [(f"x{n}", n, n, _workers(args, n, cores)) for n in counts], gpus)
+    steady = _print_levels("cells", counts, levels)
     best = max(
-        (i for i in range(len(counts)) if aggregates[i] is not None),
-        key=lambda i: aggregates[i] or 0.0,
+        (i for i in range(len(counts)) if steady[i] is not None),
+        key=lambda i: steady[i] or 0.0,
         default=None,
     )
     if best is not None:
@@ -512,28 +640,17 @@ def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
             if args.device.startswith("cuda")
             else ""
         )
-        print(f"most decisions/s: {n} cell(s) at a time ({ratios[best]:.2f}x one cell){share}")
-    rates = {n: a / n for n, a in zip(counts, aggregates, strict=True) if a is not None}
+        print(
+            f"most decisions/s: {n} cell(s) at a time ({levels[best]['ratio']:.2f}x one cell){share}"
+        )
+    rates = {n: a / n for n, a in zip(counts, steady, strict=True) if a is not None}
     if 1 in rates:
         one, n, grid = grid_forecast(rates, args.forecast_runs, args.forecast_decisions)
         print(
-            f"forecast on this box: one {args.forecast_decisions:,}-decision run {one:.1f} h; "
-            f"{args.forecast_runs} such runs {grid:.1f} h at {n} cell(s) at a time (training "
-            f"loop only, from these {args.steps:,}-decision cells: no evaluation)"
+            f"forecast on this box: one {args.forecast_decisions:,}-decision run {one:.2f} h; "
+            f"{args.forecast_runs} such runs {grid:.1f} h at {n} cell(s) at a time (steady "
+            f"training-loop rates of these {args.steps:,}-decision {args.agent} cells; no "
+            "evaluation, no start-up)"
         )
-    if args.json is not None:
-        args.json.write_text(
-            json.dumps(
-                {
-                    "agent": args.agent,
-                    "net": args.net,
-                    "steps": args.steps,
-                    "device": args.device,
-                    "cores": cores,
-                    "levels": levels,
-                },
-                indent=2,
-            )
-            + "\n"
-        )
+    _write_json(args, cores, levels=levels)
     return 0

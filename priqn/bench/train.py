@@ -6,10 +6,11 @@ per update as a ratio to IQN's (the issue's target: Pr-IQN ≤ 1.5× IQN). Part 
 real training loop (vector env workers + learning) for a short budget in a temporary
 run folder and reports env decisions/s and updates/s end to end.
 
-``--compile`` times every agent twice in part 1, eager (``learner.compile = "off"``) and
-compiled (``"on"``: torch.compile, CUDA graphs on CUDA), taking turns in the same rounds
-on the same device, and prints compiled / eager; ``learner.compile = "auto"`` follows what
-this measured (docs/implementation-details.md §12).
+``--compile graphs,on`` times every agent once eager (``learner.compile = "off"``) and
+once per named setting (``graphs``: CUDA graphs of the eager kernels; ``on``:
+torch.compile), taking turns in the same rounds on the same device, and prints each /
+eager; ``learner.compile = "auto"`` follows what this measured
+(docs/implementation-details.md §12).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
     parser.add_argument(
         "--loop-compile",
-        choices=("auto", "on", "off"),
+        choices=("auto", "graphs", "on", "off"),
         default="auto",
         help="learner.compile of the end-to-end loop (default auto, as training; its wall "
         "time includes the compiling)",
@@ -66,8 +67,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--compile",
-        action="store_true",
-        help="also time every agent with learner.compile on, beside eager (part 1)",
+        nargs="?",
+        const="on",
+        default="",
+        metavar="SETTINGS",
+        help="also time every agent with these learner.compile settings, comma-separated "
+        "(graphs, on; bare --compile: on), beside eager (part 1)",
     )
     parser.add_argument(
         "--cuda-nondeterministic",
@@ -113,7 +118,7 @@ def _make_learner(
     batch_size: int,
     device: str,
     bf16: bool = False,
-    compiled: bool = False,
+    compile_: str = "off",
 ) -> tuple[Any, Any]:
     from priqn.agents.learner import Learner
     from priqn.agents.registry import make_agent
@@ -124,7 +129,7 @@ def _make_learner(
         cfg.learner,
         batch_size=batch_size,
         autocast_bf16=bf16,
-        compile="on" if compiled else "off",
+        compile=compile_,
     )
     cfg = dataclasses.replace(cfg, learner=learner_cfg)
     space, num_actions = _obs_space(cfg)
@@ -154,8 +159,8 @@ class Case(NamedTuple):
     agent: str
     bf16: bool
     """``learner.autocast_bf16``."""
-    compiled: bool
-    """``learner.compile = "on"`` (else ``"off"``)."""
+    compile: str
+    """``learner.compile``: ``off`` (eager, the baseline), ``graphs`` or ``on``."""
     deterministic: bool
     """Training's deterministic CUDA kernels (``cuda_deterministic``); False on the CPU."""
 
@@ -183,7 +188,7 @@ def updates_per_second(
     device: str,
     rounds: int = 3,
     bf16: bool = False,
-    compiled: bool = False,
+    compile_settings: tuple[str, ...] = (),
     nondeterministic: bool = False,
 ) -> list[dict[str, Any]]:
     """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
@@ -191,8 +196,8 @@ def updates_per_second(
     The cases take turns for ``rounds`` rounds of ``seconds / rounds`` each and the best
     round counts, so load from other processes hits all cases alike. ``bf16`` adds each
     agent once more with ``learner.autocast_bf16`` on, right after its float32 case;
-    ``compiled`` adds each of those once more with ``learner.compile = "on"`` (the others
-    run with ``"off"``: eager whatever the device). On CUDA every case runs with training's
+    ``compile_settings`` adds each of those once more per ``learner.compile`` setting named
+    (the others run with ``"off"``: eager whatever the device). On CUDA every case runs with training's
     deterministic kernels (``cuda_deterministic``), and ``nondeterministic`` adds each once
     more without them.
     """
@@ -203,14 +208,12 @@ def updates_per_second(
         Case(a, b, c, d)
         for a in agents
         for b in ((False, True) if bf16 else (False,))
-        for c in ((False, True) if compiled else (False,))
+        for c in ("off", *compile_settings)
         for d in ((True, False) if nondeterministic and cuda else (cuda,))
     ]
     if cuda:
         cuda_determinism(True)  # before the first CUDA matrix product (cuBLAS's workspace)
-    made = {
-        c: _make_learner(preset, c.agent, batch_size, device, c.bf16, c.compiled) for c in cases
-    }
+    made = {c: _make_learner(preset, c.agent, batch_size, device, c.bf16, c.compile) for c in cases}
     best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
         for c in cases:
@@ -319,24 +322,28 @@ def _case_name(r: dict[str, Any]) -> str:
     nondet = r["device"].startswith("cuda") and not r["deterministic"]
     return r["agent"] + "".join(
         f" {word}"
-        for word, on in (("bf16", r["bf16"]), ("comp", r["compiled"]), ("nondet", nondet))
+        for word, on in (("bf16", r["bf16"]), (r["compile"], r["compile"] != "off"),
+                         ("nondet", nondet))
         if on
-    )
+    )  # fmt: skip
 
 
 def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
-    """One line per case that has a twin differing in one switch: compiled / eager, and
-    nondeterministic / deterministic kernels (CUDA), in updates/s."""
+    """One line per case that has a twin differing in one switch: each compile setting /
+    eager, and nondeterministic / deterministic kernels (CUDA), in updates/s."""
     by_case = {Case(*(r[f] for f in Case._fields)): r for r in results}
-    switches = (
-        ("compiled", "compiled / eager", False),  # (switch, label, the baseline's value)
-        ("deterministic", "nondeterministic / deterministic", True),
-    )
     lines = []
     for case, base in by_case.items():
-        for field, label, base_value in switches:
-            twin = by_case.get(case._replace(**{field: not base_value}))
-            if getattr(case, field) != base_value or twin is None:
+        twins = [
+            (twin, f"{other.compile} / eager")
+            for other, twin in by_case.items()
+            if case.compile == "off" != other.compile and other._replace(compile="off") == case
+        ]
+        if case.deterministic:
+            label = "nondeterministic / deterministic"
+            twins.append((by_case.get(case._replace(deterministic=False)), label))
+        for twin, label in twins:
+            if twin is None:
                 continue
             name = _case_name(base)
             ratio = twin["updates_per_s"] / base["updates_per_s"]
@@ -370,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
             args.seconds,
             args.device,
             bf16=args.bf16,
-            compiled=args.compile,
+            compile_settings=tuple(c for c in args.compile.split(",") if c),
             nondeterministic=args.cuda_nondeterministic,
         )
         base = results[0]["ms_per_update"]
