@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis.load import read_episodes
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
 from priqn.io import atomic_write_json, atomic_write_text
@@ -113,33 +114,33 @@ def _spec(exp: Experiment) -> CalibrationSpec:
 def _mix_table(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], traffic: dict) -> str:
     """Markdown: one line per row and the target's, outcome x density columns."""
     cols = [(o, d) for o in OUTCOMES for d in cal.densities]
-    head = "| setting (row) | traffic | seeds | " + " | ".join(
-        f"{o.replace('_', '-')} {d:g}" for o, d in cols
-    )
-    lines = [head + " |", "|" + "---|" * (3 + len(cols))]
+    heads = [
+        "setting (row)",
+        "traffic",
+        "seeds",
+        *(f"{o.replace('_', '-')} {d:g}" for o, d in cols),
+    ]
     target = cal.target_mix()
-    lines.append("| **target** | – | – | " + " | ".join(f"{target[c]:.3f}" for c in cols) + " |")
+    rows = [["**target**", "–", "–", *(f"{target[c]:.3f}" for c in cols)]]
     for row in order:
         mine = mean[mean["row"] == row]
         if mine.empty:
             continue
         have = _rates(mine)
-        cells = " | ".join(f"{have[c]:.3f}" if c in have else "–" for c in cols)
-        lines.append(f"| {row} | {traffic[row]} | {int(mine.seeds.min())} | {cells} |")
-    return "\n".join(lines)
+        cells = [f"{have[c]:.3f}" if c in have else "–" for c in cols]
+        rows.append([row, traffic[row], str(int(mine.seeds.min())), *cells])
+    return markdown_table(heads, rows)
 
 
 def _distance_table(dist: pd.DataFrame, chosen: str, final: bool) -> str:
-    lines = ["| setting (row) | seeds | L1 | success | collision | off-road | timeout |"]
-    lines.append("|---|---|---|---|---|---|---|")
-    for r in dist.itertuples(index=False):
-        mark = "chosen" if final else "nearest so far"
-        name = f"**{r.row}** ({mark})" if r.row == chosen else r.row
-        lines.append(
-            f"| {name} | {r.seeds} | {r.l1:.3f} | {r.success:.3f} | {r.collision:.3f} | "
-            f"{r.off_road:.3f} | {r.timeout:.3f} |"
-        )
-    return "\n".join(lines)
+    mark = "chosen" if final else "nearest so far"
+    rows = [
+        [f"**{r.row}** ({mark})" if r.row == chosen else r.row, str(r.seeds),
+         *(f"{v:.3f}" for v in (r.l1, r.success, r.collision, r.off_road, r.timeout))]
+        for r in dist.itertuples(index=False)
+    ]  # fmt: skip
+    heads = ["setting (row)", "seeds", "L1", "success", "collision", "off-road", "timeout"]
+    return markdown_table(heads, rows)
 
 
 def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out: Path) -> None:
@@ -185,8 +186,8 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     chosen = choose(dist)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(folder / "mix.csv", mixes.to_csv(index=False, float_format="%.6f"))
-    atomic_write_text(folder / "distances.csv", dist.to_csv(index=False, float_format="%.6f"))
+    write_csv(folder / "mix.csv", mixes, float_format="%.6f")
+    write_csv(folder / "distances.csv", dist, float_format="%.6f")
     write_figure(mean, cal, order, folder)
     budget = exp.experiment.steps
     words = "chosen" if not missing else "provisionally nearest (cells missing)"

@@ -34,6 +34,7 @@ from priqn.analysis.load import (
     list_evaluations,
     read_evaluation,
 )
+from priqn.analysis.render import markdown_table
 from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import NETS_HASH_CHARS
@@ -177,7 +178,7 @@ def table_markdown(table: pd.DataFrame) -> str:
     """The generalisation table as Markdown: rates as ``mean ± std`` (3 decimals); reference
     drivers' rows in italics, with "–" for training seeds."""
     heads = ["Policy", "Seeds", "Episodes", *(h for _, h in OUTCOME_COLUMNS)]
-    lines = ["| " + " | ".join(heads) + " |", "|:--|--:|--:|" + "--:|" * len(OUTCOME_COLUMNS)]
+    rows = []
     for row in table.to_dict("records"):
         reference = bool(row.get("reference", False))
         label = f"*{row['label']}*" if reference else str(row["label"])
@@ -185,8 +186,8 @@ def table_markdown(table: pd.DataFrame) -> str:
         for c, _ in OUTCOME_COLUMNS:
             std = row[f"{c}_std"]
             cells.append(f"{row[f'{c}_mean']:.3f} ± {'n/a' if np.isnan(std) else f'{std:.3f}'}")
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+        rows.append(cells)
+    return markdown_table(heads, rows, "lrr" + "r" * len(OUTCOME_COLUMNS)) + "\n"
 
 
 def nets_markdown(nets: NetsEvaluation) -> str:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from priqn.analysis.load import read_episodes
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.standstill import EPISODE_KEYS, episodes_in
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text, read_json
@@ -412,7 +413,7 @@ def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
 
 def _markdown(frame: Any, digits: int = 3) -> str:
     cols = list(frame.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    rows = []
     for _, r in frame.iterrows():
         cells = []
         for c in cols:
@@ -423,8 +424,8 @@ def _markdown(frame: Any, digits: int = 3) -> str:
                 cells.append("–" if math.isnan(v) else f"{v:.{digits}f}")
             else:
                 cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append(cells)
+    return markdown_table(cols, rows)
 
 
 MARKDOWN_COLUMNS: tuple[str, ...] = (
@@ -517,7 +518,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
             stale = frame is not None and not set(_NEWEST_COLUMNS) <= set(frame.columns)
             if frame is None or stale or episodes_in(frame) != want:
                 frame = replay_cell(cell, cfg, progress=bar)
-                atomic_write_text(cached, frame.to_csv(index=False, lineterminator="\n"))
+                write_csv(cached, frame, float_format=None)
             else:
                 bar.update(want)
             frames[cell.name] = frame
@@ -533,7 +534,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
             seeds.append(row)
     table = pd.DataFrame(seeds)
     full = pd.concat([table, group_rows(table)], ignore_index=True)
-    atomic_write_text(out / "mechanism.csv", full.to_csv(index=False, lineterminator="\n"))
+    write_csv(out / "mechanism.csv", full, float_format=None)
 
     reliability = {}
     for group in GROUPS:
@@ -543,7 +544,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Pat
         if names:
             reliability[group] = reliability_table(pd.concat([frames[n] for n in names]))
     rel = pd.concat([t.assign(group=g) for g, t in reliability.items()], ignore_index=True)
-    atomic_write_text(out / "reliability.csv", rel.to_csv(index=False, lineterminator="\n"))
+    write_csv(out / "reliability.csv", rel, float_format=None)
     write_figure(table, reliability, cfg, out / "mechanism.png")
     columns = [c.format(lower=cfg.lower) for c in MARKDOWN_COLUMNS]
     text = [

@@ -19,6 +19,7 @@ import pandas as pd
 
 from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.labels import budget_text, seeds_text
@@ -245,12 +246,9 @@ def _cells_lines(scores: pd.DataFrame) -> list[str]:
 
 def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
     """The "Verdicts" section: one row per comparison (``comparisons.csv``), and its key."""
-    lines = [
-        "## Verdicts",
-        "",
-        "| question | comparison | budget | seeds (a / b) | a − b [points] | Welch 95 % | MDD | paper | looks | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    heads = ["question", "comparison", "budget", "seeds (a / b)", "a − b [points]",
+             "Welch 95 %", "MDD", "paper", "looks", "verdict"]  # fmt: skip
+    rows = []
     for r in comparisons.itertuples():
         mdd = "∞" if math.isinf(r.mdd) else f"±{100 * r.mdd:.1f}"
         paper = (
@@ -258,13 +256,15 @@ def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
             if r.paper_difference is None or pd.isna(r.paper_difference)
             else _pts(r.paper_difference)
         )
-        lines.append(
-            f"| {r.question} | {r.comparison} | {budget_text(r.budget)} | {r.seeds_a} / {r.seeds_b} "
-            f"| {_pts(r.difference)} | [{_pts(r.lo)}, {_pts(r.hi)}] | {mdd} | {paper} "
-            f"| {r.looks} | **{r.verdict}** |"
-        )
+        rows.append([
+            str(r.question), str(r.comparison), budget_text(r.budget), f"{r.seeds_a} / {r.seeds_b}",
+            _pts(r.difference), f"[{_pts(r.lo)}, {_pts(r.hi)}]", mdd, paper, str(r.looks),
+            f"**{r.verdict}**",
+        ])  # fmt: skip
     return [
-        *lines,
+        "## Verdicts",
+        "",
+        *markdown_table(heads, rows).split("\n"),
         "",
         "Points: percentage points of the endpoint (success rate, or violation rate where "
         "the question's endpoint is violations: there a positive difference means a violates "
@@ -309,8 +309,6 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
         "success, violations (collision or off-road) and timeouts sum to 1; the figure "
         "below draws them per group, n training seeds under each bar.",
         "",
-        "| group | budget | training seeds | success | violations | timeouts |",
-        "|---|---|---|---|---|---|",
     ]
     summary = budgets.groupby(["group", "budget"]).agg(
         seeds=("train_seed", lambda s: f"{s.nunique()} ({seeds_text(s)})"),
@@ -318,11 +316,13 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
         violation=("violation", "mean"),
         timeout=("timeout", "mean"),
     )
-    for (group, budget), r in summary.iterrows():
-        lines.append(
-            f"| {group} | {budget_text(budget)} | {r.seeds} | {r.success:.3f} "
-            f"| {r.violation:.3f} | {r.timeout:.3f} |"
-        )
+    rows = [
+        [str(group), budget_text(budget), r.seeds, f"{r.success:.3f}", f"{r.violation:.3f}",
+         f"{r.timeout:.3f}"]
+        for (group, budget), r in summary.iterrows()
+    ]  # fmt: skip
+    heads = ["group", "budget", "training seeds", "success", "violations", "timeouts"]
+    lines += markdown_table(heads, rows).split("\n")
     return [*lines, "", "![outcomes by budget](figures/outcomes_by_budget.png)", ""]
 
 
@@ -361,16 +361,16 @@ def _change_lines(changes: pd.DataFrame) -> list[str]:
         "Per seed, each group's change of the endpoint from the smaller budget; then the "
         "difference of the mean changes (a − b) with its Welch 95 % interval.",
         "",
-        "| a − b | endpoint | from | to | seeds | change [points] | Welch 95 % | comparisons |",
-        "|---|---|---|---|---|---|---|---|",
     ]
-    for r in changes.to_dict("records"):
-        lines.append(
-            f"| {r['a']} − {r['b']} | {r['endpoint']} | {budget_text(r['from'])} | "
-            f"{budget_text(r['to'])} | {r['seeds']} | {_pts(r['change'])} | "
-            f"[{_pts(r['lo'])}, {_pts(r['hi'])}] | {r['comparisons']} |"
-        )
-    return [*lines, ""]
+    rows = [
+        [f"{r['a']} − {r['b']}", str(r["endpoint"]), budget_text(r["from"]),
+         budget_text(r["to"]), str(r["seeds"]), _pts(r["change"]),
+         f"[{_pts(r['lo'])}, {_pts(r['hi'])}]", str(r["comparisons"])]
+        for r in changes.to_dict("records")
+    ]  # fmt: skip
+    heads = ["a − b", "endpoint", "from", "to", "seeds", "change [points]", "Welch 95 %",
+             "comparisons"]  # fmt: skip
+    return [*lines, *markdown_table(heads, rows).split("\n"), ""]
 
 
 LOOK_COLUMNS = [
@@ -431,7 +431,6 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
     report's lines; none while no cell is complete."""
     from priqn.analysis import curves, sequential_report
     from priqn.analysis.figures import save_figure
-    from priqn.io import atomic_write_text
 
     cells = [
         cell
@@ -444,8 +443,7 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
     curve = curves.sample_efficiency(
         points, sequential_report.CURVE_REPS, sequential_report.CURVE_SEED
     )
-    table = curve.to_csv(index=False, float_format="%.10g", lineterminator="\n")
-    atomic_write_text(out / "tables" / "sample_efficiency.csv", table)
+    write_csv(out / "tables" / "sample_efficiency.csv", curve)
     save_figure(
         sequential_report.efficiency_figure(exp, curve), out / "figures", "sample_efficiency"
     )
@@ -497,15 +495,12 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
             .reset_index()
             .rename(columns={"comparison": "comparisons"})
         )
-    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
     all_scores = pd.concat(
         [s.assign(question=name) for name, s in scores_by_q.items()], ignore_index=True
     )
-    atomic_write_text(out / "tables" / "scores.csv", all_scores.to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "comparisons.csv", comparisons.to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "looks.csv", looks.to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "budgets.csv", budgets.to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "budget_changes.csv", changes.to_csv(**csv_kw))
+    for name, frame in (("scores", all_scores), ("comparisons", comparisons), ("looks", looks),
+                        ("budgets", budgets), ("budget_changes", changes)):  # fmt: skip
+        write_csv(out / "tables" / f"{name}.csv", frame)
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
     if len(budgets):
         save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")

@@ -30,6 +30,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.runs import RunFolder
@@ -52,8 +53,8 @@ def _rliable_markdown(aggregates: dict[str, Any], order: list[str]) -> str:
     for metric in aggregates:
         short = SCORE_METRICS[metric]
         heads += [f"IQM {short} ↑", f"Optimality gap {short} ↓"]
-    lines = ["| " + " | ".join(heads) + " |", "|:--|" + "--:|" * (len(heads) - 1)]
     aggs = {m: a.set_index("label") for m, a in aggregates.items()}
+    rows = []
     for label in order:
         row = [label]
         for agg in aggs.values():
@@ -62,27 +63,24 @@ def _rliable_markdown(aggregates: dict[str, Any], order: list[str]) -> str:
                 _fmt_ci(a["iqm"], a["iqm_lo"], a["iqm_hi"]),
                 _fmt_ci(a["og"], a["og_lo"], a["og_hi"]),
             ]
-        lines.append("| " + " | ".join(row) + " |")
-    return "\n".join(lines) + "\n"
+        rows.append(row)
+    return markdown_table(heads, rows, "l" + "r" * (len(heads) - 1)) + "\n"
 
 
 def _poi_matrix_markdown(result: Any, order: list[str]) -> str:
     poi = result.improvement.set_index(["x", "y"])
     short = [f"({i + 1})" for i in range(len(order))]
-    lines = [
-        "| X \\ Y | " + " | ".join(short) + " |",
-        "|:--|" + "--:|" * len(order),
-    ]
+    rows = []
     for i, x in enumerate(order):
-        cells = []
+        cells = [f"({i + 1}) {x}"]
         for y in order:
             if x == y:
                 cells.append("–")
             else:
                 r = poi.loc[(x, y)]
                 cells.append(f"{r['p']:.2f} [{r['lo']:.2f}, {r['hi']:.2f}]")
-        lines.append(f"| ({i + 1}) {x} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+        rows.append(cells)
+    return markdown_table(["X \\ Y", *short], rows, "l" + "r" * len(order)) + "\n"
 
 
 @dataclasses.dataclass
@@ -311,7 +309,6 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: 
         atomic_write_text(tdir / f"{name}.md", tables.to_markdown(table))
         atomic_write_text(tdir / f"{name}.tex", tables.to_latex(table))
         atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
-    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
     if stats.rliable:
         for name, part in (
             ("rliable_aggregates", "aggregates"),
@@ -319,20 +316,20 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: 
             ("performance_profiles", "profiles"),
         ):
             frame = pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
-            atomic_write_text(tdir / f"{name}.csv", frame.to_csv(**csv_kw))
-    atomic_write_text(tdir / "outcomes_by_command.csv", tabs.outcomes.to_csv(**csv_kw))
+            write_csv(tdir / f"{name}.csv", frame)
+    write_csv(tdir / "outcomes_by_command.csv", tabs.outcomes)
     if tabs.generalisation:
         from priqn.analysis.generalisation import table_markdown
 
         for nets, table in tabs.generalisation:
             stem = f"generalisation_{nets.short_hash}"
             atomic_write_text(tdir / f"{stem}.md", table_markdown(table))
-            atomic_write_text(tdir / f"{stem}.csv", table.to_csv(**csv_kw))
+            write_csv(tdir / f"{stem}.csv", table)
     if stats.claims_checked:
         frame = claims_report.to_frame(stats.claims)
-        atomic_write_text(tdir / "claims.csv", frame.to_csv(**csv_kw))
+        write_csv(tdir / "claims.csv", frame)
     if len(curve):
-        atomic_write_text(tdir / "sample_efficiency.csv", curve.to_csv(**csv_kw))
+        write_csv(tdir / "sample_efficiency.csv", curve)
 
 
 def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> list[str]:

@@ -19,6 +19,7 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import (
     ComparisonLook,
     Replay,
@@ -298,18 +299,18 @@ def _density_lines(frame: pd.DataFrame, steps: int | None) -> list[str]:
         f"{f'{steps:,}' if steps else 'their preset'}). The decisions above use the mean over "
         "densities only.",
         "",
-        "| row | seeds | " + " | ".join(f"density {d:g}" for d in densities) + " |",
-        "|:--|--:|" + "|".join(":--" for _ in densities) + "|",
     ]
+    table = []
     for policy, rows in frame.groupby("policy", sort=False):
-        cells = []
+        cells = [str(policy), str(int(rows["seeds"].iloc[0]))]
         for r in rows.sort_values("density").itertuples():
             text = f"{r.mean:.3f} [{r.lo:.3f}, {r.hi:.3f}]"
             if np.isfinite(r.paper):
                 text += f" (paper {r.paper:.3f})"
             cells.append(text)
-        lines.append(f"| {policy} | {int(rows['seeds'].iloc[0])} | " + " | ".join(cells) + " |")
-    return [*lines, ""]
+        table.append(cells)
+    heads = ["row", "seeds", *(f"density {d:g}" for d in densities)]
+    return [*lines, *markdown_table(heads, table, "lr" + "l" * len(densities)).split("\n"), ""]
 
 
 def _curves_lines(has_curves: bool) -> list[str]:
@@ -511,17 +512,16 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     scores = collect_scores(exp)
     result = replay(exp, scores)
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
-    csv_kw: dict[str, Any] = {"index": False, "float_format": "%.10g", "lineterminator": "\n"}
-    atomic_write_text(out / "tables" / "scores.csv", scores.to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "looks.csv", looks_frame(result).to_csv(**csv_kw))
-    atomic_write_text(out / "tables" / "density.csv", density_frame(exp, scores).to_csv(**csv_kw))
+    write_csv(out / "tables" / "scores.csv", scores)
+    write_csv(out / "tables" / "looks.csv", looks_frame(result))
+    write_csv(out / "tables" / "density.csv", density_frame(exp, scores))
     save_figure(figure(exp, scores), out / "figures", "headline")
     monitoring = looks_figure(exp, result)
     if monitoring is not None:
         save_figure(monitoring, out / "figures", "looks")
     curve, curve_notes = sample_efficiency(exp, scores)
     if len(curve):
-        atomic_write_text(out / "tables" / "sample_efficiency.csv", curve.to_csv(**csv_kw))
+        write_csv(out / "tables" / "sample_efficiency.csv", curve)
         save_figure(efficiency_figure(exp, curve), out / "figures", "sample_efficiency")
     report = out / "report.md"
     atomic_write_text(report, report_markdown(exp, scores, result, command, len(curve) > 0))

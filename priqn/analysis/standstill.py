@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.analysis.render import markdown_table, write_csv
 from priqn.io import atomic_write_bytes, atomic_write_text
 
 COMPARED: tuple[str, ...] = ("safety", "risk")
@@ -242,7 +243,7 @@ def _above(preorder: Any, target: str) -> tuple[str, ...]:
 
 def _markdown(frame: Any) -> str:
     cols = list(frame.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    rows = []
     for _, r in frame.iterrows():
         cells = []
         for c in cols:
@@ -251,8 +252,8 @@ def _markdown(frame: Any) -> str:
                 cells.append("–" if math.isnan(v) else f"{v:.3g}" if "diff" in c else f"{v:.3f}")
             else:
                 cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append(cells)
+    return markdown_table(cols, rows)
 
 
 def group_rows(table: Any) -> Any:
@@ -376,7 +377,7 @@ def analyse(
             frame = pd.read_csv(cached) if cached.is_file() else None
             if frame is None or episodes_in(frame) != len(scenes[cell.name]):
                 frame = replay(cell, scenes[cell.name], target, progress=bar)
-                atomic_write_text(cached, frame.to_csv(index=False, lineterminator="\n"))
+                write_csv(cached, frame, float_format=None)
             else:
                 bar.update(len(scenes[cell.name]))
             group = cell.name.split("__seed")[0]
@@ -388,7 +389,7 @@ def analyse(
             seeds.append(row)
     table = pd.DataFrame(seeds)
     full = pd.concat([table, group_rows(table)], ignore_index=True)
-    atomic_write_text(out / "standstill.csv", full.to_csv(index=False, lineterminator="\n"))
+    write_csv(out / "standstill.csv", full, float_format=None)
     eps = max((float(c.episodes["eps"].iloc[0]) for c in cells if "eps" in c.episodes), default=0.2)
     write_figure(table, pd.concat(frames, ignore_index=True), eps, out / "standstill.png")
     shown = full[[c for c in TABLE_COLUMNS if c in full.columns]]

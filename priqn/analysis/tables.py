@@ -27,6 +27,7 @@ import pandas as pd
 
 from priqn.agent_config import AGENT_SPECS
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
+from priqn.analysis.render import csv_text
 from priqn.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.objectives import OBJECTIVES, names_in_columns
 
@@ -475,7 +476,7 @@ def to_csv(table: Table) -> str:
                 if table.with_delta:
                     rec[f"{name}_delta_pct"] = row["delta_pct"]
             records.append(rec)
-    return pd.DataFrame(records).to_csv(index=False, float_format="%.10g", lineterminator="\n")
+    return csv_text(pd.DataFrame(records))
 
 
 OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
