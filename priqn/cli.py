@@ -19,7 +19,7 @@ from priqn.errors import PriqnError
 COMMANDS: dict[str, tuple[str, str]] = {
     "scenario": ("priqn.sim.cli", "generate SUMO nets from scenario families; draw a net"),
     "train": ("priqn.train", "train one agent into runs/<name>/"),
-    "evaluate": ("priqn.evaluate", "evaluate trained runs on the hold-out nets"),
+    "evaluate": ("priqn.evaluation.cli", "evaluate trained runs on the hold-out nets"),
     "report": (
         "priqn.analysis.report",
         "tables, rliable statistics and figures from evaluated runs",
@@ -30,11 +30,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "replay Pr-IQN cells: safety removals and the safety head's calibration",
     ),
     "inspect": (
-        "priqn.inspector",
+        "priqn.tools.inspector",
         "why a policy acted: per-objective quantiles and optimal subsets",
     ),
-    "play": ("priqn.play", "watch a trained policy drive in sumo-gui; record it"),
-    "diff": ("priqn.diff", "are two runs the same training, bit for bit?"),
+    "play": ("priqn.tools.play", "watch a trained policy drive in sumo-gui; record it"),
+    "diff": ("priqn.tools.diff", "are two runs the same training, bit for bit?"),
     "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
 }
 

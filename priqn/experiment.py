@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from priqn import paths
-from priqn.agent_config import (
+from priqn.agents.config import (
     AGENT_SPECS,
     COMPARATOR_NAMES,
     NORMALISATIONS,
@@ -31,7 +31,7 @@ from priqn.agent_config import (
 )
 from priqn.config import from_dict, load_toml, toml_value
 from priqn.errors import PriqnError
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -418,10 +418,10 @@ class Experiment:
         return policy.steps if policy.steps is not None else self.experiment.steps
 
     def row_config(self, policy: PolicySpec, seed: int) -> Any:
-        """The :class:`~priqn.train_config.TrainConfig` ``policy``'s row trains with ``seed``
+        """The :class:`~priqn.run.train_config.TrainConfig` ``policy``'s row trains with ``seed``
         (what ``priqn train`` builds from the preset, the flags and the overrides; the
         sweep's cells carry the same fields)."""
-        from priqn.train_config import resolve_config
+        from priqn.run.train_config import resolve_config
 
         return resolve_config(
             preset=self.experiment.preset,

@@ -127,7 +127,7 @@ def torch_load(
     """``torch.load(..., weights_only=True)``: tensors and plain data (dicts, lists,
     numbers, strings) only, never an arbitrary pickled object, so a file from anyone runs
     no code. ``allow``: the few extra types admitted (``torch.serialization.safe_globals``
-    entries; :mod:`priqn.checkpoint` admits numpy arrays for old checkpoints). A damaged,
+    entries; :mod:`priqn.run.checkpoint` admits numpy arrays for old checkpoints). A damaged,
     truncated or foreign file -- one naming any other Python object -- is a one-line
     :class:`PriqnError` naming the file, what it is and what to do."""
     import pickle

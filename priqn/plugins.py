@@ -1,6 +1,6 @@
 """Loading plug-ins: the one importer of ``package.module:NAME`` paths and the one resolver
 of names that are not shipped (an installed entry point, else a path), used by
-:mod:`priqn.objectives` (objectives, their callables), :mod:`priqn.agent_config` (agents)
+:mod:`priqn.objectives` (objectives, their callables), :mod:`priqn.agents.config` (agents)
 and :mod:`priqn.agents.rules` (rule functions). Every failure is one line naming where
 the name came from.
 """

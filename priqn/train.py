@@ -5,9 +5,9 @@ acting rule) → step the env workers → learn while they simulate → collect 
 store it → log → evaluate on the hold-out nets → keep a snapshot at a listed budget →
 checkpoint, each a named call of :class:`Trainer`. Before the loop, :class:`Trainer`
 builds the network, learner, policy and replay buffer, :func:`_resume` restores a
-checkpoint and :class:`HoldoutEvaluation` starts its env worker. The config is :mod:`priqn.train_config`; every file of the run
-folder goes through :class:`priqn.runs.RunFolder`, in :mod:`priqn.checkpoint`'s format
-for the torch files; :mod:`priqn.provenance` gathers what meta.json records about the
+checkpoint and :class:`HoldoutEvaluation` starts its env worker. The config is :mod:`priqn.run.train_config`; every file of the run
+folder goes through :class:`priqn.run.folder.RunFolder`, in :mod:`priqn.run.checkpoint`'s format
+for the torch files; :mod:`priqn.run.provenance` gathers what meta.json records about the
 run's origin; tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
 """
 
@@ -29,18 +29,17 @@ from typing import Any
 
 import numpy as np
 
-from priqn.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.config import describe, flatten, to_dict
 from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_overrides
 from priqn.env.vector import restore_episodes
-from priqn.episodes import episode_values, final_info
 from priqn.errors import PriqnError
-from priqn.metrics import metric_columns, metrics_row
 from priqn.objectives import subset_columns
-from priqn.runs import RunFolder, Status
-from priqn.sim.scenario import family_net_refs
-from priqn.timing import SectionClock
-from priqn.train_config import (
+from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
+from priqn.run.episodes import episode_values, final_info
+from priqn.run.folder import RunFolder, Status
+from priqn.run.metrics import metric_columns, metrics_row
+from priqn.run.timing import SectionClock
+from priqn.run.train_config import (
     NETS,
     PRESETS,
     ExplorationConfig,
@@ -51,11 +50,12 @@ from priqn.train_config import (
     resolve_config,
     select_device,
 )
+from priqn.sim.scenario import family_net_refs
 
 
 def linear_epsilon(cfg: ExplorationConfig, step: int, total_steps: int) -> float:
     """ε at env decision ``step``: linear from eps_start to eps_end over
-    :meth:`~priqn.train_config.ExplorationConfig.decay_decisions`, then flat."""
+    :meth:`~priqn.run.train_config.ExplorationConfig.decay_decisions`, then flat."""
     frac = min(1.0, step / cfg.decay_decisions(total_steps))
     return cfg.eps_start + frac * (cfg.eps_end - cfg.eps_start)
 
@@ -170,8 +170,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     Returns the run folder. meta.json says ``running`` while training, ``complete``
     when the budget is spent, ``failed`` (with the error) otherwise.
     """
-    from priqn import provenance
     from priqn.agents.build import build_agent
+    from priqn.run import provenance
 
     run = RunFolder(run_dir)
     was_complete = resume and run.recorded_status() == Status.COMPLETE
@@ -611,13 +611,13 @@ class HoldoutEvaluation:
 
     def run(self, policy: Any, step: int, weights: Sequence[float]) -> list[dict[str, Any]]:
         """metrics.csv rows (kind eval, in episode order) of evaluation.episodes episodes."""
-        from priqn.evaluation.protocol import Scene
+        from priqn.evaluation.protocol import EvalScene
         from priqn.evaluation.rollout import run_scenes
 
         cfg = self.cfg
         rng = np.random.default_rng([self.seed, step])
         scenes = [
-            Scene(
+            EvalScene(
                 eval_run=0,
                 net=str(self.nets[int(rng.integers(len(self.nets)))]),
                 density=float(cfg.env.densities[int(rng.integers(len(cfg.env.densities)))]),

@@ -22,7 +22,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from priqn.agent_config import AgentConfig
+from priqn.agents.config import AgentConfig
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES, objective_names

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from priqn.agent_config import AgentSpec
+from priqn.agents.config import AgentSpec
 
 SHIELD_MARGIN = 0.5
 """An action is ruled out when its expected safety return is this far below the best [-]."""

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from priqn import agent_config
-from priqn.agent_config import AgentConfig, AgentSpec, LearnerConfig, NetworkConfig
+from priqn.agents import config as agent_config
 from priqn.agents import rules
+from priqn.agents.config import AgentConfig, AgentSpec, LearnerConfig, NetworkConfig
 from priqn.agents.learner import Learner
 from priqn.agents.network import QuantileNetwork, tau_grid
 from priqn.agents.policy import Policy
@@ -407,7 +407,7 @@ def test_parameter_counts_in_the_docs():
     from pathlib import Path
 
     from priqn.bench.train import _obs_space
-    from priqn.train_config import build_network, resolve_config
+    from priqn.run.train_config import build_network, resolve_config
 
     doc = (Path(__file__).parents[1] / "docs" / "implementation-details.md").read_text()
     names = {"iqn": "IQN", "ensemble-iqn": "Ensemble-IQN", "ma-iqn": "MA-IQN", "pr-iqn": "Pr-IQN"}
@@ -558,7 +558,7 @@ def test_the_shipped_declarations_and_their_rules_import_without_torch():
     import sys
 
     code = (
-        "import sys; from priqn.agent_config import agent_spec, has_scalar_value; "
+        "import sys; from priqn.agents.config import agent_spec, has_scalar_value; "
         "assert agent_spec('pr-iqn').display_name == 'Pr-IQN' and has_scalar_value('iqn'); "
         "assert 'torch' not in sys.modules, 'torch imported'"
     )

@@ -1,4 +1,4 @@
-"""The checkpoint format (:mod:`priqn.checkpoint`): round trips, the keys on disk, and
+"""The checkpoint format (:mod:`priqn.run.checkpoint`): round trips, the keys on disk, and
 one-line errors for damaged or foreign files."""
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from priqn import checkpoint
-from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.errors import PriqnError
 from priqn.io import CHECKSUM_SUFFIX, atomic_torch_save
 from priqn.objectives import OBJECTIVES
-from priqn.runs import RunFolder
+from priqn.run import checkpoint
+from priqn.run.checkpoint import Checkpoint, PolicyState
+from priqn.run.folder import RunFolder
 
 CHECKPOINT_KEYS = [
     "step", "episodes", "wall_s", "learner", "rng_replay", "rng_act", "obs", "obs_shapes",

@@ -68,7 +68,7 @@ def test_every_reader_of_a_density_or_a_tolerance_uses_the_one_check() -> None:
     import argparse
 
     from priqn.env.intersection import EnvConfig
-    from priqn.evaluate import config_from_args, configure_parser
+    from priqn.evaluation.cli import config_from_args, configure_parser
     from priqn.evaluation.protocol import EvalConfig
 
     with pytest.raises(ValueError, match=r"^densities: 1.5 is out of range; expected values"):

@@ -343,8 +343,8 @@ def test_markdown_and_frame() -> None:
 def test_control_rows_of_the_claims_are_the_labels_evaluation_writes() -> None:
     """The acting-control claims name rows as `priqn evaluate --acting near-greedy` labels
     them (Policy.near_greedy -> labels.near_greedy), and the label reads back from a CSV row."""
+    from priqn.agents.labels import PolicyLabel, near_greedy
     from priqn.analysis.paper import ENSEMBLE
-    from priqn.labels import PolicyLabel, near_greedy
 
     rows = {
         c.second.render() for c in CLAIMS if c.key.startswith("ours-acting") for c in c.comparisons
@@ -479,7 +479,7 @@ def test_welch_p_and_the_default_test_by_hand() -> None:
 
 def test_one_outcome_per_episode() -> None:
     """Collision > off-road > timeout > success, live and for committed tables."""
-    from priqn.episodes import OUTCOME_PRECEDENCE, one_outcome, resolve_outcomes
+    from priqn.run.episodes import OUTCOME_PRECEDENCE, one_outcome, resolve_outcomes
 
     both = {"success": False, "collision": True, "off_road": True, "timeout": False}
     assert one_outcome(both) == {

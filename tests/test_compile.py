@@ -18,8 +18,8 @@ import pytest
 import torch
 from test_agents import random_batch, small_net
 
-from priqn.agent_config import LearnerConfig
 from priqn.agents import learner as learner_mod
+from priqn.agents.config import LearnerConfig
 from priqn.agents.learner import Learner, resolve_compile
 from priqn.agents.registry import make_agent
 from priqn.errors import PriqnError
@@ -108,7 +108,7 @@ def test_compile_settings_resolve_by_device(monkeypatch: pytest.MonkeyPatch) -> 
 
 def test_the_default_presets_learner_is_eager_on_cpu() -> None:
     """``compile = "off"`` is what the presets resolve to here: training stays bit for bit."""
-    from priqn.train_config import resolve_config
+    from priqn.run.train_config import resolve_config
 
     for preset in ("default", "paper"):
         cfg = resolve_config(preset=preset, agent="pr-iqn")

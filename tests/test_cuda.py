@@ -15,13 +15,13 @@ import pytest
 import torch
 from test_agents import A, random_batch, random_obs, small_net
 
-from priqn import checkpoint
-from priqn.agent_config import LearnerConfig
+from priqn.agents.config import LearnerConfig
 from priqn.agents.learner import Learner
 from priqn.agents.network import tau_grid
 from priqn.agents.policy import Policy
 from priqn.agents.registry import AGENT_SPECS, make_agent
-from priqn.checkpoint import Checkpoint, PolicyState
+from priqn.run import checkpoint
+from priqn.run.checkpoint import Checkpoint, PolicyState
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 

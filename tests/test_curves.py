@@ -220,7 +220,7 @@ def test_derived_rows_are_shades_of_their_trained_row() -> None:
     rows take tab10 in order without the derived rows using up its colours."""
     from matplotlib.colors import to_rgb
 
-    from priqn.labels import PolicyLabel, at_budget, near_greedy, trained_row
+    from priqn.agents.labels import PolicyLabel, at_budget, near_greedy, trained_row
 
     iqn = PolicyLabel("iqn")
     pr = PolicyLabel("pr-iqn", "qd", True, 0.2, False)

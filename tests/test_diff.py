@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from test_train import TINY, cli
 
-from priqn.diff import diff_runs, verdict
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
+from priqn.tools.diff import diff_runs, verdict
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +75,7 @@ def test_a_copy_is_the_same_training(trained: Path, tmp_path: Path) -> None:
 
 def test_each_part_names_its_first_difference(trained: Path, tmp_path: Path) -> None:
 
-    from priqn.checkpoint import load_policy_state, save
+    from priqn.run.checkpoint import load_policy_state, save
 
     b = copy_of(trained, tmp_path)
     # metrics: the loss of the second row

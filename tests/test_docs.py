@@ -294,7 +294,7 @@ def test_sweep_help_lists_every_shipped_experiment() -> None:
 
 
 def test_train_help_lists_every_preset() -> None:
-    from priqn.train_config import PRESETS
+    from priqn.run.train_config import PRESETS
 
     assert "right-of-way" in PRESETS
     assert " | ".join(PRESETS) in _help("train")

@@ -17,7 +17,7 @@ import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 from priqn.errors import PriqnError
-from priqn.evaluate import config_from_args, configure_parser
+from priqn.evaluation.cli import config_from_args, configure_parser
 from priqn.evaluation.protocol import EPISODE_COLUMNS, EvalConfig, make_scenes
 from priqn.evaluation.store import cell_file, evaluate_policy
 
@@ -239,7 +239,7 @@ def test_acting_option_validation_flags_and_older_records() -> None:
     """``acting`` is checked and settable from the CLI; a record written before the field
     existed reads as its default ("own"), so older evaluations are not stale."""
     from priqn.evaluation.protocol import eval_config_changes
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     with pytest.raises(ValueError, match="acting: 'random' is not one of own, near-greedy"):
         EvalConfig(acting="random")
@@ -278,7 +278,7 @@ def test_acting_option_validation_flags_and_older_records() -> None:
 
 
 def test_evaluate_run_rejects_missing_and_unfinished_runs(tmp_path) -> None:
-    from priqn.evaluate import evaluate_run
+    from priqn.evaluation.cli import evaluate_run
 
     with pytest.raises(PriqnError, match="no such run folder"):
         evaluate_run(tmp_path / "nope", CFG)

@@ -36,7 +36,7 @@ ENV = dict(os.environ, PYTHONUNBUFFERED="1", MPLBACKEND="Agg")
 # disk, latest.pt's temp file is half written, the old latest.pt still stands.
 DIE_IN_WRITE = """
 import os, signal, sys
-import priqn.checkpoint as ck
+import priqn.run.checkpoint as ck
 from priqn.io import atomic_open
 real, calls = ck.save, []
 def save(state, path):
@@ -148,7 +148,7 @@ def test_a_resume_at_another_commit_or_off_its_episodes_is_one_line(
 ) -> None:
     import shutil
 
-    from priqn import checkpoint
+    from priqn.run import checkpoint
 
     src = uninterrupted["iqn"]
     # Another commit: meta.json says the checkpoint was written elsewhere.
@@ -187,7 +187,7 @@ def test_bench_replay_measures_both_writes(tmp_path: Path) -> None:
 def test_a_resume_on_another_cpu_model_is_not_exact(tmp_path: Path) -> None:
     """The learner's floats depend on the CPU model: only a resume on the model of the
     session before counts as exact (an unknown or missing model does not)."""
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     run = RunFolder(tmp_path / "run")
     run.path.mkdir()

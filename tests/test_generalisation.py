@@ -24,7 +24,7 @@ from priqn.analysis.generalisation import generalisation_table, load_generalisat
 from priqn.analysis.load import load_evaluation
 from priqn.analysis.report import make_report
 from priqn.errors import PriqnError
-from priqn.evaluate import config_from_args, configure_parser
+from priqn.evaluation.cli import config_from_args, configure_parser
 from priqn.evaluation.protocol import (
     EvalConfig,
     eval_dir_of,
@@ -33,7 +33,7 @@ from priqn.evaluation.protocol import (
     make_scenes,
 )
 from priqn.evaluation.targets import evaluation_nets, nets_hash
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 CROSS_NODES = (
     '<node id="C" x="0" y="0" type="priority"/><node id="W" x="-120" y="0"/>'

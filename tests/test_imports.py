@@ -155,10 +155,10 @@ def cycle_path(graph: dict[str, set[str]], component: list[str]) -> list[str]:
 
 def test_the_graph_is_read_correctly() -> None:
     graph = import_graph()
-    assert "priqn.preorder" in graph["priqn.agents.registry"]  # function-level import
-    assert "priqn.preorder" not in import_graph(module_level=True)["priqn.agents.registry"]
-    assert "priqn.runs" in graph["priqn.train"]
-    assert "priqn.agent_config" in graph["priqn.labels"]
+    assert "priqn.agents.preorder" in graph["priqn.agents.registry"]  # function-level import
+    assert "priqn.agents.preorder" not in import_graph(module_level=True)["priqn.agents.registry"]
+    assert "priqn.run.folder" in graph["priqn.train"]
+    assert "priqn.agents.config" in graph["priqn.agents.labels"]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     three = {"a": {"b", "d"}, "b": {"c"}, "c": {"a"}, "d": set()}
     assert cycle_path(three, ["a", "b", "c"]) == ["a", "b", "c", "a"]
@@ -188,14 +188,14 @@ def test_no_import_cycle_between_rooms() -> None:
 
 
 TORCH_FREE: tuple[str, ...] = (
-    "priqn.agent_config",
-    "priqn.labels",
+    "priqn.agents.config",
+    "priqn.agents.labels",
     "priqn.config",
     "priqn.paths",
     "priqn.experiment",
-    "priqn.metrics",
-    "priqn.runs",
-    "priqn.checkpoint",
+    "priqn.run.metrics",
+    "priqn.run.folder",
+    "priqn.run.checkpoint",
     "priqn.analysis.load",
     "priqn.sweep.scheduler",
     "priqn.cli",
@@ -256,11 +256,14 @@ def test_the_experiment_file_is_below_its_readers() -> None:
 
 
 def test_the_run_folder_knows_only_files() -> None:
-    """runs.py is handed provenance (priqn.provenance) and never reads a net or asks SUMO;
+    """runs.py is handed provenance (priqn.run.provenance) and never reads a net or asks SUMO;
     the checkpoint format stays torch-free at import (analysis reads run folders)."""
     graph = import_graph()
-    below = sorted(d for d in graph["priqn.runs"] if d.startswith(("priqn.sim", "priqn.env")))
-    assert not below, f"priqn.runs imports {below}"
-    assert "priqn.checkpoint" in graph["priqn.runs"] and "priqn.checkpoint" in graph["priqn.train"]
-    text = _modules()["priqn.checkpoint"].read_text(encoding="utf-8")
-    assert "\nimport torch" not in text, "priqn.checkpoint imports torch at module level"
+    below = sorted(d for d in graph["priqn.run.folder"] if d.startswith(("priqn.sim", "priqn.env")))
+    assert not below, f"priqn.run.folder imports {below}"
+    assert (
+        "priqn.run.checkpoint" in graph["priqn.run.folder"]
+        and "priqn.run.checkpoint" in graph["priqn.train"]
+    )
+    text = _modules()["priqn.run.checkpoint"].read_text(encoding="utf-8")
+    assert "\nimport torch" not in text, "priqn.run.checkpoint imports torch at module level"

@@ -73,7 +73,7 @@ def test_inspect_shows_the_evaluated_episode_and_its_subsets(evaluated_run, tmp_
         assert last[f"return_{o}"] == pytest.approx(scene[f"return_{o}"], abs=1e-5), o
     # The subsets the page shows are optimal_subsets of the saved quantiles.
     from priqn.preorder import Preorder, optimal_subsets
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     cfg = RunFolder(evaluated_run).config().agent
     saved = np.load(out / "quantiles.npz")

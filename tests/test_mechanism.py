@@ -20,7 +20,7 @@ from priqn.analysis.mechanism import (
     reliability_table,
     seed_summary,
 )
-from priqn.evaluation.protocol import Scene
+from priqn.evaluation.protocol import EvalScene
 from priqn.evaluation.rollout import RolloutStep
 from priqn.objectives import OBJECTIVES
 
@@ -32,7 +32,7 @@ CELL = Path(__file__).resolve().parents[1] / "results" / "headline" / "pr-iqn-qd
 
 
 def step(
-    scene: Scene,
+    scene: EvalScene,
     t: int,
     action: int,
     safety_keeps: list[int],
@@ -56,8 +56,8 @@ def step(
     return RolloutStep(scene, t, action, d, reward_N, None, end)
 
 
-def scene(episode: int) -> Scene:
-    return Scene(0, "holdout/fourway_00", 0.5, episode, 100 + episode, 200 + episode, None)
+def scene(episode: int) -> EvalScene:
+    return EvalScene(0, "holdout/fourway_00", 0.5, episode, 100 + episode, 200 + episode, None)
 
 
 def outcome(collision: bool = False, off_road: bool = False) -> dict:

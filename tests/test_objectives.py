@@ -20,7 +20,6 @@ from priqn.env.reads import Actors, StepActors
 from priqn.env.right_of_way import ConflictArea, conflict_areas, foe_due, violation_steps
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS, episode_columns
-from priqn.metrics import METRIC_COLUMNS, metric_columns
 from priqn.objectives import (
     BUILTIN_OBJECTIVES,
     OBJECTIVES,
@@ -28,6 +27,7 @@ from priqn.objectives import (
     objective_names,
     resolve_objectives,
 )
+from priqn.run.metrics import METRIC_COLUMNS, metric_columns
 
 ROOT = Path(__file__).resolve().parents[1]
 SIX = ("safety", "right_of_way", "risk", "lane_keeping", "progress", "comfort")
@@ -96,7 +96,7 @@ def test_the_crash_bound_counts_every_cost_only_objective():
 
 def test_a_run_config_follows_its_objectives():
     from priqn.agents.registry import make_agent
-    from priqn.train_config import resolve_config
+    from priqn.run.train_config import resolve_config
 
     cfg = resolve_config(preset="right-of-way", agent="pr-iqn", steps=100)
     assert cfg.objective_names == SIX and len(cfg.reward_weights) == 6
@@ -256,7 +256,7 @@ def test_an_objective_from_a_test_module_trains_evaluates_and_shows(own_objectiv
 def test_a_policy_or_resume_with_another_objective_list_is_refused(own_objective_run, tmp_path):
     import shutil
 
-    from priqn.runs import load_policy
+    from priqn.run.folder import load_policy
 
     copy = tmp_path / "copy"
     shutil.copytree(own_objective_run, copy)

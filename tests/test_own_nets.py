@@ -141,9 +141,9 @@ def test_env_drives_an_own_net(own: Path) -> None:
 def test_train_net_file_records_the_nets_with_their_hashes(own: Path, tmp_path: Path) -> None:
     import hashlib
 
-    from priqn.provenance import gather, own_nets_manifest
-    from priqn.runs import RunFolder
-    from priqn.train_config import default_run_name, policy_labels, resolve_config
+    from priqn.run.folder import RunFolder
+    from priqn.run.provenance import gather, own_nets_manifest
+    from priqn.run.train_config import default_run_name, policy_labels, resolve_config
 
     def prepare(run: RunFolder, cfg, resume: bool) -> dict:
         return run.prepare(cfg, resume, False, gather(cfg), policy_labels(cfg))

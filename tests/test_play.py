@@ -58,8 +58,8 @@ def libsumo_episode(scene: list[str]) -> pd.Series:
     opts = dict(zip(scene[::2], scene[1::2], strict=True))
     code = (
         "import json, sys\n"
-        "from priqn.inspector import InspectConfig\n"
-        "from priqn.play import play_run\n"
+        "from priqn.tools.inspector import InspectConfig\n"
+        "from priqn.tools.play import play_run\n"
         f"cfg = InspectConfig(net={opts['--net']!r}, density={float(opts['--density'])}, "
         f"eval_run={int(opts['--eval-run'])})\n"
         f"(r,) = play_run({str(CELL)!r}, cfg, render_mode=None)\n"
@@ -207,7 +207,7 @@ def test_without_a_display_it_says_how_to_get_one(tmp_path):
 def test_a_folder_destination_needs_no_imageio(monkeypatch, tmp_path):
     """Frames and episodes.csv need no imageio; only a .gif or .mp4 needs the gui extra."""
     from priqn.errors import PriqnError
-    from priqn.play import Record, check_destination
+    from priqn.tools.play import Record, check_destination
 
     monkeypatch.setitem(sys.modules, "imageio", None)  # 'import imageio' fails
     folder = str(tmp_path / "rec")
@@ -224,7 +224,7 @@ def test_a_folder_destination_needs_no_imageio(monkeypatch, tmp_path):
 def test_an_unwritable_destination_is_one_line(tmp_path):
     """``check_destination`` (run before the policy loads) names what is wrong in one line."""
     from priqn.errors import PriqnError
-    from priqn.play import check_destination
+    from priqn.tools.play import check_destination
 
     (tmp_path / "file").write_text("")
     (tmp_path / "dir.gif").mkdir()

@@ -1,4 +1,5 @@
-"""Tests of priqn.preorder: preorders, comparators and Algorithm 1 (docs/preorder.md)."""
+"""Tests of priqn.agents.preorder (public as priqn.preorder): preorders, comparators and
+Algorithm 1 (docs/preorder.md)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from priqn.errors import PriqnError
-from priqn.objectives import OBJECTIVES
-from priqn.preorder import (
+from priqn.agents.preorder import (
     COMPARATOR_FUNCTIONS,
     Preorder,
     RunningScale,
@@ -26,6 +25,8 @@ from priqn.preorder import (
     select,
     zscore,
 )
+from priqn.errors import PriqnError
+from priqn.objectives import OBJECTIVES
 
 FIVE = list(OBJECTIVES)
 SQ2 = math.sqrt(2.0)

@@ -264,7 +264,7 @@ def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> Non
 
 
 def test_seeds_are_written_as_ranges() -> None:
-    from priqn.labels import seeds_text
+    from priqn.agents.labels import seeds_text
 
     assert seeds_text([3, 0, 1, 2, 7, 9, 10, 1]) == "0–3, 7, 9–10"
     assert seeds_text([20, 21, *range(19, -1, -1)]) == "0–21"

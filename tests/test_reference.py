@@ -22,7 +22,7 @@ from test_generalisation import NETS_HASH, write_nets_evaluation
 
 from priqn.analysis.report import make_report
 from priqn.errors import PriqnError
-from priqn.evaluate import configure_parser, run
+from priqn.evaluation.cli import configure_parser, run
 from priqn.evaluation.protocol import EPISODE_COLUMNS, EvalConfig, make_scenes
 from priqn.evaluation.reference import ReferenceDriver, reference_label
 

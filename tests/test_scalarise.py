@@ -10,11 +10,11 @@ import math
 
 import pytest
 
-from priqn.agent_config import AgentConfig, LearnerConfig
+from priqn.agents.config import AgentConfig, LearnerConfig
 from priqn.agents.scalarise import SCHEMES, crash_margin, horizon, scheme_weights
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
-from priqn.train_config import TrainConfig
+from priqn.run.train_config import TrainConfig
 
 
 def test_horizon_by_hand():
@@ -85,7 +85,7 @@ def test_per_objective_discounts():
 def test_a_scheme_override_changes_the_weights():
     # The sensitivity grid sets agent.reward_scheme on top of a preset: the weights must
     # follow it (they once stayed those of the default scheme).
-    from priqn.train_config import resolve_config
+    from priqn.run.train_config import resolve_config
 
     cfg = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=hln-4"])
     assert cfg.reward_weights == pytest.approx(scheme_weights("hln-4"))

@@ -21,12 +21,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from priqn import checkpoint
 from priqn.config import dumps_toml, load_toml
 from priqn.errors import PriqnError
 from priqn.io import CHECKSUM_SUFFIX, atomic_torch_save
 from priqn.objectives import OBJECTIVES
-from priqn.runs import RunFolder
+from priqn.run import checkpoint
+from priqn.run.folder import RunFolder
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMITTED = sorted((ROOT / "results").glob("**/policy.pt"))
@@ -116,7 +116,7 @@ def test_train_resume_refuses_a_crafted_checkpoint(foreign):
     _, bad_latest, marker = foreign
     # As if this code had written it: a resume refuses another commit's checkpoint before
     # reading it, and the crafted file must meet the loader's own refusal.
-    from priqn.provenance import git_sha
+    from priqn.run.provenance import git_sha
 
     meta = json.loads((bad_latest / "meta.json").read_text())
     meta["git_sha"] = git_sha()

@@ -619,6 +619,6 @@ def test_sweep_forecast_prints_the_verdict_shares_and_trains_nothing(
 
 
 def test_the_papers_training_budget_is_the_paper_presets() -> None:
-    from priqn.train_config import resolve_config
+    from priqn.run.train_config import resolve_config
 
     assert resolve_config(preset="paper").total_steps == sequential_report.PAPER_TRAINING_DECISIONS

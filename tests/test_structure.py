@@ -110,7 +110,7 @@ def unexplained_long_functions() -> dict[str, int]:
 
 def test_functions_are_reasonably_short() -> None:
     lengths = function_lengths()
-    assert "priqn/preorder.py:optimal_subsets" in lengths  # the walk finds functions
+    assert "priqn/agents/preorder.py:optimal_subsets" in lengths  # the walk finds functions
     assert any(".__init__" in name for name in lengths)  # ... and methods
     long = {name: n for name, n in lengths.items() if n > MAX_LINES and name not in ALLOWED}
     assert not long, (
@@ -161,4 +161,53 @@ def test_one_reader_of_an_evaluations_episode_table() -> None:
             near = " ".join(lines[max(0, i - 3) : i + 1])
             if any(k in near for k in ("EVAL_EPISODES", "episodes.csv", "eval_episodes_path")):
                 readers.append(str(path.relative_to(ROOT)))
-    assert readers == ["analysis/load.py", "diff.py"], readers
+    assert readers == ["analysis/load.py", "tools/diff.py"], readers
+
+
+# --------------------------------------------------------------------------- the layout
+
+MAX_TOP_LEVEL_MODULES = 12
+"""Most modules directly in ``priqn/`` (``__init__.py`` not counted): the public faces and
+the frame (cli, config, errors, io, paths, plugins, checks, objectives, preorder, wrappers)
+and the two files read top to bottom (experiment, train); everything else has a
+sub-package named for its concept (docs/ARCHITECTURE.md)."""
+
+
+def top_level_modules() -> list[str]:
+    """The modules directly in ``priqn/``, ``__init__.py`` left out."""
+    return sorted(p.name for p in ROOT.glob("*.py") if p.name != "__init__.py")
+
+
+def class_homes() -> dict[str, list[str]]:
+    """``class name -> ["priqn/<path>.py", ...]``: every module of ``priqn/`` defining a
+    class of that name (nested classes included)."""
+    out: dict[str, list[str]] = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).as_posix()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.ClassDef):
+                homes = out.setdefault(node.name, [])
+                if rel not in homes:
+                    homes.append(rel)
+    return out
+
+
+def test_few_top_level_modules() -> None:
+    """The layout shows the architecture: at most :data:`MAX_TOP_LEVEL_MODULES` modules
+    beside the sub-packages."""
+    modules = top_level_modules()
+    assert "train.py" in modules and "__init__.py" not in modules
+    assert len(modules) <= MAX_TOP_LEVEL_MODULES, (
+        f"{len(modules)} top-level modules in priqn/ (at most {MAX_TOP_LEVEL_MODULES}): "
+        f"{', '.join(modules)}; move one into the sub-package of its concept"
+    )
+
+
+def test_each_class_name_names_one_thing() -> None:
+    """No class name is defined in two modules of ``priqn/`` (one concept, one home)."""
+    homes = class_homes()
+    assert "priqn/run/folder.py" in homes["RunFolder"]  # the walk finds classes
+    twice = {name: paths for name, paths in homes.items() if len(paths) > 1}
+    assert not twice, "class names defined in more than one module (rename one): " + "; ".join(
+        f"{name} in {', '.join(paths)}" for name, paths in sorted(twice.items())
+    )

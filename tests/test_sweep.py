@@ -24,7 +24,7 @@ from fake_runs import tiny_grid
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.paths import experiments_dir
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 from priqn.sweep import (
     Cell,
     cell_state,
@@ -194,8 +194,8 @@ PAPER_ROW_LABELS = [
 
 def test_table2_cells_train_the_papers_rows(tmp_path: Path) -> None:
     """Each row's resolved TrainConfig renders the Table II label, in the paper's order."""
+    from priqn.run.train_config import policy_labels
     from priqn.sweep import build_train_config
-    from priqn.train_config import policy_labels
 
     cells = expand(load_experiment(experiments_dir() / "table2.toml", runs_dir=tmp_path))
     labels = [policy_labels(build_train_config(c))["label"] for c in cells[::3]]
@@ -854,10 +854,10 @@ def test_ray_local_cluster_gives_the_same_cells_as_the_local_pool(
 
 
 def test_option_names_match_the_preorder_module() -> None:
-    """The names experiment files accept (priqn.agent_config) are the ones the preorder
+    """The names experiment files accept (priqn.agents.config) are the ones the preorder
     module implements: one comparator function per name, one shipped file per preset."""
     from priqn import preorder
-    from priqn.agent_config import COMPARATOR_NAMES, PREORDER_PRESETS
+    from priqn.agents.config import COMPARATOR_NAMES, PREORDER_PRESETS
 
     assert tuple(preorder.COMPARATOR_FUNCTIONS) == tuple(COMPARATOR_NAMES)
     for name in PREORDER_PRESETS:

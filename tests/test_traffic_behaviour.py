@@ -210,7 +210,7 @@ def test_behaviour_and_setting_errors_are_one_line() -> None:
 
 
 def test_every_named_setting_builds_a_train_config() -> None:
-    from priqn.train_config import resolve_config
+    from priqn.run.train_config import resolve_config
 
     for name in TRAFFIC_SETTINGS:
         cfg = resolve_config(overrides=list(traffic_overrides(name)))

@@ -15,12 +15,11 @@ import numpy as np
 import pytest
 import torch
 
-from priqn import checkpoint
 from priqn.errors import PriqnError
-from priqn.metrics import METRIC_COLUMNS
-from priqn.runs import load_policy
-from priqn.train import linear_epsilon, train
-from priqn.train_config import (
+from priqn.run import checkpoint
+from priqn.run.folder import load_policy
+from priqn.run.metrics import METRIC_COLUMNS
+from priqn.run.train_config import (
     ExplorationConfig,
     TrainConfig,
     default_run_name,
@@ -28,6 +27,7 @@ from priqn.train_config import (
     policy_labels,
     resolve_config,
 )
+from priqn.train import linear_epsilon, train
 
 CUDA = torch.cuda.is_available()
 
@@ -310,8 +310,8 @@ def test_long_run_prefix_is_the_short_run(tmp_path, device):
 
     # priqn diff says the same, also once the snapshot's weights are gone (as in git, where
     # only meta.json's SHA-256 of them is kept), and names the decay of the other run.
-    from priqn.diff import diff_runs
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
+    from priqn.tools.diff import diff_runs
 
     def diff(a: str, b: str) -> dict[str, bool | None]:
         _, found = diff_runs(RunFolder(tmp_path / a), RunFolder(tmp_path / b))
@@ -396,7 +396,7 @@ def test_one_writer_per_run_folder_and_a_killed_run_shows_interrupted(tmp_path):
     import signal
     import time
 
-    from priqn.runs import live_trainer, run_status
+    from priqn.run.folder import live_trainer, run_status
     from priqn.sweep import cell_state
 
     proc = subprocess.Popen(
@@ -429,7 +429,7 @@ def test_one_writer_per_run_folder_and_a_killed_run_shows_interrupted(tmp_path):
 def test_force_over_a_read_only_run_is_one_line_and_deletes_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     run = tmp_path / "run"
     (run / "eval").mkdir(parents=True)
@@ -451,8 +451,8 @@ def test_force_over_a_read_only_run_is_one_line_and_deletes_nothing(
 def test_cuda_determinism_switches_torch_and_cpu_training_leaves_it_alone(monkeypatch):
     """cuda_deterministic: the switch sets cuDNN, cuBLAS's workspace and torch's flag, and
     back; a CPU run never touches them (CPU training stays what it was, bit for bit)."""
+    from priqn.run.train_config import TrainConfig, cuda_determinism
     from priqn.train import _torch_device
-    from priqn.train_config import TrainConfig, cuda_determinism
 
     monkeypatch.delenv("CUBLAS_WORKSPACE_CONFIG", raising=False)
     before = (torch.are_deterministic_algorithms_enabled(), torch.backends.cudnn.deterministic)

@@ -78,7 +78,7 @@ def test_a_run_folder_cannot_supply_its_agent_module(runs, tmp_path):
     import shutil
 
     from priqn.errors import PriqnError
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     run = tmp_path / "evil_pkg_run"
     shutil.copytree(runs / "shielded", run)

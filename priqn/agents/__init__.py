@@ -1,7 +1,7 @@
 """Agents: one IQN learner with H heads; four variants as reward/acting/target rules.
 
 Public names (imported lazily: importing the package costs nothing until one is used;
-the configs and specs themselves live in the torch-free :mod:`priqn.agent_config`):
+the configs and specs themselves live in the torch-free :mod:`priqn.agents.config`):
 ``make_agent``, ``Agent``, ``AGENT_SPECS``, ``AgentConfig``, ``NetworkConfig``,
 ``LearnerConfig``, ``QuantileNetwork``, ``Learner``, ``ReplayBuffer``, ``Policy``,
 ``quantile_huber_loss``, ``tau_grid``.
@@ -16,9 +16,9 @@ _EXPORTS: dict[str, str] = {
     "make_agent": "priqn.agents.registry",
     "Agent": "priqn.agents.registry",
     "AGENT_SPECS": "priqn.agents.registry",
-    "AgentConfig": "priqn.agent_config",
-    "NetworkConfig": "priqn.agent_config",
-    "LearnerConfig": "priqn.agent_config",
+    "AgentConfig": "priqn.agents.config",
+    "NetworkConfig": "priqn.agents.config",
+    "LearnerConfig": "priqn.agents.config",
     "QuantileNetwork": "priqn.agents.network",
     "tau_grid": "priqn.agents.network",
     "Learner": "priqn.agents.learner",

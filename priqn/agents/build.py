@@ -1,8 +1,8 @@
 """How a run's agent is built, top to bottom: config → agent spec → agent → network → learner, policy.
 
 1. :func:`build_agent`: ``agent.name`` → its declaration (shipped, ``package.module:NAME``
-   or an entry point of group ``priqn.agents``: :func:`priqn.agent_config.resolve_agent`)
-   → its :class:`~priqn.agent_config.AgentSpec` (heads and the three rule functions) →
+   or an entry point of group ``priqn.agents``: :func:`priqn.agents.config.resolve_agent`)
+   → its :class:`~priqn.agents.config.AgentSpec` (heads and the three rule functions) →
    an :class:`~priqn.agents.registry.Agent` with the run's weights and, when the spec
    ``uses_preorder``, its optimal-subset function (:func:`~priqn.agents.registry.make_agent`).
 2. :func:`build_network`: the :class:`QuantileNetwork` with the spec's number of heads.
@@ -10,7 +10,7 @@
 
 ``priqn.train.train``, ``RunFolder.load_policy`` and ``priqn bench train`` build through
 here, so a plug-in agent (docs/your-own-agent.md) trains, evaluates and is inspected
-exactly like a shipped one. The config is a :class:`priqn.train_config.TrainConfig`
+exactly like a shipped one. The config is a :class:`priqn.run.train_config.TrainConfig`
 (typed by :class:`RunConfig`, as this package sits below it).
 """
 
@@ -22,7 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from priqn.agent_config import AgentConfig, LearnerConfig, NetworkConfig
+from priqn.agents.config import AgentConfig, LearnerConfig, NetworkConfig
 from priqn.agents.learner import Learner
 from priqn.agents.network import OBS_KEYS, QuantileNetwork
 from priqn.agents.policy import Policy
@@ -31,7 +31,7 @@ from priqn.errors import PriqnError
 
 
 class RunConfig(Protocol):
-    """What building reads of a run's :class:`priqn.train_config.TrainConfig`."""
+    """What building reads of a run's :class:`priqn.run.train_config.TrainConfig`."""
 
     @property
     def agent_config(self) -> AgentConfig: ...

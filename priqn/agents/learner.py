@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-from priqn.agent_config import COMPILE_MODES, LearnerConfig
+from priqn.agents.config import COMPILE_MODES, LearnerConfig
 from priqn.agents.graphs import GraphedPasses
 from priqn.agents.loss import quantile_huber_loss
 from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors

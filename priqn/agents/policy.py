@@ -10,11 +10,11 @@ import numpy as np
 import torch
 
 from priqn.agents import rules
+from priqn.agents.labels import PolicyLabel, near_greedy
 from priqn.agents.network import QuantileNetwork, tau_grid, to_tensors
 from priqn.agents.registry import Agent
 from priqn.checks import check_acting_eps
 from priqn.errors import PriqnError
-from priqn.labels import PolicyLabel, near_greedy
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +74,7 @@ class Policy:
     alone. Pr-IQN samples uniformly from its leaf optimal subset using ``rng``; the other
     agents are deterministic (``rng`` is still advanced by one draw per state so every
     agent consumes the same stream). ``env_config`` and ``labels`` are filled by
-    ``priqn.runs.load_policy``. :meth:`near_greedy` gives the same network acting by the
+    ``priqn.run.folder.load_policy``. :meth:`near_greedy` gives the same network acting by the
     near-greedy control rule.
     """
 

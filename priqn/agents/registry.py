@@ -1,4 +1,4 @@
-"""An agent built from its :class:`~priqn.agent_config.AgentSpec`: rules, weights, optimal subsets.
+"""An agent built from its :class:`~priqn.agents.config.AgentSpec`: rules, weights, optimal subsets.
 
 :class:`Agent` applies a spec's three rules (the functions the spec holds) with the run's
 weighted-sum weights and, for an agent that ``uses_preorder``, its
@@ -9,7 +9,7 @@ in :mod:`priqn.agents.build`). The shipped agents are declared in
 
 Shape suffixes as in :mod:`priqn.agents.network` (``B`` batch, ``H`` heads, ``K`` quantiles,
 ``A`` actions), plus ``O``: the run's objectives (``env.objectives``, five by default, six
-with ``right_of_way``), the length of the reward vector. :mod:`priqn.preorder` calls the
+with ``right_of_way``), the length of the reward vector. :mod:`priqn.agents.preorder` calls the
 same axis ``N``; inside ``priqn.agents`` ``N`` is the learner's τ samples.
 """
 
@@ -21,9 +21,9 @@ from typing import Any
 
 import torch
 
-from priqn.agent_config import AGENT_SPECS as AGENT_SPECS  # re-exported (tests, priqn.agents)
-from priqn.agent_config import COMPARATOR_NAMES, AgentConfig, AgentSpec, resolve_spec
 from priqn.agents import rules
+from priqn.agents.config import AGENT_SPECS as AGENT_SPECS  # re-exported (tests, priqn.agents)
+from priqn.agents.config import COMPARATOR_NAMES, AgentConfig, AgentSpec, resolve_spec
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
@@ -32,7 +32,7 @@ from priqn.objectives import OBJECTIVES
 def load_preorder(spec: str, objectives: tuple[str, ...] = OBJECTIVES) -> Any:
     """'total' | 'partial' | 'right-of-way' | path to a preorder TOML → ``Preorder`` over the
     run's ``objectives``, in their order (one line when it names others)."""
-    from priqn.preorder import Preorder
+    from priqn.agents.preorder import Preorder
 
     try:
         return Preorder.resolve(spec, objectives)
@@ -50,7 +50,7 @@ class PreorderSubsets:
     """
 
     def __init__(self, preorder: Any, cfg: AgentConfig) -> None:
-        from priqn.preorder import RunningScale, optimal_subsets
+        from priqn.agents.preorder import RunningScale, optimal_subsets
 
         self.preorder = preorder
         self.comparator = cfg.comparator
@@ -153,8 +153,8 @@ class Agent:
 
     @property
     def labels(self) -> dict[str, Any]:
-        """Table II columns and label of this agent (:class:`priqn.labels.PolicyLabel`)."""
-        from priqn.labels import PolicyLabel
+        """Table II columns and label of this agent (:class:`priqn.agents.labels.PolicyLabel`)."""
+        from priqn.agents.labels import PolicyLabel
 
         return PolicyLabel.of_config(self.cfg, self.partial_order).to_row()
 
@@ -199,7 +199,7 @@ def make_agent(
     **overrides: Any,
 ) -> Agent:
     """Build agent ``name`` (shipped, ``package.module:NAME`` or an entry point of group
-    ``priqn.agents``: :func:`priqn.agent_config.resolve_agent`) for a run with the given
+    ``priqn.agents``: :func:`priqn.agents.config.resolve_agent`) for a run with the given
     objective names (per-objective heads, preorder, weights follow them).
 
     Unknown names, comparators and preorders raise a one-line :class:`PriqnError`.

@@ -7,9 +7,9 @@ Every agent is the same network with ``H`` heads. Agents differ only in
 - an **acting rule**: quantiles of the current state → one action per state;
 - a **target rule**: quantiles of the next state → the bootstrap action of each head.
 
-The signatures are the protocols of :mod:`priqn.agent_config` (:class:`RewardRule`,
+The signatures are the protocols of :mod:`priqn.agents.config` (:class:`RewardRule`,
 :class:`ActingRule`, :class:`TargetRule`, :class:`ScalarValue`); an
-:class:`~priqn.agent_config.AgentSpec` holds the functions themselves
+:class:`~priqn.agents.config.AgentSpec` holds the functions themselves
 (:mod:`priqn.agents.shipped` declares the four agents with these). Each carries a
 ``rule_name`` (:func:`named`) and sits in a name registry (:data:`REWARD_RULES`,
 :data:`ACTING_RULES`, :data:`TARGET_RULES`) for docs and logs. :data:`SCALAR_VALUES` and
@@ -19,7 +19,7 @@ greedy agents (docs/evaluation.md).
 All quantiles given to the acting and target rules are on the FIXED grid
 τ_k = (k + 0.5)/K (``network.tau_grid``), so selection is deterministic for a network.
 The preorder rules get an ``OptimalSubsets``-like object ``subsets(quantiles_BHKA)``
-with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.preorder``).
+with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.agents.preorder``).
 Shape suffix ``O``: the run's objectives (the reward vector).
 
 Importing this module does not import torch (the shipped declarations are read by the
@@ -89,7 +89,7 @@ def masked_uniform_choice(mask_BA: Tensor, u_B: Tensor) -> Tensor:
 
     The j-th True entry (j = ⌊u · count⌋) is taken, so a given ``u`` always gives the
     same action: randomness comes only from the caller's generator. Rows must not be
-    empty (``priqn.preorder`` guarantees a non-empty leaf set).
+    empty (``priqn.agents.preorder`` guarantees a non-empty leaf set).
     """
     count_B = mask_BA.sum(dim=1)
     if bool((count_B == 0).any()):
@@ -221,7 +221,7 @@ def near_greedy_subsets(values_BKA: Tensor, eps: float) -> Any:
     while it still ranks actions by its own value; how stochastic depends on ε
     (docs/evaluation.md).
     """
-    from priqn.preorder import optimal_subsets
+    from priqn.agents.preorder import optimal_subsets
 
     return optimal_subsets(values_BKA.unsqueeze(1), _value_preorder(), comparator="qd", eps=eps)
 
@@ -229,7 +229,7 @@ def near_greedy_subsets(values_BKA: Tensor, eps: float) -> Any:
 @functools.cache
 def _value_preorder() -> Any:
     """The one-objective preorder of the near-greedy set (built once: it caches its plan)."""
-    from priqn.preorder import Preorder
+    from priqn.agents.preorder import Preorder
 
     return Preorder(["value"], source="near-greedy value")
 
@@ -279,7 +279,7 @@ def target_with_subsets(
 
 def lookup(registry: dict[str, Any], name: str, what: str) -> Any:
     """``registry[name]``; a plug-in's rule by its name ``module:qualified name``
-    (:func:`priqn.agent_config.rule_name`); else a one-line error listing the valid names."""
+    (:func:`priqn.agents.config.rule_name`); else a one-line error listing the valid names."""
     if name in registry:
         return registry[name]
     if ":" in name:

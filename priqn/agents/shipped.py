@@ -2,7 +2,7 @@
 
 Each is a function ``(agent_cfg, num_objectives) -> AgentSpec`` holding its rules
 themselves (:mod:`priqn.agents.rules`: go to their definitions from here).
-:data:`priqn.agent_config.SHIPPED_AGENTS` names them by path, the way an entry point of
+:data:`priqn.agents.config.SHIPPED_AGENTS` names them by path, the way an entry point of
 group ``priqn.agents`` names a plug-in. Importing this module does not import torch.
 
 | agent | heads | reward rule | acting rule | target rule |
@@ -15,8 +15,8 @@ group ``priqn.agents`` names a plug-in. Importing this module does not import to
 
 from __future__ import annotations
 
-from priqn.agent_config import AgentConfig, AgentSpec
 from priqn.agents import rules
+from priqn.agents.config import AgentConfig, AgentSpec
 
 
 def iqn(cfg: AgentConfig, num_objectives: int) -> AgentSpec:

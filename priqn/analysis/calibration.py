@@ -26,7 +26,7 @@ from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
 from priqn.io import atomic_write_json, atomic_write_text
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
 """Columns of :func:`setting_mixes`: one row per (cell, outcome, density)."""

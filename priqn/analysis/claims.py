@@ -53,6 +53,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from priqn.agents.labels import PolicyLabel, near_greedy
 from priqn.analysis import inference
 from priqn.analysis.paper import (
     ENSEMBLE,
@@ -69,7 +70,6 @@ from priqn.analysis.paper import (
     table_gains,
 )
 from priqn.errors import PriqnError
-from priqn.labels import PolicyLabel, near_greedy
 
 ALPHA = 0.05
 """Family-wise error rate of each family (two-sided)."""

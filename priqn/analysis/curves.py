@@ -38,7 +38,7 @@ import pandas as pd
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import snapshot_budget
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 PERIODIC = "periodic"
 """In-training evaluation rows of ``metrics.csv`` (few episodes per point)."""

@@ -20,11 +20,11 @@ import pandas as pd  # noqa: E402
 from matplotlib.colors import to_hex, to_rgb  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
+from priqn.agents.labels import trained_row  # noqa: E402
 from priqn.analysis.claims import ClaimResult  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
-from priqn.labels import trained_row  # noqa: E402
 from priqn.objectives import names_in_columns  # noqa: E402
 
 plt.rcParams["svg.hashsalt"] = "priqn"
@@ -136,7 +136,7 @@ def row_colors(labels: list[str]) -> dict[str, tuple]:
     has the same colour in every figure of a report.
 
     A row derived from a trained row in ``labels`` (its near-greedy control or its policy
-    at a kept budget, :func:`priqn.labels.trained_row`) gets a lighter or darker shade of
+    at a kept budget, :func:`priqn.agents.labels.trained_row`) gets a lighter or darker shade of
     that row's colour rather than a colour of its own, so a figure shows which rows are
     one network, and the trained rows keep the distinct colours."""
     present = set(labels)

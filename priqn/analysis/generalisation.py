@@ -35,11 +35,11 @@ from priqn.analysis.load import (
     read_evaluation,
 )
 from priqn.analysis.render import markdown_table
-from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import NETS_HASH_CHARS
 from priqn.io import read_json
-from priqn.runs import RunFolder
+from priqn.run.episodes import resolve_outcomes
+from priqn.run.folder import RunFolder
 
 OUTCOME_COLUMNS: tuple[tuple[str, str], ...] = (
     ("success", "Success ↑"),

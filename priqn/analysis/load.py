@@ -16,13 +16,13 @@ from typing import Any
 
 import pandas as pd
 
-from priqn.episodes import resolve_outcomes
+from priqn.agents.labels import CONFIG_COLUMNS, PolicyLabel, at_budget, budget_text
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import episode_columns, is_nets_evaluation, snapshot_budget
 from priqn.io import read_json
-from priqn.labels import CONFIG_COLUMNS, PolicyLabel, at_budget, budget_text
 from priqn.objectives import OBJECTIVES, names_in_columns
-from priqn.runs import RunFolder, Status
+from priqn.run.episodes import resolve_outcomes
+from priqn.run.folder import RunFolder, Status
 
 SORT_COLUMNS: tuple[str, ...] = ("label", "train_seed", "eval_run", "net", "density", "episode")
 """Canonical row order of the loaded table (so every statistic sees the same order)."""
@@ -77,7 +77,7 @@ class Evaluation:
 
 def read_episodes(eval_dir: str | Path, resolve: bool = True) -> pd.DataFrame:
     """``<eval_dir>/episodes.csv``, the one reader of an evaluation's episode table: one
-    outcome per episode (:func:`priqn.episodes.resolve_outcomes`), or with ``resolve``
+    outcome per episode (:func:`priqn.run.episodes.resolve_outcomes`), or with ``resolve``
     False the flags as written; an unreadable table is one line naming it."""
     csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
     try:

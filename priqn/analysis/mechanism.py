@@ -38,13 +38,13 @@ from typing import Any
 
 import numpy as np
 
+from priqn.agents.labels import budget_text
 from priqn.analysis.load import read_episodes
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.standstill import EPISODE_KEYS, episodes_in
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text, read_json
-from priqn.labels import budget_text
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 DEFAULT_EPISODES = 54
 """Episodes replayed per seed by default: the first evaluation run of the headline cells."""
@@ -265,7 +265,7 @@ def group_rows(seeds: Any) -> Any:
 
 
 @dataclasses.dataclass(frozen=True)
-class Cell:
+class ReplayCell:
     """One evaluated Pr-IQN cell and what its replay needs."""
 
     path: Path
@@ -285,7 +285,7 @@ class Cell:
     that policy's evaluation ``eval-at<N>/``."""
 
 
-def load_cell(path: Path, snapshot: int = 0) -> Cell:
+def load_cell(path: Path, snapshot: int = 0) -> ReplayCell:
     """A run folder with a complete ``eval/`` (``snapshot`` N: ``eval-at<N>/``): its
     episodes and evaluation config."""
 
@@ -326,7 +326,7 @@ def load_cell(path: Path, snapshot: int = 0) -> Cell:
             "(holdout_hash differs from the shipped manifest); its scenes cannot be replayed"
         )
     episodes = read_episodes(eval_dir, resolve=False)
-    return Cell(
+    return ReplayCell(
         run.path,
         run.name + (f"@{budget_text(snapshot)}" if snapshot else ""),
         float(episodes["success"].astype(float).mean()),
@@ -347,7 +347,7 @@ def replay_scenes(scenes: Sequence[Any], episodes: int) -> list[Any]:
     return ordered[:episodes] if episodes else ordered
 
 
-def replay_cell(cell: Cell, cfg: MechanismConfig, progress: Any = None) -> Any:
+def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) -> Any:
     """Replay the first ``cfg.episodes`` scenes of ``cell``'s evaluation; its decision rows
     (pandas), with ``replay_matches``: the episode ended as ``eval/episodes.csv`` says
     (outcome flags and length)."""
@@ -667,7 +667,7 @@ def _standstill(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) ->
 
     cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
 
-    def scenes(cell: Cell) -> list[Any]:
+    def scenes(cell: ReplayCell) -> list[Any]:
         return replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
 
     return standstill.analyse(cells, out, cfg.decisions_dir(out), scenes)

@@ -17,7 +17,7 @@ beside a sequential experiment's per-density success.
 
 from __future__ import annotations
 
-from priqn.labels import PolicyLabel
+from priqn.agents.labels import PolicyLabel
 
 IQN = PolicyLabel("iqn")
 ENSEMBLE = PolicyLabel("ensemble-iqn")

@@ -39,7 +39,7 @@ from priqn.experiment import (
     check_code,
     policy_difference,
 )
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
     "success": ("success",),

@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from priqn.agents.labels import budget_text, seeds_text
 from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
-from priqn.labels import budget_text, seeds_text
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 ENDPOINT_TEXT = {
     "success": "hold-out success rate",

@@ -21,12 +21,12 @@ import pandas as pd
 
 from priqn.analysis.load import EVAL_SETTINGS, SORT_COLUMNS, Evaluation, RunInfo, read_evaluation
 from priqn.config import config_differences, flatten
-from priqn.episodes import resolve_outcomes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX
 from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
 from priqn.io import read_json
-from priqn.runs import RunFolder
+from priqn.run.episodes import resolve_outcomes
+from priqn.run.folder import RunFolder
 
 ENV_NEUTRAL_FIELDS: frozenset[str] = SCENE_NEUTRAL_FIELDS | {"ego_driver"}
 """EnvConfig fields a reference's env may differ in from the runs' (who drives is the point)."""

@@ -33,7 +33,7 @@ from typing import Any
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 DEFAULT_REPS = 2000
 """Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
@@ -207,7 +207,7 @@ def build_tables(inputs: ReportInputs) -> ReportTables:
     )
     t1 = tables.table1(inputs.episodes, inputs.ranked)
     order = list(t2.configs)
-    if tables.reference_label(t2.configs) is None:
+    if tables.baseline_label(t2.configs) is None:
         inputs.notes.append("No IQN policy was evaluated, so Table I has no Δ%.")
     from priqn.analysis.generalisation import generalisation_table
 
@@ -290,7 +290,7 @@ def efficiency_figure(curve: Any, tabs: ReportTables) -> Any:
     rows = [label for label in tabs.order if label in set(curve["row"])]
     agents = {label: tabs.table2.configs[label][0] for label in rows}
     panel_rows = curves.panels(rows, curves.row_kinds(agents))
-    reference = tables.reference_label(tabs.table2.configs)
+    reference = tables.baseline_label(tabs.table2.configs)
     reference = reference if reference in rows else None
     return figures.sample_efficiency_figure(
         curve, panel_rows, figures.row_colors(tabs.order), reference

@@ -35,7 +35,7 @@ from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, check_code
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
 """AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at

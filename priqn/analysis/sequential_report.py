@@ -31,7 +31,7 @@ from priqn.analysis.sequential import (
     verdict,
 )
 from priqn.experiment import cell_dir_name
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 CURVE_SEED = 0
 """``np.random.seed`` before each rliable call of the sample-efficiency curves (recorded)."""

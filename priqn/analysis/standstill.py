@@ -185,7 +185,7 @@ def seed_summary(d: Any) -> dict[str, Any]:
 
 
 def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) -> Any:
-    """Play ``scenes`` (a :class:`priqn.analysis.mechanism.Cell`'s) with its policy,
+    """Play ``scenes`` (a :class:`priqn.analysis.mechanism.ReplayCell`'s) with its policy,
     quantiles recorded; its :func:`standstill_rows` (pandas)."""
     import pandas as pd
     import torch
@@ -194,7 +194,7 @@ def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) 
     from priqn.env.vector import make_vector_env
     from priqn.evaluation.rollout import rollout
     from priqn.evaluation.targets import evaluation_env
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     policy = RunFolder(cell.path).load_policy(device="cpu", snapshot=cell.snapshot)
     agent = policy.agent
@@ -367,7 +367,7 @@ def analyse(
     import pandas as pd
     from tqdm.auto import tqdm
 
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
 
     scenes = {c.name: list(pick_scenes(c)) for c in cells}
     seeds, frames = [], []

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from priqn.agent_config import AGENT_SPECS
+from priqn.agents.config import AGENT_SPECS
+from priqn.agents.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
 from priqn.analysis.render import csv_text
-from priqn.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.objectives import OBJECTIVES, names_in_columns
 
 AGENT_ORDER: tuple[str, ...] = tuple(AGENT_SPECS)
@@ -218,8 +218,9 @@ def add_delta(long: pd.DataFrame, reference: str | None) -> pd.DataFrame:
     return out
 
 
-def reference_label(configs: dict[str, tuple]) -> str | None:
-    """The IQN policy's label (first in order), or None when no IQN was evaluated."""
+def baseline_label(configs: dict[str, tuple]) -> str | None:
+    """The IQN policy's label (first in order), the baseline of Table I's Δ%, or None when
+    no IQN was evaluated."""
     return next((label for label, key in configs.items() if key[0] == "iqn"), None)
 
 
@@ -295,7 +296,7 @@ def table1(episodes: pd.DataFrame, ranked: bool = True) -> Table:
         for part in (TABLE1_METRICS[:3], TABLE1_METRICS[3:])
     )
     metrics = (*returns, *declared_metrics(episodes), *derived)
-    long = add_delta(summarise(episodes, metrics, list(configs), ranked), reference_label(configs))
+    long = add_delta(summarise(episodes, metrics, list(configs), ranked), baseline_label(configs))
     return Table(
         "Table I: episode returns per objective, per-decision means and episode length "
         "(mean ± sample std over training seeds × evaluation runs) and Δ% relative to IQN",

@@ -122,7 +122,7 @@ def _make_learner(
 ) -> tuple[Any, Any]:
     from priqn.agents.learner import Learner
     from priqn.agents.registry import make_agent
-    from priqn.train_config import build_network, resolve_config, select_device
+    from priqn.run.train_config import build_network, resolve_config, select_device
 
     cfg = resolve_config(preset=preset, agent=agent_name)
     learner_cfg = dataclasses.replace(
@@ -201,7 +201,7 @@ def updates_per_second(
     deterministic kernels (``cuda_deterministic``), and ``nondeterministic`` adds each once
     more without them.
     """
-    from priqn.train_config import cuda_determinism, select_device
+    from priqn.run.train_config import cuda_determinism, select_device
 
     cuda = select_device(device).type == "cuda"
     cases = [
@@ -255,9 +255,9 @@ def loop_throughput(
     ``overlap=False`` is the serial loop (update after the env step), the baseline.
     ``compile_`` is ``learner.compile`` (compiling happens inside the timed loop).
     """
-    from priqn.runs import RunFolder
+    from priqn.run.folder import RunFolder
+    from priqn.run.train_config import resolve_config
     from priqn.train import train
-    from priqn.train_config import resolve_config
 
     starts = min(500, steps // 4) if learning else steps + 1
     cfg = resolve_config(

@@ -274,7 +274,7 @@ class _Episode:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Plan:
+class _DecisionPlan:
     """A decision's plan and what it implies before SUMO runs (arrays [n] over its steps)."""
 
     traj: planner.Trajectory
@@ -572,7 +572,7 @@ class IntersectionEnv(gymnasium.Env):
         self._session.close()
         self._episode = None
 
-    def _show_plan(self, plan: _Plan, action: int) -> None:
+    def _show_plan(self, plan: _DecisionPlan, action: int) -> None:
         """``render_mode="human"``: draw the decision's plan and chosen action in sumo-gui."""
         v_f, d_f = self._table[action]
         xy = np.stack([plan.traj.x, plan.traj.y], axis=1)
@@ -703,7 +703,7 @@ class IntersectionEnv(gymnasium.Env):
 
     # ------------------------------------------------------------------ per step
 
-    def _plan(self, ep: _Episode, action: int) -> _Plan:
+    def _plan(self, ep: _Episode, action: int) -> _DecisionPlan:
         """Plan from the ego's state; the ego follows the plan exactly, so the steps at which
         it leaves the road or reaches its goal are known before SUMO runs."""
         cfg, n = self.config, self.config.substeps
@@ -716,9 +716,9 @@ class IntersectionEnv(gymnasium.Env):
         )  # fmt: skip
         at_goal = traj.s[sl] >= ep.route.goal_s_m
         events = np.flatnonzero(off_road | at_goal)
-        return _Plan(traj, off_road, at_goal, int(events[0]) + 1 if len(events) else n)
+        return _DecisionPlan(traj, off_road, at_goal, int(events[0]) + 1 if len(events) else n)
 
-    def _simulate(self, plan: _Plan) -> _Decision:
+    def _simulate(self, plan: _DecisionPlan) -> _Decision:
         """Drive the ego along samples 1..steps of the plan, one SUMO step each.
 
         One ``moveToXY`` (front bumper, SUMO angle) and one bulk actor read per step.
@@ -739,13 +739,13 @@ class IntersectionEnv(gymnasium.Env):
             raw.append(reads.read_actors(sim, EGO_ID))
         return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
-    def _drive_by_sumo(self, ep: _Episode) -> tuple[_Plan, _Decision]:
+    def _drive_by_sumo(self, ep: _Episode) -> tuple[_DecisionPlan, _Decision]:
         """Let SUMO drive the ego for one decision (``ego_driver = "sumo"``).
 
         One SUMO step at a time, reading the ego's pose and the actors; stops after the
         first step that reaches the goal or leaves the road (as a plan is cut there), or
         when the ego has finished its route (counted as reaching the goal). Returns what
-        happened as a :class:`_Plan` (:func:`priqn.env.handback.driven_trajectory`) so that
+        happened as a :class:`_DecisionPlan` (:func:`priqn.env.handback.driven_trajectory`) so that
         :meth:`_measure` measures it exactly as a planned decision.
         """
         from priqn.env import handback
@@ -782,10 +782,10 @@ class IntersectionEnv(gymnasium.Env):
                 break
         n_look = measures.look_ahead_samples(cfg.reward.conflict_time_safe_s, cfg.sim_step_s)
         traj = handback.driven_trajectory(ep.ref, ep.ego, poses, cfg.sim_step_s, n_look + 1)
-        plan = _Plan(traj, np.array(off_road), np.array(at_goal), len(poses))
+        plan = _DecisionPlan(traj, np.array(off_road), np.array(at_goal), len(poses))
         return plan, _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
-    def _measure(self, ep: _Episode, plan: _Plan, sim: _Decision) -> _Measures:
+    def _measure(self, ep: _Episode, plan: _DecisionPlan, sim: _Decision) -> _Measures:
         """Termination events and the reward inputs; the first collision ends the decision."""
         cfg, traj, n = self.config, plan.traj, plan.steps
         sl = slice(1, n + 1)
@@ -835,7 +835,9 @@ class IntersectionEnv(gymnasium.Env):
         ep.steps += 1
         ep.done = out.terminated or out.timeout
 
-    def _reward(self, ep: _Episode, plan: _Plan, sim: _Decision, m: _Measures) -> np.ndarray:
+    def _reward(
+        self, ep: _Episode, plan: _DecisionPlan, sim: _Decision, m: _Measures
+    ) -> np.ndarray:
         """The reward vector of the decision (``float32 [N]``, declared objectives' order)."""
         ctx = DecisionContext(
             config=self.config,

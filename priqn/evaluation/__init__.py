@@ -1,10 +1,10 @@
 """The evaluation protocol and its machinery, one module per concept (``priqn evaluate``
-itself is :mod:`priqn.evaluate`).
+itself is :mod:`priqn.evaluation.cli`).
 
 Modules import one way, each only from those before it:
 
 - :mod:`~priqn.evaluation.protocol` — torch-free, what the analysis reads: ``EvalConfig``,
-  :class:`~priqn.evaluation.protocol.Scene` and ``make_scenes`` (the scene rule), the
+  :class:`~priqn.evaluation.protocol.EvalScene` and ``make_scenes`` (the scene rule), the
   episode table's columns, the evaluation folders' names;
 - :mod:`~priqn.evaluation.rollout` — the one rollout loop (``rollout``, ``RolloutStep``,
   ``run_scenes``) of evaluation, training's evaluation, ``priqn inspect`` and the analysis;

@@ -29,12 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from priqn.agents.labels import CONFIG_COLUMNS
 from priqn.checks import check_acting_eps, check_density
 from priqn.config import config_differences, to_dict
 from priqn.errors import PriqnError
-from priqn.labels import CONFIG_COLUMNS
 from priqn.objectives import OBJECTIVES, return_columns, subset_columns
-from priqn.runs import SNAPSHOT_PREFIX, RunFolder
+from priqn.run.folder import SNAPSHOT_PREFIX, RunFolder
 
 LABEL_KEYS: tuple[str, ...] = (*CONFIG_COLUMNS, "train_seed", "label")
 """Keys of ``Policy.labels`` copied into every episode row."""
@@ -152,7 +152,7 @@ class EvalConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class Scene:
+class EvalScene:
     """One evaluation episode: what the environment is reset to and the acting seed."""
 
     eval_run: int
@@ -181,7 +181,7 @@ class Scene:
         return options
 
 
-def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
+def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[EvalScene]:
     """All evaluation episodes in canonical order (eval run, net, density, episode).
 
     ``net_ids`` are the hold-out nets' ids (without family); they are sorted, so the
@@ -198,7 +198,7 @@ def make_scenes(cfg: EvalConfig, net_ids: Sequence[str]) -> list[Scene]:
                     reset_seed, act_seed = (int(x) for x in ss.generate_state(2, dtype=np.uint32))
                     command = cfg.commands[e % len(cfg.commands)] if cfg.commands else None
                     scenes.append(
-                        Scene(
+                        EvalScene(
                             r,
                             net_id if cfg.nets else f"{cfg.family}/{net_id}",
                             float(density),

@@ -16,7 +16,7 @@ from priqn.evaluation.protocol import LABEL_KEYS, EvalConfig, evaluation_name
 from priqn.evaluation.store import evaluate_policy
 from priqn.evaluation.targets import evaluation_env, evaluation_target, find_runs
 from priqn.io import read_json
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 REFERENCES: dict[str, str] = {"sumo": "SUMO driver", "random": "Random actions"}
 """Reference drivers (``priqn evaluate --reference NAME``) and their row names."""
@@ -80,7 +80,7 @@ def reference_env_config(paths: Iterable[str | Path]) -> tuple[Any, list[str]]:
     they must agree on every field but what only a policy sees and the nets
     (:data:`SCENE_NEUTRAL_FIELDS`). No paths: ``priqn train``'s default env.
     """
-    from priqn.train_config import TrainConfig
+    from priqn.run.train_config import TrainConfig
 
     runs = find_runs(paths) if paths else []
     if not runs:
@@ -134,7 +134,7 @@ def evaluate_reference(
     def make_env(num_envs: int) -> Any:
         return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
 
-    from priqn.provenance import git_sha, versions
+    from priqn.run.provenance import git_sha, versions
 
     extra_meta: dict[str, Any] = {
         "reference": name,

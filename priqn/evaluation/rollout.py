@@ -1,6 +1,6 @@
 """The one rollout loop: ``priqn evaluate`` (also of the reference drivers), training's
 periodic evaluation, ``priqn inspect`` and the mechanism analysis all play their scenes
-(:class:`~priqn.evaluation.protocol.Scene`) here, one typed record per decision."""
+(:class:`~priqn.evaluation.protocol.EvalScene`) here, one typed record per decision."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from priqn.episodes import episode_values, final_info
-from priqn.evaluation.protocol import Scene
+from priqn.evaluation.protocol import EvalScene
+from priqn.run.episodes import episode_values, final_info
 
 
 def _select(obs: Any, i: int) -> Any:
@@ -24,7 +24,7 @@ def _select(obs: Any, i: int) -> Any:
 class RolloutStep:
     """One decision of one scene as :func:`rollout` played it."""
 
-    scene: Scene
+    scene: EvalScene
     """The scene (episode) this decision belongs to."""
     step: int
     """Decision index within the episode (0-based)."""
@@ -37,7 +37,7 @@ class RolloutStep:
     frame: np.ndarray | None
     """The env's rendering of the state decided on (``frames=True``; else None)."""
     episode: dict[str, Any] | None
-    """When this decision ended the episode: its values (:func:`priqn.episodes.episode_values`
+    """When this decision ended the episode: its values (:func:`priqn.run.episodes.episode_values`
     and the mean ``subset_<name>`` sizes); None before."""
 
 
@@ -46,7 +46,7 @@ class RolloutStep:
 def rollout(
     policy: Any,
     vec_env: Any,
-    scenes: Sequence[Scene],
+    scenes: Sequence[EvalScene],
     quantiles: bool = False,
     frames: bool = False,
 ) -> Iterator[RolloutStep]:
@@ -69,7 +69,7 @@ def rollout(
     num_envs = int(vec_env.num_envs)
     sizes = SubsetSizeMeans(num_envs, getattr(policy, "subset_size_names", ()))
     queue = list(scenes)
-    slot: list[Scene | None] = [None] * num_envs
+    slot: list[EvalScene | None] = [None] * num_envs
     rngs: list[np.random.Generator | None] = [None] * num_envs
     steps = [0] * num_envs
     obs: Any = None
@@ -131,8 +131,8 @@ def rollout(
 def run_scenes(
     policy: Any,
     vec_env: Any,
-    scenes: Sequence[Scene],
-    on_episode: Callable[[Scene, dict[str, Any]], None],
+    scenes: Sequence[EvalScene],
+    on_episode: Callable[[EvalScene, dict[str, Any]], None],
     progress: Any | None = None,
 ) -> None:
     """Play every scene once with :func:`rollout`; ``on_episode(scene, values)`` is called

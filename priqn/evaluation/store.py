@@ -21,7 +21,7 @@ from priqn.errors import PriqnError
 from priqn.evaluation.protocol import (
     LABEL_KEYS,
     EvalConfig,
-    Scene,
+    EvalScene,
     episode_columns,
     eval_config_changes,
     make_scenes,
@@ -29,7 +29,7 @@ from priqn.evaluation.protocol import (
 from priqn.evaluation.rollout import run_scenes
 from priqn.io import atomic_write_json, atomic_write_text, read_json
 from priqn.objectives import OBJECTIVES, names_in_columns
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 
 def cell_file(eval_dir: Path, cell: tuple[int, str, float]) -> Path:
@@ -69,7 +69,7 @@ def earlier_evaluation(
     no result-affecting change of ``eval_config`` (a recorded EvalConfig, ``to_dict``);
     else a one-line PriqnError (``--force`` starts over). Finished or not: its
     ``status`` says which. The one meta check of :func:`evaluate_policy` and
-    ``priqn.evaluate.evaluate_run`` (which returns a complete one as it is)."""
+    ``priqn.evaluation.cli.evaluate_run`` (which returns a complete one as it is)."""
     meta_path = Path(eval_dir) / RunFolder.META
     if not meta_path.is_file():
         return None
@@ -110,7 +110,7 @@ def _new_meta(
 
 
 def _unfinished_cells(
-    eval_dir: Path, cells: Mapping[tuple[int, str, float], Sequence[Scene]]
+    eval_dir: Path, cells: Mapping[tuple[int, str, float], Sequence[EvalScene]]
 ) -> set[tuple[int, str, float]]:
     """The cells of ``cells`` (cell -> its scenes) with no complete file in ``eval_dir``."""
     return {c for c, sc in cells.items() if not _cell_complete(cell_file(eval_dir, c), len(sc))}
@@ -157,14 +157,14 @@ def evaluate_policy(
     fixed.update({"run": run_name, "holdout_hash": holdout_hash})
 
     scenes = make_scenes(cfg, net_ids)
-    cells: dict[tuple[int, str, float], list[Scene]] = {}
+    cells: dict[tuple[int, str, float], list[EvalScene]] = {}
     for scene in scenes:
         cells.setdefault(scene.cell, []).append(scene)
     todo_cells = _unfinished_cells(eval_dir, cells)
     todo = [s for s in scenes if s.cell in todo_cells]
     pending: dict[tuple[int, str, float], list[dict[str, Any]]] = {c: [] for c in todo_cells}
 
-    def on_episode(scene: Scene, values: dict[str, Any]) -> None:
+    def on_episode(scene: EvalScene, values: dict[str, Any]) -> None:
         row = {
             **fixed,
             "eval_run": scene.eval_run,

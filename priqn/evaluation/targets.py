@@ -12,7 +12,7 @@ from typing import Any
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EvalConfig
 from priqn.io import sha256_file
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 
 def find_runs(paths: Iterable[str | Path]) -> list[Path]:

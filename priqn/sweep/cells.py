@@ -1,8 +1,8 @@
 """Cells: one (policy, seed) of a grid, its run folder, its state and its configs.
 
 A cell is complete iff its run's ``meta.json`` and its ``eval/meta.json`` both say
-``"status": "complete"``; the state (a :class:`priqn.runs.Status`) is always read from the
-run folder (:class:`priqn.runs.RunFolder`), never from a sweep's memory. The cell's folder
+``"status": "complete"``; the state (a :class:`priqn.run.folder.Status`) is always read from the
+run folder (:class:`priqn.run.folder.RunFolder`), never from a sweep's memory. The cell's folder
 is ``<runs_dir>/<experiment>/<policy>__seed<k>`` (:func:`priqn.experiment.cell_dir_name`).
 """
 
@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from priqn.agent_config import has_scalar_value
+from priqn.agents.config import has_scalar_value
 from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, PolicySpec, cell_dir_name, policy_difference
 from priqn.io import read_json
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 # --------------------------------------------------------------------------- cells
 
@@ -182,8 +182,8 @@ def is_complete(run_dir: Path, controls: tuple[str, ...] = ()) -> bool:
 
 
 def build_train_config(cell: Cell) -> Any:
-    """The cell's resolved :class:`priqn.train_config.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
-    from priqn.train_config import resolve_config
+    """The cell's resolved :class:`priqn.run.train_config.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
+    from priqn.run.train_config import resolve_config
 
     return resolve_config(
         preset=cell.preset,

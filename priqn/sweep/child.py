@@ -17,7 +17,7 @@ import sys
 import traceback
 
 from priqn.errors import PriqnError
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 from priqn.sweep.cells import Cell, build_eval_config, build_train_config
 from priqn.sweep.process import DEFAULT_CELL_FN, ERROR_MARK
 
@@ -26,7 +26,7 @@ def train_and_evaluate(cell: Cell) -> None:
     """Run one cell to completion: train (resuming an interrupted run), then evaluate
     (its own acting, then each control evaluation of a baseline cell, then each policy
     kept at a budget of ``checkpoint.keep_at``, into ``eval-at<N>/``)."""
-    from priqn.evaluate import evaluate_run
+    from priqn.evaluation.cli import evaluate_run
     from priqn.evaluation.protocol import control_config
     from priqn.train import train
 

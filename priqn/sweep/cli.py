@@ -12,7 +12,7 @@ from typing import Any
 from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, load_experiment
 from priqn.paths import EXPERIMENTS, shipped
-from priqn.runs import Status
+from priqn.run.folder import Status
 from priqn.sweep.cells import cell_progress, expand, select, stale_cells, time_left, validate
 from priqn.sweep.process import DEFAULT_CELL_FN
 from priqn.sweep.scheduler import SweepFolder, default_jobs, run_sweep
@@ -349,7 +349,7 @@ def _code_dir(arg: str | None) -> Path | None:
 
 def _check_code_commit(exp: Any, code_dir: Path | None) -> None:
     """A sequential design lists the commits its cells may train at: refuse any other."""
-    from priqn.provenance import git_sha
+    from priqn.run.provenance import git_sha
 
     listed = exp.code_commits
     if not listed:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 from priqn.sweep.cells import Cell, expand
 
 

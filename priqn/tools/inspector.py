@@ -39,7 +39,7 @@ import numpy as np
 from priqn.checks import check_acting_eps, check_density
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
 
 KEPT = ""
 """``pruned_by_<objective>`` when the head's greedy action survives to the leaf."""

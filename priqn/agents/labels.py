@@ -4,7 +4,7 @@ One :class:`PolicyLabel` per trained configuration. It is built from a run's con
 (:meth:`PolicyLabel.of_config`), written into ``meta.json`` and every evaluation episode
 row (:meth:`to_row`), read back by the analysis (:meth:`from_row`) and rendered the
 same way everywhere (:meth:`render`, :meth:`cells`). Torch-free; the agent facts
-(display names, which agents use a preorder) come from :mod:`priqn.agent_config`.
+(display names, which agents use a preorder) come from :mod:`priqn.agents.config`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from priqn.agent_config import COMPARATOR_NAMES, AgentConfig, agent_spec
+from priqn.agents.config import COMPARATOR_NAMES, AgentConfig, agent_spec
 
 CONFIG_COLUMNS: tuple[str, ...] = ("agent", "comparator", "train_preorder", "eps", "partial_order")
 """The paper's configuration columns, in Table II order: the keys of :meth:`PolicyLabel.to_row`,

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.agent_config import (
+from priqn.agents.config import (
     PREORDER_PRESETS,
     AgentConfig,
     LearnerConfig,
@@ -324,7 +324,7 @@ def derive_seeds(seed: int) -> dict[str, int]:
 
 
 def policy_labels(cfg: TrainConfig, agent: Any = None) -> dict[str, Any]:
-    """Table II labels of a run (:class:`priqn.labels.PolicyLabel` row) plus ``train_seed``.
+    """Table II labels of a run (:class:`priqn.agents.labels.PolicyLabel` row) plus ``train_seed``.
 
     ``agent``: the run's agent when already built (else it is built here)."""
     from priqn.agents.build import build_agent

@@ -3,8 +3,8 @@
 :func:`gather` asks the layers that own each fact — the scenario manifests
 (:mod:`priqn.sim.scenario`), your own nets (:mod:`priqn.env.scenes`,
 :mod:`priqn.sim.roadmap`), SUMO (:mod:`priqn.sim.sumo`), git and the installed packages —
-and returns a :class:`priqn.runs.Provenance`, which :func:`priqn.train.train` hands to
-:meth:`priqn.runs.RunFolder.prepare`; the run folder only writes it. Everything here
+and returns a :class:`priqn.run.folder.Provenance`, which :func:`priqn.train.train` hands to
+:meth:`priqn.run.folder.RunFolder.prepare`; the run folder only writes it. Everything here
 that can refuse a run (a family without generated nets, a net that cannot be used) runs
 before the run folder is touched.
 """
@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 
 from priqn.io import sha256_file
-from priqn.runs import Provenance
+from priqn.run.folder import Provenance
 
 
 def gather(cfg: Any) -> Provenance:
-    """The provenance of a session training ``cfg`` (a :class:`~priqn.train_config.TrainConfig`):
+    """The provenance of a session training ``cfg`` (a :class:`~priqn.run.train_config.TrainConfig`):
     git commit, versions, the manifest hash of every family it reads and, with ``env.nets``,
     the manifest of those nets (its hash under ``"own"``)."""
+    from priqn.run.train_config import pool_families
     from priqn.sim.scenario import hash_of_manifest
-    from priqn.train_config import pool_families
 
     pool = set() if cfg.env.nets else set(pool_families(cfg.env.family))
     hashes = manifest_hashes(sorted(pool | {cfg.evaluation.family}), cfg.env.nets_dir)

@@ -4,7 +4,7 @@ One row per training episode (``kind`` train) or in-training evaluation episode
 (``kind`` eval). :func:`metrics_row` fills the episode's own columns; the training loop
 adds where it stood (``step``, ``episode``, ``wall_s``, ``epsilon``, ``updates``,
 ``loss``) and, for the preorder agents, the mean optimal-subset sizes. The file itself
-is written and read by :class:`priqn.runs.RunFolder`.
+is written and read by :class:`priqn.run.folder.RunFolder`.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def metrics_row(
     objectives: Sequence[str] = OBJECTIVES,
 ) -> dict[str, Any]:
     """One metrics.csv row of an ended episode (``kind`` train or eval) from its
-    :func:`priqn.episodes.episode_values` and its net (``objectives``: the run's names)."""
+    :func:`priqn.run.episodes.episode_values` and its net (``objectives``: the run's names)."""
     returns = np.array([values[f"return_{o}"] for o in objectives])
     row: dict[str, Any] = {"kind": kind}
     row.update(

@@ -17,7 +17,7 @@ anyone runs no code. :func:`load` and :func:`load_policy_state` turn a damaged,
 truncated, tampered or foreign file into one :class:`~priqn.errors.PriqnError` line that
 names the file, and :func:`restore` does the same for weights that do not fit a network.
 Which file lives where (and the replay buffer file a checkpoint names) is
-:class:`priqn.runs.RunFolder`'s business.
+:class:`priqn.run.folder.RunFolder`'s business.
 """
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ class Checkpoint:
     num_actions: int
     """Size of the discrete action space."""
     config: dict[str, Any]
-    """The run's :class:`~priqn.train_config.TrainConfig` as a dict (for the record)."""
+    """The run's :class:`~priqn.run.train_config.TrainConfig` as a dict (for the record)."""
     replay_file: str | None = None
     """Name of the uncompressed replay buffer file saved with it, in the same folder, by
     checkpoints before issue 49 (None: none; newer ones use ``replay_chunks``)."""

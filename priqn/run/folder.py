@@ -14,9 +14,9 @@ A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds
     nets.json              your own nets (env.nets) with their SHA-256, when the run used them
 
 Every command reads and writes these through :class:`RunFolder`, so no other module
-spells a file name; the torch files are in :mod:`priqn.checkpoint`'s format. The run
+spells a file name; the torch files are in :mod:`priqn.run.checkpoint`'s format. The run
 folder only knows files: what meta.json records about the run's origin (nets, SUMO, git)
-is gathered by :mod:`priqn.provenance` and handed in as a :class:`Provenance`.
+is gathered by :mod:`priqn.run.provenance` and handed in as a :class:`Provenance`.
 
 A run folder has one writer: ``meta.json`` records the trainer's pid and host while it
 runs (:meth:`RunFolder.live_trainer`), and a ``running`` run whose trainer is gone reads
@@ -37,8 +37,6 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from priqn import checkpoint
-from priqn.checkpoint import Checkpoint, PolicyState
 from priqn.config import config_differences, dumps_toml, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.io import (
@@ -49,7 +47,9 @@ from priqn.io import (
     remove_stale_temp_files,
     sha256_file,
 )
-from priqn.metrics import METRIC_COLUMNS
+from priqn.run import checkpoint
+from priqn.run.checkpoint import Checkpoint, PolicyState
+from priqn.run.metrics import METRIC_COLUMNS
 
 
 class Status(StrEnum):
@@ -80,7 +80,7 @@ class Status(StrEnum):
 class Provenance:
     """Where a training session comes from, as meta.json (and nets.json) record it.
 
-    Gathered by the training side (:func:`priqn.provenance.gather`) and handed to
+    Gathered by the training side (:func:`priqn.run.provenance.gather`) and handed to
     :meth:`RunFolder.prepare`: the run folder writes it and compares it on a resume, but
     never reads a net or asks SUMO itself.
     """
@@ -223,8 +223,8 @@ class RunFolder:
 
     # ---------------------------------------------------------------- config and meta
     def config(self) -> Any:
-        """The run's resolved :class:`priqn.train_config.TrainConfig`."""
-        from priqn.train_config import TrainConfig
+        """The run's resolved :class:`priqn.run.train_config.TrainConfig`."""
+        from priqn.run.train_config import TrainConfig
 
         if not self.is_run():
             raise PriqnError(f"{self.path}: not a run folder (no {self.CONFIG})")
@@ -470,7 +470,7 @@ class RunFolder:
     def _new_meta(self, cfg: Any, force: bool) -> dict[str, Any]:
         """The first meta.json of a new run; an existing folder is refused, or removed with
         ``force``."""
-        from priqn.train_config import derive_seeds
+        from priqn.run.train_config import derive_seeds
 
         if self.path.exists() and any(self.path.iterdir()):
             if not force:
@@ -489,8 +489,8 @@ class RunFolder:
     def write_metrics(
         self, rows: Sequence[Mapping[str, Any]], columns: Sequence[str] = METRIC_COLUMNS
     ) -> None:
-        """metrics.csv with ``columns`` (atomically): :func:`priqn.metrics.metric_columns`
-        of the run's objectives, :data:`priqn.metrics.METRIC_COLUMNS` by default."""
+        """metrics.csv with ``columns`` (atomically): :func:`priqn.run.metrics.metric_columns`
+        of the run's objectives, :data:`priqn.run.metrics.METRIC_COLUMNS` by default."""
         buf = io.StringIO()
         writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
         writer.writeheader()
@@ -517,7 +517,7 @@ class RunFolder:
         ``replay`` None saves no buffer (``checkpoint.save_replay = false``). Each file is
         atomic and latest.pt is the commit point, so a kill at any moment, in the middle of
         this too, leaves a latest.pt whose replay files are all there. The format is
-        :mod:`priqn.checkpoint`'s.
+        :mod:`priqn.run.checkpoint`'s.
         """
         chunks = None
         if replay is not None:
@@ -570,7 +570,7 @@ class RunFolder:
         the policy kept at N decisions (``snapshots/policy-at<N>.pt``) instead.
         """
         from priqn.agents.build import build_agent, build_network, build_policy
-        from priqn.train_config import observation_space, policy_labels, select_device
+        from priqn.run.train_config import observation_space, policy_labels, select_device
 
         cfg = self.config()
         latest, final = self.latest_checkpoint, self.policy_path

@@ -38,7 +38,7 @@ from priqn.evaluation.reference import (
 )
 from priqn.evaluation.store import earlier_evaluation, evaluate_policy
 from priqn.evaluation.targets import evaluation_env, evaluation_target, find_runs
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 
 def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> Path:
@@ -123,7 +123,7 @@ def evaluate(paths: Iterable[str | Path], cfg: EvalConfig, force: bool = False) 
 
 
 def _has_scalar_value(run: Path) -> bool:
-    from priqn.agent_config import has_scalar_value
+    from priqn.agents.config import has_scalar_value
 
     name = RunFolder(run).config().agent.name
     if has_scalar_value(name):

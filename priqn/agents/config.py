@@ -4,10 +4,10 @@
 ``[learner]`` tables of a TrainConfig); the agent interface (:class:`AgentSpec`: display
 name, heads and the three rule functions; :func:`resolve_agent` finds the declaration an
 ``agent.name`` names: shipped, ``package.module:NAME`` or entry point ``priqn.agents``)
-and the names of the Pr-IQN options. It lives outside
-:mod:`priqn.agents` so that :mod:`priqn.preorder`, :mod:`priqn.labels`, the sweep's
-experiment files and the analysis can read these facts without importing torch or the
-agents package (which itself imports the preorder and the labels).
+and the names of the Pr-IQN options. At import it loads neither torch nor another module of
+this package (whose ``__init__`` is lazy), so :mod:`priqn.agents.preorder`,
+:mod:`priqn.agents.labels`, the sweep's experiment files and the analysis can read these
+facts without importing torch or the agents' networks.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
 COMPARATOR_NAMES: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd": "FSD"}
 """Comparator name → its display name in tables (the functions, in the same order:
-``priqn.preorder.COMPARATOR_FUNCTIONS``)."""
+``priqn.agents.preorder.COMPARATOR_FUNCTIONS``)."""
 PREORDER_PRESETS: tuple[str, ...] = ("total", "partial", "right-of-way")
 """Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
 COMPILE_MODES: tuple[str, ...] = ("auto", "graphs", "on", "off")
@@ -312,7 +312,7 @@ def resolve_agent(name: str, where: str = "agent.name") -> AgentDeclaration:
     else:
         obj = import_plugin(
             name, SHIPPED_AGENTS, _entry_points(), where, "agent", "valid",
-            "priqn.agent_config.AgentSpec",
+            "priqn.agents.config.AgentSpec",
         )  # fmt: skip
     if not (isinstance(obj, AgentSpec) or callable(obj)):
         raise PriqnError(

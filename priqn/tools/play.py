@@ -33,8 +33,13 @@ from typing import Any
 import numpy as np
 
 from priqn.errors import PriqnError
-from priqn.inspector import InspectConfig, add_scene_arguments, inspection_scenes, scene_config
-from priqn.runs import RunFolder
+from priqn.run.folder import RunFolder
+from priqn.tools.inspector import (
+    InspectConfig,
+    add_scene_arguments,
+    inspection_scenes,
+    scene_config,
+)
 
 ANIMATIONS = (".gif", ".mp4")
 """File endings ``--record`` assembles an animation into (anything else is a folder)."""

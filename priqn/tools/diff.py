@@ -30,7 +30,7 @@ from typing import Any
 
 from priqn.errors import PriqnError
 from priqn.io import sha256_file
-from priqn.runs import RunFolder, Status
+from priqn.run.folder import RunFolder, Status
 
 IGNORED_METRICS = ("wall_s",)
 """metrics.csv columns that differ between identical trainings (wall-clock time)."""
@@ -189,7 +189,7 @@ def _differing_tensors(path_a: Path, path_b: Path) -> list[str]:
     observation shapes, action count, step and objectives (:class:`PolicyState`)."""
     import dataclasses
 
-    from priqn.checkpoint import load_policy_state
+    from priqn.run.checkpoint import load_policy_state
 
     sa, sb = load_policy_state(path_a), load_policy_state(path_b)
     la, lb = (dict(_leaves(dataclasses.asdict(x))) for x in (sa, sb))

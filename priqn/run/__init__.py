@@ -1,0 +1,18 @@
+"""A training run's lifecycle in files and records: what a run is, what it writes, where
+it comes from. Torch-free at import (the analysis and the sweep read run folders).
+
+- :mod:`~priqn.run.train_config` — what a run is: ``TrainConfig``, presets,
+  ``resolve_config``, seeds, run names, ``policy_labels``;
+- :mod:`~priqn.run.folder` — ``RunFolder``: every file of a run folder (config,
+  meta/status, the one-writer lock, metrics, checkpoints, ``policy.pt``,
+  ``load_policy``), ``Status``, ``Provenance``;
+- :mod:`~priqn.run.checkpoint` — the format of a run's torch files (``Checkpoint``,
+  ``PolicyState``);
+- :mod:`~priqn.run.metrics` — the format of ``metrics.csv``;
+- :mod:`~priqn.run.episodes` — the one reader of an ended episode's ``final_info``;
+- :mod:`~priqn.run.provenance` — ``gather``: git, versions, scenario manifests;
+- :mod:`~priqn.run.timing` — ``SectionClock``, where a loop's wall time goes.
+
+The loop that fills a run folder is :mod:`priqn.train` (it imports the evaluation and
+the analysis' figures, both of which read run folders, so it sits above them).
+"""
