@@ -32,7 +32,7 @@ from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
 from priqn.objectives import objective_names
 
-PRESETS_DIR = Path(__file__).resolve().parent / "presets"
+PRESETS_DIR = Path(__file__).resolve().parents[1] / "presets"
 PRESETS: tuple[str, ...] = ("default", "paper", "right-of-way")
 """Training presets: ``priqn/presets/train_<name>.toml``."""
 NETS: tuple[str, ...] = ("tjunction", "fourway", "all")
