@@ -256,8 +256,9 @@ def test_the_experiment_file_is_below_its_readers() -> None:
 
 
 def test_the_run_folder_knows_only_files() -> None:
-    """runs.py is handed provenance (priqn.run.provenance) and never reads a net or asks SUMO;
-    the checkpoint format stays torch-free at import (analysis reads run folders)."""
+    """run/folder.py is handed provenance (priqn.run.provenance) and never reads a net or
+    asks SUMO; the checkpoint format stays torch-free at import (analysis reads run
+    folders)."""
     graph = import_graph()
     below = sorted(d for d in graph["priqn.run.folder"] if d.startswith(("priqn.sim", "priqn.env")))
     assert not below, f"priqn.run.folder imports {below}"

@@ -5,6 +5,10 @@ the configs and specs themselves live in the torch-free :mod:`priqn.agents.confi
 ``make_agent``, ``Agent``, ``AGENT_SPECS``, ``AgentConfig``, ``NetworkConfig``,
 ``LearnerConfig``, ``QuantileNetwork``, ``Learner``, ``ReplayBuffer``, ``Policy``,
 ``quantile_huber_loss``, ``tau_grid``.
+
+Also here, each its own module: :mod:`~priqn.agents.labels` (a policy's Table II
+identity, torch-free) and :mod:`~priqn.agents.preorder` (preorders, comparators and
+Algorithm 1; the public module is :mod:`priqn.preorder`, which re-exports it).
 """
 
 from __future__ import annotations
