@@ -39,7 +39,7 @@ from priqn.experiment import (
     check_code,
     policy_difference,
 )
-from priqn.run.folder import RunFolder, Status
+from priqn.run.folder import RunFolder
 
 ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
     "success": ("success",),
@@ -130,9 +130,7 @@ def collect(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
                 raise PriqnError(f"{exp.path}: group {group!r} has no seed {seed}")
             pol, run_dir, evaluation = where
             folder = RunFolder(run_dir)
-            if folder.recorded_status() != Status.COMPLETE:
-                continue
-            if folder.recorded_eval_status(evaluation) != Status.COMPLETE:
+            if not folder.evaluation_complete(evaluation):
                 continue
             sha = str(folder.meta().get("git_sha", ""))
             _check_cell(exp, question, pol, seed, folder, sha)

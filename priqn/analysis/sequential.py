@@ -35,7 +35,7 @@ from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.experiment import cell_dir_name, check_code
-from priqn.run.folder import RunFolder, Status
+from priqn.run.folder import RunFolder
 
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
 """AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at
@@ -68,9 +68,7 @@ def success_by_density(run_dir: str | Path) -> tuple[pd.Series, int]:
 def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
     """The endpoint of one complete cell, or None when it is not complete yet."""
     folder = RunFolder(run_dir)
-    if not run_dir.is_dir() or folder.recorded_status() != Status.COMPLETE:
-        return None
-    if folder.recorded_eval_status() != Status.COMPLETE:
+    if not folder.evaluation_complete():
         return None
     per_density, episodes = success_by_density(run_dir)
     return Score(

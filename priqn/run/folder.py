@@ -291,12 +291,19 @@ class RunFolder:
         ``name``: of the control evaluation ``eval-<name>/`` instead."""
         return _status_in(self.evaluation_dir(name) / self.META)
 
-    def evaluated(self, names: Sequence[str] = ()) -> bool:
-        """Trained, and ``eval/`` and every ``eval-<name>/`` of ``names`` complete (what a
-        sweep counts as a complete cell), read from the recorded statuses."""
-        return self.recorded_status() == Status.COMPLETE and all(
-            self.recorded_eval_status(name) == Status.COMPLETE for name in ("", *names)
+    def evaluation_complete(self, name: str = "") -> bool:
+        """Trained, and the evaluation ``name`` (``""``: ``eval/``) complete, read from the
+        recorded statuses: the one test of "this cell's score can be read" that the sweep
+        and the reports share."""
+        return (
+            self.recorded_status() == Status.COMPLETE
+            and self.recorded_eval_status(name) == Status.COMPLETE
         )
+
+    def evaluated(self, names: Sequence[str] = ()) -> bool:
+        """:meth:`evaluation_complete` for ``eval/`` and every ``eval-<name>/`` of ``names``:
+        what a sweep counts as a complete cell."""
+        return all(self.evaluation_complete(name) for name in ("", *names))
 
     def kept_evaluations(self) -> list[str]:
         """The evaluation names (``at<N>``) of the snapshots meta.json records as kept."""
