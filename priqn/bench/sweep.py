@@ -100,34 +100,31 @@ def grid_forecast(
     return decisions / per_cell_rates[1] / 3600.0, best, hours[best]
 
 
-def parse_cells(text: str) -> list[int]:
-    """``--cells``: one count (``2``) or a list of levels (``1,2,4,8``; 1 is put first)."""
+def _positive_counts(text: str, option: str, expected: str) -> list[int]:
+    """A comma-separated list of positive integers, or a one-line error naming ``option``."""
     try:
         counts = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         counts = []
     if not counts or min(counts) < 1:
-        raise PriqnError(
-            f"--cells {text}: expected a positive number of cells or a list such as 1,2,4,8"
-        )
-    if len(counts) == 1:
-        return counts
-    return sorted(set(counts) | {1})
+        raise PriqnError(f"{option} {text}: expected {expected}")
+    return counts
+
+
+def parse_cells(text: str) -> list[int]:
+    """``--cells``: one count (``2``) or a list of levels (``1,2,4,8``; 1 is put first)."""
+    counts = _positive_counts(
+        text, "--cells", "a positive number of cells or a list such as 1,2,4,8"
+    )
+    return counts if len(counts) == 1 else sorted(set(counts) | {1})
 
 
 def parse_workers(text: str) -> list[int]:
     """``--workers``: ``[]`` (the preset's, or ``share``), one count, or a list of counts."""
     if text in ("", "share"):
         return []
-    try:
-        counts = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        counts = []
-    if not counts or min(counts) < 1:
-        raise PriqnError(
-            f"--workers {text}: expected a positive number, a list such as 4,8,16, or 'share'"
-        )
-    return counts
+    expected = "a positive number, a list such as 4,8,16, or 'share'"
+    return _positive_counts(text, "--workers", expected)
 
 
 def _workers(args: argparse.Namespace, cells: int, cores: int) -> tuple[str, ...]:
