@@ -49,9 +49,11 @@ AUTO_UPDATE: dict[str, str] = {"cuda": "graphs"}
 
 - ``cuda``: ``graphs`` (:mod:`priqn.agents.graphs`). At batch 32 the update is
   launch-bound there; recording its passes as CUDA graphs removes the launches without
-  changing a kernel. torch.compile (``on``) was faster on an H100 (1.6-2.0x eager,
-  2026-11-26) but its shared CUDA-graph trees failed ``tests/test_cuda.py``'s resume and
-  device-move cases and aborted the process at exit (docs/implementation-details.md §12).
+  changing a kernel: 3.39x (IQN) and 2.91x (Pr-IQN) eager updates/s at the paper preset
+  on an H200 (2026-11-28), against torch.compile's (``on``) 2.36x and 2.29x in the same
+  rounds. torch.compile's shared CUDA-graph trees also failed ``tests/test_cuda.py``'s
+  resume and device-move cases and aborted the process at exit (an H100, 2026-11-26;
+  docs/implementation-details.md §12).
 - ``cpu``: eager. On this project's 2-core CPU the compiled update was no faster, and the
   eager update keeps seeded runs bit for bit.
 """
