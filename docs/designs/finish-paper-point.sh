@@ -10,7 +10,7 @@ ROOT=$(pwd)
 .venv/bin/priqn sweep calibrate --runs-dir results --commit
 .venv/bin/priqn report results/calibrate --out docs/results/calibrate
 git add docs/results/calibrate
-git commit -q -m "calibrate report: all 18 cells, the rule's choice is final (priqn report results/calibrate --out docs/results/calibrate)"
+git diff --cached --quiet || git commit -q -m "calibrate report: all 18 cells, the rule's choice is final (priqn report results/calibrate --out docs/results/calibrate)"
 git mv docs/designs/paper-point.toml priqn/data/experiments/paper-point.toml
 python3 docs/designs/fill_design.py
 git add priqn/data/experiments/paper-point.toml
