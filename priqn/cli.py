@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import textwrap
 from collections.abc import Sequence
+from typing import Any
 
 from priqn import __version__
 from priqn.errors import PriqnError
@@ -39,6 +41,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Argparse's formatter, but never breaking a line at a hyphen: experiment names,
+    agent names and globs ('paper-point', 'pr-iqn-qd-*') stay whole to copy."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+
 def _top_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="priqn",
@@ -53,6 +63,17 @@ def _top_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def command_parser(command: str) -> tuple[argparse.ArgumentParser, Any]:
+    """The parser of ``priqn COMMAND`` and the module that runs it (imported here)."""
+    module_name, text = COMMANDS[command]
+    parser = argparse.ArgumentParser(
+        prog=f"priqn {command}", description=text, formatter_class=_HelpFormatter
+    )
+    module = importlib.import_module(module_name)
+    module.configure_parser(parser)
+    return parser, module
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``priqn`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -63,11 +84,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command, rest = argv[0], argv[1:]
     if command not in COMMANDS:
         top.error(f"unknown command {command!r} (choose from {', '.join(COMMANDS)})")
-    module_name, text = COMMANDS[command]
-    parser = argparse.ArgumentParser(prog=f"priqn {command}", description=text)
     try:
-        module = importlib.import_module(module_name)
-        module.configure_parser(parser)
+        parser, module = command_parser(command)
         args = parser.parse_args(rest)
         return int(module.run(args) or 0)
     except PriqnError as exc:

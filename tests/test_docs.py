@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import io
 import itertools
 import re
@@ -178,10 +177,7 @@ def _parser(argv: list[str]) -> tuple[argparse.ArgumentParser, list[str]]:
     """The parser ``priqn`` would use for ``argv``, and the arguments it gets."""
     if not argv or argv[0].startswith("-"):
         return cli._top_parser(), argv
-    module_name, text = cli.COMMANDS[argv[0]]
-    parser = argparse.ArgumentParser(prog=f"priqn {argv[0]}", description=text)
-    importlib.import_module(module_name).configure_parser(parser)
-    return parser, argv[1:]
+    return cli.command_parser(argv[0])[0], argv[1:]
 
 
 def parse_error(argv: list[str], inline: bool = False) -> str | None:
