@@ -12,6 +12,7 @@ import pytest
 from priqn.analysis import questions, questions_report
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
+from priqn.evaluation.protocol import EPISODE_COLUMNS
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.sweep import load_experiment
 
@@ -77,35 +78,53 @@ paper_difference = 0.1
 """
 
 
-def write_evaluation(eval_dir: Path, success: int, violations: int) -> None:
-    """10 episodes per density (0.5, 1.0): ``success`` succeed, then ``violations`` crash
-    (the first half) or leave the road, the rest time out."""
+def write_evaluation(eval_dir: Path, success: int, violations: int, seed: int = 0) -> None:
+    """10 IQN episodes of 10 decisions per density (0.5, 1.0) of training seed ``seed``:
+    ``success`` succeed, then ``violations`` crash (the first half) or leave the road, the
+    rest time out; the safety return is -1 in a violation, 0 otherwise."""
     rows = []
     for density in (0.5, 1.0):
         for e in range(10):
             bad = success <= e < success + violations
-            rows.append(
+            row = dict.fromkeys(EPISODE_COLUMNS, 0.0)
+            row.update(
                 {
+                    "run": eval_dir.parent.name,
+                    "label": "IQN",
+                    "agent": "iqn",
+                    "comparator": "",
+                    "train_preorder": "",
+                    "eps": "",
+                    "partial_order": "",
+                    "train_seed": seed,
+                    "eval_run": 0,
+                    "net": "tj",
+                    "episode": e,
                     "density": density,
+                    "holdout_hash": "h",
+                    "steps": 10,
                     "success": e < success,
                     "collision": bad and e % 2 == 0,
                     "off_road": bad and e % 2 == 1,
                     "timeout": e >= success + violations,
+                    "return_safety": -1.0 if bad else 0.0,
                 }  # fmt: skip
             )
+            rows.append(row)
     atomic_write_text(eval_dir / "episodes.csv", pd.DataFrame(rows).to_csv(index=False))
-    atomic_write_json(eval_dir / "meta.json", {"status": "complete"})
+    atomic_write_json(eval_dir / "meta.json", {"status": "complete", "holdout_hash": "h"})
 
 
 def make_cell(run: Path, sha: str, at200: tuple[int, int], final: tuple[int, int] | None) -> None:
     """A complete cell: ``eval-at200/`` from ``at200`` and, for a long one, ``eval/`` from
     ``final`` (a short cell's ``eval/`` is its 200-decision evaluation)."""
     atomic_write_json(run / "meta.json", {"status": "complete", "git_sha": sha})
+    seed = int(run.name.rpartition("seed")[2])
     if final is None:
-        write_evaluation(run / "eval", *at200)
+        write_evaluation(run / "eval", *at200, seed)
     else:
-        write_evaluation(run / "eval-at200", *at200)
-        write_evaluation(run / "eval", *final)
+        write_evaluation(run / "eval-at200", *at200, seed)
+        write_evaluation(run / "eval", *final, seed)
 
 
 def grid(tmp_path: Path, commits: str = "[]", sha: str = "abc", seeds=range(8)) -> object:
@@ -229,6 +248,23 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     assert "![outcomes by budget](figures/outcomes_by_budget.png)" in text
     assert (tmp_path / "r1" / "figures" / "outcomes_by_budget.png").stat().st_size > 0
     assert second.read_text() == text
+
+
+def test_report_has_table_one_at_each_question_budget(tmp_path: Path) -> None:
+    """Table I over the counted cells, one table per budget: a violates in 8 of 10 episodes
+    at 200 (safety return -0.8 a episode), b in 2 (-0.2, +75 % relative to a, the first
+    IQN); at 400 both in 1 (-0.1, +0 %). Both rows are IQN, so each is named by its group."""
+    text = questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c").read_text()
+    section = text[text.index("## Returns per objective") : text.index("## Sample efficiency")]
+    at200, at400 = section.split("### At 200 decisions")[1].split("### At 400 decisions")
+    row = "| IQN ({}) | – | – | – | – | {} ± 0.00 | {} |"
+    assert at200.count(row.format("a", "-0.80", "+0.0%")) == 2  # densities 0.5 and 1.0
+    assert at200.count(row.format("b", "-0.20", "+75.0%")) == 2
+    assert at400.count(row.format("a", "-0.10", "+0.0%")) == 2
+    assert at400.count(row.format("b", "-0.10", "+0.0%")) == 2
+    table = pd.read_csv(tmp_path / "r" / "tables" / "table1_200.csv")
+    assert list(table["safety_mean"]) == pytest.approx([-0.8, -0.2, -0.8, -0.2])
+    assert set(table["safety_n"]) == {8}  # 8 training seeds x 1 evaluation run
 
 
 def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> None:

@@ -18,11 +18,20 @@ import numpy as np
 import pandas as pd
 
 from priqn.agents.labels import budget_text, seeds_text
-from priqn.analysis import inference, questions
-from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
+from priqn.analysis import inference, questions, tables
+from priqn.analysis.load import (
+    RESUMED_NOTE,
+    SORT_COLUMNS,
+    commit_text,
+    read_evaluation,
+    resumed_before,
+    resumed_text,
+)
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Replay, relative_path
 from priqn.experiment import Experiment, SequentialSpec
+from priqn.io import atomic_write_text
+from priqn.run.episodes import resolve_outcomes
 from priqn.run.folder import RunFolder, Status
 
 ENDPOINT_TEXT = {
@@ -192,11 +201,12 @@ def report_markdown(
     budgets: pd.DataFrame,
     changes: pd.DataFrame,
     command: str,
-    efficiency: Sequence[str] = (),
+    descriptive: Sequence[str] = (),
     scores: pd.DataFrame | None = None,
 ) -> str:
-    """``report.md`` of an experiment with questions (``efficiency``: the sample-efficiency
-    section's lines, :func:`_efficiency`; ``scores``: every question's counted cells,
+    """``report.md`` of an experiment with questions (``descriptive``: the lines of the
+    Table I and sample-efficiency sections, :func:`_returns_lines` and :func:`_efficiency`;
+    ``scores``: every question's counted cells,
     ``tables/scores.csv``, for the "Cells" section)."""
     e = exp.experiment
     lines = [
@@ -213,7 +223,7 @@ def report_markdown(
         *_change_lines(changes),
         "![per-seed endpoints](figures/questions.png)",
         "",
-        *efficiency,
+        *descriptive,
         *_cells_lines(scores if scores is not None else pd.DataFrame()),
     ]
     return "\n".join(lines)
@@ -425,6 +435,57 @@ def _budget_tables(
     return frame.assign(question=question.name), changes
 
 
+def returns_tables(exp: Experiment, scores: pd.DataFrame) -> dict[int, tables.Table]:
+    """Table I (episode returns per objective, per-decision risk and lane keeping, episode
+    length; Δ% relative to IQN) per question budget, over the cells the questions count
+    (``scores``): each group at each budget is one row, named by its policy label (with
+    the group's name where two groups share a label). Unranked: descriptive."""
+    if scores.empty:
+        return {}
+    budget_of = {q.name: q.budget for q in exp.questions}
+    cells = scores.assign(budget=scores["question"].map(budget_of)).drop_duplicates(
+        ["budget", "policy", "train_seed"]
+    )
+    out = {}
+    for budget, part in cells.groupby("budget", sort=True):
+        frames = []
+        for row in part.itertuples(index=False):
+            run = Path(row.run_dir)
+            evaluation = row.evaluation if isinstance(row.evaluation, str) else ""
+            frame, _ = read_evaluation(run.name, run, RunFolder(run).evaluation_dir(evaluation))
+            label = str(frame["label"].iloc[0]).removesuffix(f" @{budget_text(int(budget))}")
+            frames.append(frame.assign(label=label, group=row.policy))
+        episodes = pd.concat(frames, ignore_index=True)
+        shared = episodes.groupby("label")["group"].transform("nunique") > 1
+        episodes.loc[shared, "label"] += " " + episodes.loc[shared, "group"]
+        episodes = resolve_outcomes(episodes.drop(columns="group"))
+        episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort")
+        out[int(budget)] = tables.table1(episodes.reset_index(drop=True), ranked=False)
+    return out
+
+
+def _returns_lines(exp: Experiment, scores: pd.DataFrame, out: Path) -> list[str]:
+    """The Table I section: per question budget, ``tables/table1_<budget>.{md,csv}`` and
+    the table itself; none while no cell is counted."""
+    by_budget = returns_tables(exp, scores)
+    if not by_budget:
+        return []
+    lines = [
+        "## Returns per objective (Table I, descriptive)",
+        "",
+        "The paper's Table I over the cells the questions count, at each question's budget "
+        "(mean ± sample std over training seeds × evaluation runs, Δ% relative to IQN). "
+        "Descriptive: no test decides on these columns.",
+        "",
+    ]
+    for budget, table in by_budget.items():
+        name = f"table1_{budget_text(budget)}"
+        atomic_write_text(out / "tables" / f"{name}.md", tables.to_markdown(table))
+        atomic_write_text(out / "tables" / f"{name}.csv", tables.to_csv(table))
+        lines += [f"### At {budget_text(budget)} decisions", "", tables.to_markdown(table)]
+    return lines
+
+
 def _efficiency(exp: Experiment, out: Path) -> list[str]:
     """The sample-efficiency curves of every complete cell's group (periodic evaluations
     and full evaluations at each budget, kept snapshots included): table, figure and the
@@ -465,7 +526,7 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
 def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
     """Write the questions' report into ``out_dir``; returns ``report.md``."""
     from priqn.analysis.figures import save_figure
-    from priqn.io import atomic_write_json, atomic_write_text
+    from priqn.io import atomic_write_json
 
     out = Path(out_dir)
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
@@ -504,10 +565,10 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
     if len(budgets):
         save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")
-    efficiency = _efficiency(exp, out)
+    descriptive = [*_returns_lines(exp, all_scores, out), *_efficiency(exp, out)]
     report = out / "report.md"
     text = report_markdown(
-        exp, comparisons, looks, budgets, changes, command, efficiency, all_scores
+        exp, comparisons, looks, budgets, changes, command, descriptive, all_scores
     )
     atomic_write_text(report, text)
     atomic_write_json(
