@@ -116,6 +116,53 @@ def _unfinished_cells(
     return {c for c, sc in cells.items() if not _cell_complete(cell_file(eval_dir, c), len(sc))}
 
 
+class _EvaluationWriter:
+    """Where an evaluation's results go while it runs: ``meta.json`` with the time spent so
+    far (an interrupted evaluation's time included), and each cell's file once its last
+    episode is in."""
+
+    def __init__(
+        self,
+        eval_dir: Path,
+        meta: dict[str, Any],
+        earlier_s: float,
+        fixed: Mapping[str, Any],
+        cells: Mapping[tuple[int, str, float], list[EvalScene]],
+        todo_cells: Sequence[tuple[int, str, float]],
+    ) -> None:
+        self.eval_dir, self.meta, self.earlier_s, self.fixed = eval_dir, meta, earlier_s, fixed
+        self.cells = cells
+        """Cell -> its scenes (all of them, kept cells included)."""
+        self.pending: dict[tuple[int, str, float], list[dict[str, Any]]] = {
+            c: [] for c in todo_cells
+        }
+        """Cell -> rows of its episodes played so far (cells still to play)."""
+        self.started = time.perf_counter()
+
+    def write_meta(self, **fields: Any) -> None:
+        """Write meta.json with the evaluation's time so far (kept across interruptions)."""
+        wall_s = round(self.earlier_s + time.perf_counter() - self.started, 1)
+        self.meta.update(fields, wall_s=wall_s)
+        atomic_write_json(self.eval_dir / RunFolder.META, self.meta)
+
+    def on_episode(self, scene: EvalScene, values: dict[str, Any]) -> None:
+        """An episode ended: its row; its cell's file once the cell is complete."""
+        row = {
+            **self.fixed,
+            "eval_run": scene.eval_run,
+            "net": scene.net,
+            "density": scene.density,
+            "episode": scene.episode,
+            "reset_seed": scene.reset_seed,
+            "command": scene.command or "",
+            **values,
+        }
+        self.pending[scene.cell].append(row)
+        if len(self.pending[scene.cell]) == len(self.cells[scene.cell]):
+            _write_cell(cell_file(self.eval_dir, scene.cell), self.pending.pop(scene.cell))
+            self.write_meta()
+
+
 def evaluate_policy(
     policy: Any,
     eval_dir: Path,
@@ -136,56 +183,29 @@ def evaluate_policy(
     from tqdm.auto import tqdm
 
     eval_dir = Path(eval_dir)
-    meta_path = eval_dir / RunFolder.META
     meta = _new_meta(cfg, net_ids, holdout_hash, run_name, extra_meta)
     old = None if force else earlier_evaluation(eval_dir, holdout_hash, meta["eval_config"])
-    # Evaluation time already spent on the kept cells (a resumed evaluation).
-    earlier_s = float((old or {}).get("wall_s") or 0.0)
     if force and eval_dir.exists():
         shutil.rmtree(eval_dir)
-    started = time.perf_counter()
-
-    def write_meta(**fields: Any) -> None:
-        """Write meta.json with the evaluation's time so far (kept across interruptions)."""
-        meta.update(fields, wall_s=round(earlier_s + time.perf_counter() - started, 1))
-        atomic_write_json(meta_path, meta)
-
-    write_meta()
-
     labels = dict(getattr(policy, "labels", {}) or {})
     fixed = {key: labels.get(key) for key in LABEL_KEYS}
     fixed.update({"run": run_name, "holdout_hash": holdout_hash})
-
     scenes = make_scenes(cfg, net_ids)
     cells: dict[tuple[int, str, float], list[EvalScene]] = {}
     for scene in scenes:
         cells.setdefault(scene.cell, []).append(scene)
     todo_cells = _unfinished_cells(eval_dir, cells)
+    # Evaluation time already spent on the kept cells (a resumed evaluation) counts too.
+    earlier_s = float((old or {}).get("wall_s") or 0.0)
+    writer = _EvaluationWriter(eval_dir, meta, earlier_s, fixed, cells, todo_cells)
+    writer.write_meta()
+
     todo = [s for s in scenes if s.cell in todo_cells]
-    pending: dict[tuple[int, str, float], list[dict[str, Any]]] = {c: [] for c in todo_cells}
-
-    def on_episode(scene: EvalScene, values: dict[str, Any]) -> None:
-        row = {
-            **fixed,
-            "eval_run": scene.eval_run,
-            "net": scene.net,
-            "density": scene.density,
-            "episode": scene.episode,
-            "reset_seed": scene.reset_seed,
-            "command": scene.command or "",
-            **values,
-        }
-        pending[scene.cell].append(row)
-        if len(pending[scene.cell]) == len(cells[scene.cell]):
-            _write_cell(cell_file(eval_dir, scene.cell), pending.pop(scene.cell))
-            write_meta()
-
     if todo:
-        num_envs = min(cfg.num_workers, len(todo))
-        vec_env = make_env(num_envs)
+        vec_env = make_env(min(cfg.num_workers, len(todo)))
         try:
             with tqdm(total=len(todo), desc=f"evaluate {run_name}", unit="ep", disable=None) as bar:
-                run_scenes(policy, vec_env, todo, on_episode, progress=bar)
+                run_scenes(policy, vec_env, todo, writer.on_episode, progress=bar)
         finally:
             vec_env.close()
 
@@ -193,5 +213,5 @@ def evaluate_policy(
     episodes = pd.concat(frames, ignore_index=True)
     out = eval_dir / RunFolder.EVAL_EPISODES
     atomic_write_text(out, episodes.to_csv(index=False, lineterminator="\n"))
-    write_meta(status=Status.COMPLETE, episodes=len(episodes))
+    writer.write_meta(status=Status.COMPLETE, episodes=len(episodes))
     return out

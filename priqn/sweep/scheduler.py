@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tqdm.auto import tqdm
+
 import priqn.sweep.backends as backends
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, ResourceSpec
@@ -187,7 +189,12 @@ def run_sweep(
                 f"{len(result.skipped)} already complete, {len(todo)} to run ({backend.describe()})"
             )
             try:
-                _schedule(backend, todo, exp, result, retries, cell_fn, progress, say, code_dir)
+                extra = {
+                    "cell_fn": cell_fn,
+                    **({"code_dir": str(code_dir)} if code_dir is not None else {}),
+                }
+                in_flight = _InFlight(todo, exp, result, say, progress)
+                _schedule(backend, in_flight, exp.runs_dir, retries, extra)
             finally:
                 backend.close()
                 _write_summary(exp, cells, result)
@@ -206,86 +213,103 @@ def run_sweep(
     return result
 
 
-def _schedule(
-    backend: Any,
-    todo: list[Cell],
-    exp: Experiment,
-    result: SweepResult,
-    retries: int,
-    cell_fn: str,
-    progress: bool | None,
-    say: Callable[[str], None],
-    code_dir: Path | None = None,
-) -> None:
-    from tqdm.auto import tqdm
+class _InFlight:
+    """One sweep's cells on their way: the queue of (cell, attempt) still to submit, the
+    back-end's handles running, the outcome of each finished attempt, and the progress
+    shown (a tqdm bar on a terminal, one line per finished cell in a log)."""
 
-    queue: list[tuple[Cell, int]] = [(c, 1) for c in todo]
-    inflight: dict[Any, tuple[Cell, int]] = {}
-    slots = backend.slots
-    show_bar = sys.stderr.isatty() if progress is None else progress
-    bar = tqdm(
-        total=len(todo),
-        unit="cell",
-        desc=exp.experiment.name,
-        disable=not show_bar,
-        dynamic_ncols=True,
-        file=sys.stderr,
-    )
-    started = time.monotonic()
+    def __init__(
+        self,
+        todo: list[Cell],
+        exp: Experiment,
+        result: SweepResult,
+        say: Callable[[str], None],
+        progress: bool | None,
+    ) -> None:
+        self.queue: list[tuple[Cell, int]] = [(c, 1) for c in todo]
+        self.running: dict[Any, tuple[Cell, int]] = {}
+        self.total, self.result, self.say = len(todo), result, say
+        self.show_bar = sys.stderr.isatty() if progress is None else progress
+        self.bar = tqdm(
+            total=len(todo),
+            unit="cell",
+            desc=exp.experiment.name,
+            disable=not self.show_bar,
+            dynamic_ncols=True,
+            file=sys.stderr,
+        )
+        self.started = time.monotonic()
 
-    def counts() -> str:
+    def counts(self) -> str:
+        r = self.result
         return (
-            f"done={len(result.completed)} running={len(inflight)} "
-            f"failed={len(result.failed)} queued={len(queue)}"
+            f"done={len(r.completed)} running={len(self.running)} "
+            f"failed={len(r.failed)} queued={len(self.queue)}"
         )
 
-    def note(msg: str) -> None:
-        if show_bar:
+    def note(self, msg: str) -> None:
+        """A line beside the bar (or in the log)."""
+        if self.show_bar:
             tqdm.write(msg, file=sys.stderr)
         else:
-            say(msg)
+            self.say(msg)
 
-    def finished(cell: Cell, what: str) -> None:
-        bar.update(1)
-        if not show_bar:  # a log file or a batch job: one line per finished cell
-            n = len(result.completed) + len(result.failed)
-            rate_s = (time.monotonic() - started) / n
-            eta = tqdm.format_interval(rate_s * (len(todo) - n))
-            say(f"[{n}/{len(todo)}] {cell.name} {what} ({counts()}, ETA {eta})")
+    def finished(self, cell: Cell, what: str) -> None:
+        """``cell`` is done for good (``what``: complete / FAILED)."""
+        self.bar.update(1)
+        if not self.show_bar:  # a log file or a batch job: one line per finished cell
+            n = len(self.result.completed) + len(self.result.failed)
+            rate_s = (time.monotonic() - self.started) / n
+            eta = tqdm.format_interval(rate_s * (self.total - n))
+            self.say(f"[{n}/{self.total}] {cell.name} {what} ({self.counts()}, ETA {eta})")
 
+    def landed(
+        self, cell: Cell, attempt: int, rc: int, tail: str, complete: bool, retries: int
+    ) -> None:
+        """Record an attempt's end: complete, queued again (``attempt <= retries``), or failed."""
+        if rc == 0 and complete:
+            self.result.completed.append(cell.name)
+            self.finished(cell, "complete")
+            return
+        error = describe_failure(rc, tail)
+        if attempt <= retries:
+            self.result.retried.append(cell.name)
+            self.note(f"cell {cell.name} failed (attempt {attempt}): {error}; retrying")
+            self.queue.append((cell, attempt + 1))
+        else:
+            self.result.failed[cell.name] = error
+            self.note(f"cell {cell.name} FAILED: {error}")
+            self.finished(cell, "FAILED")
+
+
+def _schedule(
+    backend: Any, cells: _InFlight, runs_dir: Path, retries: int, spec_extra: dict[str, Any]
+) -> None:
+    """Submit ``cells`` to ``backend`` as its slots free up (each spec with ``spec_extra``:
+    the cell function, the code folder), until every cell completed or failed its last
+    attempt. Ctrl-C cancels the running cells and re-raises."""
+    slots = backend.slots
     try:
-        while queue or inflight:
-            while queue and (slots is None or len(inflight) < slots):
-                cell, attempt = queue.pop(0)
-                spec = {**cell.to_spec(), "attempt": attempt, "cell_fn": cell_fn}
-                if code_dir is not None:
-                    spec["code_dir"] = str(code_dir)
-                log_path = SweepFolder(exp.runs_dir).log_path(cell, attempt)
-                inflight[backend.submit(spec, log_path)] = (cell, attempt)
-            bar.set_postfix_str(counts(), refresh=True)
-            for handle, rc, tail, complete in backend.wait(list(inflight), timeout_s=1.0):
-                cell, attempt = inflight.pop(handle)
-                if rc == 0 and complete:
-                    result.completed.append(cell.name)
-                    finished(cell, "complete")
-                    continue
-                error = describe_failure(rc, tail)
-                if attempt <= retries:
-                    result.retried.append(cell.name)
-                    note(f"cell {cell.name} failed (attempt {attempt}): {error}; retrying")
-                    queue.append((cell, attempt + 1))
-                else:
-                    result.failed[cell.name] = error
-                    note(f"cell {cell.name} FAILED: {error}")
-                    finished(cell, "FAILED")
-            bar.set_postfix_str(counts(), refresh=True)
+        while cells.queue or cells.running:
+            while cells.queue and (slots is None or len(cells.running) < slots):
+                cell, attempt = cells.queue.pop(0)
+                spec = {**cell.to_spec(), "attempt": attempt, **spec_extra}
+                log_path = SweepFolder(runs_dir).log_path(cell, attempt)
+                cells.running[backend.submit(spec, log_path)] = (cell, attempt)
+            cells.bar.set_postfix_str(cells.counts(), refresh=True)
+            for handle, rc, tail, complete in backend.wait(list(cells.running), timeout_s=1.0):
+                cell, attempt = cells.running.pop(handle)
+                cells.landed(cell, attempt, rc, tail, complete, retries)
+            cells.bar.set_postfix_str(cells.counts(), refresh=True)
     except KeyboardInterrupt:
-        result.interrupted = True
-        note(f"interrupted: stopping {len(inflight)} running cell(s); they stay incomplete")
-        backend.cancel(list(inflight))
+        cells.result.interrupted = True
+        cells.note(
+            f"interrupted: stopping {len(cells.running)} running cell(s); they stay incomplete"
+        )
+        backend.cancel(list(cells.running))
         raise
     finally:
-        bar.close()
+        cells.bar.close()
 
 
 def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> None:
