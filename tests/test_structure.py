@@ -148,22 +148,6 @@ def test_the_allow_list_is_current() -> None:
     assert not stale, f"drop these from UNEXPLAINED (gone, short or commented): {stale}"
 
 
-def test_one_reader_of_an_evaluations_episode_table() -> None:
-    """Every ``episodes.csv`` of an evaluation is read by ``priqn.analysis.load.read_episodes``
-    (one error message, one outcome rule). ``priqn diff`` keeps its own reader: it compares
-    the rows as the strings written, not as parsed values."""
-    readers = []
-    for path in sorted(ROOT.rglob("*.py")):
-        lines = path.read_text(encoding="utf-8").splitlines()
-        for i, line in enumerate(lines):
-            if "read_csv(" not in line:
-                continue
-            near = " ".join(lines[max(0, i - 3) : i + 1])
-            if any(k in near for k in ("EVAL_EPISODES", "episodes.csv", "eval_episodes_path")):
-                readers.append(str(path.relative_to(ROOT)))
-    assert readers == ["analysis/load.py", "tools/diff.py"], readers
-
-
 # --------------------------------------------------------------------------- the layout
 
 MAX_TOP_LEVEL_MODULES = 12
@@ -211,3 +195,33 @@ def test_each_class_name_names_one_thing() -> None:
     assert not twice, "class names defined in more than one module (rename one): " + "; ".join(
         f"{name} in {', '.join(paths)}" for name, paths in sorted(twice.items())
     )
+
+
+EPISODES_READER = "priqn/analysis/load.py"
+"""The one module that reads an evaluation's ``episodes.csv`` (``load.read_episodes``)."""
+
+
+def csv_reads_of_episodes() -> dict[str, list[int]]:
+    """``path -> lines`` of every ``read_csv(...)`` / ``DictReader(...)`` call in ``priqn/``
+    whose arguments name an episodes table (``episodes`` in their source text)."""
+    out: dict[str, list[int]] = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        source = path.read_text(encoding="utf-8")
+        rel = path.relative_to(ROOT.parent).as_posix()
+        for node in ast.walk(ast.parse(source, str(path))):
+            func = getattr(node, "func", None)
+            name = getattr(func, "attr", None) or getattr(func, "id", None)
+            if isinstance(node, ast.Call) and name in ("read_csv", "DictReader"):
+                args = " ".join(ast.get_source_segment(source, a) or "" for a in node.args)
+                if "episodes" in args.lower() or "EVAL_EPISODES" in args:
+                    out.setdefault(rel, []).append(node.lineno)
+    return out
+
+
+def test_one_reader_of_episodes_csv() -> None:
+    """Reports, the sweep and the tools read ``episodes.csv`` through
+    ``priqn.analysis.load.read_episodes`` only (one error message, one outcome rule)."""
+    reads = csv_reads_of_episodes()
+    assert EPISODES_READER in reads  # the walk finds the reader itself
+    others = {path: lines for path, lines in reads.items() if path != EPISODES_READER}
+    assert not others, f"episodes.csv read outside {EPISODES_READER}: {others}"

@@ -75,16 +75,20 @@ class Evaluation:
     """Run folders left out because their evaluation is not complete (``partial=True``)."""
 
 
-def read_episodes(eval_dir: str | Path, resolve: bool = True) -> pd.DataFrame:
+def read_episodes(eval_dir: str | Path, resolve: bool = True, text: bool = False) -> pd.DataFrame:
     """``<eval_dir>/episodes.csv``, the one reader of an evaluation's episode table: one
     outcome per episode (:func:`priqn.run.episodes.resolve_outcomes`), or with ``resolve``
-    False the flags as written; an unreadable table is one line naming it."""
-    csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
+    False the flags as written; ``text``: every cell as the exact text written (empty
+    cells as ``""``; for comparing runs bit for bit, never resolved). An unreadable table
+    is one line naming it."""
+    episodes_csv = Path(eval_dir) / RunFolder.EVAL_EPISODES
     try:
-        frame = pd.read_csv(csv)
+        if text:
+            return pd.read_csv(episodes_csv, dtype=str, keep_default_na=False)
+        frame = pd.read_csv(episodes_csv)
         return resolve_outcomes(frame) if resolve else frame
     except (OSError, ValueError, KeyError) as exc:
-        raise PriqnError(f"{csv}: unreadable episode table ({exc})") from None
+        raise PriqnError(f"{episodes_csv}: unreadable episode table ({exc})") from None
 
 
 def find_run_dirs(runs_dir: str | Path) -> list[Path]:

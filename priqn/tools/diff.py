@@ -23,7 +23,6 @@ bad input.
 from __future__ import annotations
 
 import argparse
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -224,17 +223,16 @@ def _episodes_part(
             name = folder.evaluation_dir(k.evaluation).name
             return Part("episodes", None, f"{which} has no complete evaluation {name}/")
         dirs.append(folder.evaluation_dir(k.evaluation))
-    rows_a, rows_b = (_rows(_read_csv(d / "episodes.csv"), IGNORED_EPISODES) for d in dirs)
+    from priqn.analysis.load import read_episodes
+
+    rows_a, rows_b = (
+        _rows(read_episodes(d, text=True).to_dict("records"), IGNORED_EPISODES) for d in dirs
+    )
     difference = _first_difference(rows_a, rows_b, "episodes.csv")
     if difference is not None:
         return Part("episodes", False, difference)
     names = f"{dirs[0].name}/ / {dirs[1].name}/"
     return Part("episodes", True, f"{len(rows_a):,} episodes identical ({names})")
-
-
-def _read_csv(path: Path) -> list[dict[str, str]]:
-    with path.open(encoding="utf-8", newline="") as fh:
-        return list(csv.DictReader(fh))
 
 
 # --------------------------------------------------------------------------- CLI
