@@ -100,14 +100,14 @@ def test_a_run_config_follows_its_objectives():
 
     cfg = resolve_config(preset="right-of-way", agent="pr-iqn", steps=100)
     assert cfg.objective_names == SIX and len(cfg.reward_weights) == 6
-    agent = make_agent("pr-iqn", cfg.agent_config, cfg.objective_names)
+    agent = make_agent("pr-iqn", cfg.resolved_agent, cfg.objective_names)
     assert agent.num_heads == 6 and agent.subsets.preorder.objectives == SIX
     assert agent.subsets.preorder.is_chain()
-    iqn = make_agent("iqn", cfg.agent_config, cfg.objective_names)
+    iqn = make_agent("iqn", cfg.resolved_agent, cfg.objective_names)
     assert iqn.num_heads == 1 and iqn.reward_weights_O.shape == (6,)
     # 'total' with other objectives is the chain of env.objectives in their order.
     own = resolve_config(agent="pr-iqn", overrides=[f"env.objectives={list(OWN)}"])
-    po = make_agent("pr-iqn", own.agent_config, own.objective_names).subsets.preorder
+    po = make_agent("pr-iqn", own.resolved_agent, own.objective_names).subsets.preorder
     assert po.topological_order() == (*OBJECTIVES, "constant_cost")
     with pytest.raises(PriqnError, match=r"agent.preorder: .*extra: right_of_way"):
         resolve_config(agent="pr-iqn", overrides=["agent.preorder=right-of-way"])

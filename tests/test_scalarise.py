@@ -89,7 +89,7 @@ def test_a_scheme_override_changes_the_weights():
 
     cfg = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=hln-4"])
     assert cfg.reward_weights == pytest.approx(scheme_weights("hln-4"))
-    assert cfg.agent_config.reward_weights == pytest.approx(scheme_weights("hln-4"))
+    assert cfg.resolved_agent.reward_weights == pytest.approx(scheme_weights("hln-4"))
     old = resolve_config(preset="default", agent="iqn", overrides=["agent.reward_scheme=halving"])
     assert old.reward_weights == (1.0, 0.5, 0.25, 0.125, 0.0625) and old.crash_margin < 1
 

@@ -34,7 +34,7 @@ class RunConfig(Protocol):
     """What building reads of a run's :class:`priqn.run.train_config.TrainConfig`."""
 
     @property
-    def agent_config(self) -> AgentConfig: ...
+    def resolved_agent(self) -> AgentConfig: ...
 
     @property
     def network(self) -> NetworkConfig: ...
@@ -47,9 +47,9 @@ class RunConfig(Protocol):
 
 
 def build_agent(cfg: RunConfig) -> Agent:
-    """The run's agent: ``cfg.agent_config.name`` resolved to its spec, for the run's
+    """The run's agent: ``cfg.resolved_agent.name`` resolved to its spec, for the run's
     objectives (unknown names, comparators and preorders: one line)."""
-    agent_cfg = cfg.agent_config
+    agent_cfg = cfg.resolved_agent
     return make_agent(agent_cfg.name, agent_cfg, cfg.objective_names)
 
 

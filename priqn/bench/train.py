@@ -137,7 +137,7 @@ def _make_learner(
     net = build_network(cfg, space, num_actions, seed=0)
     learner = Learner(
         net,
-        make_agent(agent_name, cfg.agent_config, cfg.objective_names),
+        make_agent(agent_name, cfg.resolved_agent, cfg.objective_names),
         cfg.learner,
         dev,
         tau_seed=0,

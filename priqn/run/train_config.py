@@ -222,7 +222,7 @@ class TrainConfig:
         )
 
     @property
-    def agent_config(self) -> AgentConfig:
+    def resolved_agent(self) -> AgentConfig:
         """``agent`` with its weights resolved (what every agent of this run is built from)."""
         return dataclasses.replace(self.agent, reward_weights=self.reward_weights)
 
@@ -310,7 +310,7 @@ def _validate_names(cfg: TrainConfig) -> None:
     without building the agent: :func:`priqn.train.train` builds it once)."""
     from priqn.agents.registry import check_agent
 
-    check_agent(cfg.agent.name, cfg.agent_config, cfg.objective_names)
+    check_agent(cfg.agent.name, cfg.resolved_agent, cfg.objective_names)
 
 
 def derive_seeds(seed: int) -> dict[str, int]:
