@@ -21,10 +21,10 @@ from typing import Any
 
 from priqn import paths
 from priqn.agents.config import (
-    AGENT_SPECS,
     COMPARATOR_NAMES,
     NORMALISATIONS,
     PREORDER_PRESETS,
+    SHIPPED_AGENTS,
     AgentConfig,
     agent_spec,
     resolve_spec,
@@ -814,7 +814,7 @@ def policy_difference(a: Any, b: Any) -> str | None:
 
 def _preorder_agents() -> str:
     """The agents the Pr-IQN options apply to, as ``'pr-iqn'``."""
-    return " or ".join(repr(n) for n in AGENT_SPECS if agent_spec(n).uses_preorder)
+    return " or ".join(repr(n) for n in SHIPPED_AGENTS if agent_spec(n).uses_preorder)
 
 
 def _check_name(name: str, where: str) -> None:

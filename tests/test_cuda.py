@@ -15,11 +15,11 @@ import pytest
 import torch
 from test_agents import A, random_batch, random_obs, small_net
 
-from priqn.agents.config import LearnerConfig
+from priqn.agents.config import SHIPPED_AGENTS, LearnerConfig
 from priqn.agents.learner import Learner
 from priqn.agents.network import tau_grid
 from priqn.agents.policy import Policy
-from priqn.agents.registry import AGENT_SPECS, make_agent
+from priqn.agents.registry import make_agent
 from priqn.run import checkpoint
 from priqn.run.checkpoint import Checkpoint, PolicyState
 
@@ -33,7 +33,7 @@ def cuda_learner(name: str, tau_seed: int = 0) -> Learner:
     return Learner(small_net(agent.num_heads), agent, CFG, torch.device("cuda"), tau_seed)
 
 
-@pytest.mark.parametrize("name", sorted(AGENT_SPECS))
+@pytest.mark.parametrize("name", sorted(SHIPPED_AGENTS))
 def test_every_agent_fits_a_fixed_batch_on_cuda(name):
     learner = cuda_learner(name)
     assert next(learner.online.parameters()).is_cuda

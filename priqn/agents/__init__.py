@@ -2,7 +2,7 @@
 
 Public names (imported lazily: importing the package costs nothing until one is used;
 the configs and specs themselves live in the torch-free :mod:`priqn.agents.config`):
-``make_agent``, ``Agent``, ``AGENT_SPECS``, ``AgentConfig``, ``NetworkConfig``,
+``make_agent``, ``Agent``, ``SHIPPED_AGENTS``, ``AgentConfig``, ``NetworkConfig``,
 ``LearnerConfig``, ``QuantileNetwork``, ``Learner``, ``ReplayBuffer``, ``Policy``,
 ``quantile_huber_loss``, ``tau_grid``.
 
@@ -19,7 +19,7 @@ from typing import Any
 _EXPORTS: dict[str, str] = {
     "make_agent": "priqn.agents.registry",
     "Agent": "priqn.agents.registry",
-    "AGENT_SPECS": "priqn.agents.registry",
+    "SHIPPED_AGENTS": "priqn.agents.config",
     "AgentConfig": "priqn.agents.config",
     "NetworkConfig": "priqn.agents.config",
     "LearnerConfig": "priqn.agents.config",

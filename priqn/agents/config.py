@@ -296,9 +296,6 @@ SHIPPED_AGENTS: dict[str, str] = {
 and a path rather than an import so this module stays torch-free:
 ``priqn/agents/shipped.py``). Table order."""
 
-AGENT_SPECS = SHIPPED_AGENTS
-"""Old name of :data:`SHIPPED_AGENTS` (read by ``experiment.py`` and ``analysis/tables.py``)."""
-
 
 def resolve_agent(name: str, where: str = "agent.name") -> AgentDeclaration:
     """The declaration ``agent.name`` names, resolved in this order: a shipped name

@@ -22,7 +22,6 @@ from typing import Any
 import torch
 
 from priqn.agents import rules
-from priqn.agents.config import AGENT_SPECS as AGENT_SPECS  # re-exported (tests, priqn.agents)
 from priqn.agents.config import COMPARATOR_NAMES, AgentConfig, AgentSpec, resolve_spec
 from priqn.agents.scalarise import scheme_weights
 from priqn.errors import PriqnError

@@ -25,13 +25,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from priqn.agents.config import AGENT_SPECS
+from priqn.agents.config import SHIPPED_AGENTS
 from priqn.agents.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
 from priqn.analysis.render import csv_text
 from priqn.objectives import OBJECTIVES, names_in_columns
 
-AGENT_ORDER: tuple[str, ...] = tuple(AGENT_SPECS)
+AGENT_ORDER: tuple[str, ...] = tuple(SHIPPED_AGENTS)
 """Row order of agents (the paper's, as registered); unknown agents follow alphabetically."""
 COMPARATOR_ORDER: tuple[str, ...] = ("mv", "cvar", "qd", "fsd")
 """Row order of the Pr-IQN comparators (the paper's: MV, CVaR, QD; then ours)."""
