@@ -40,9 +40,7 @@ from priqn.checks import check_acting_eps, check_density
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
 from priqn.run.folder import RunFolder
-
-KEPT = ""
-"""``pruned_by_<objective>`` when the head's greedy action survives to the leaf."""
+from priqn.tools.decisions import KEPT, greedy_removals
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,20 +187,17 @@ def head_names(agent: Any) -> list[str]:
 
 
 def pruned_by(d: InspectedDecision, preorder: Any) -> dict[str, str]:
-    """For each objective's head: the first level (topological order) whose optimal
-    subset does not contain that head's greedy action ('' = it survives to the leaf)."""
-    out: dict[str, str] = {}
+    """For each objective's head: the first level (topological order, then the leaf)
+    whose set does not contain that head's greedy action (:data:`KEPT` = it survives to
+    the leaf); :func:`priqn.tools.decisions.greedy_removals`."""
     if d.subsets_NA is None:
-        return out
-    means_NA = d.quantiles_HKA.mean(axis=1)
-    order = [preorder.index(o) for o in preorder.topological_order()]
-    for n, name in enumerate(preorder.objectives):
-        greedy = int(np.argmax(means_NA[n]))
-        level = next((preorder.objectives[r] for r in order if not d.subsets_NA[r, greedy]), None)
-        if level is None and d.leaf_A is not None and not d.leaf_A[greedy]:
-            level = "leaf"
-        out[name] = level or KEPT
-    return out
+        return {}
+    levels, order, subsets_LA = preorder.objectives, preorder.topological_order(), d.subsets_NA
+    if d.leaf_A is not None:  # the leaf is the last set an action can be removed from
+        levels, order = (*levels, "leaf"), (*order, "leaf")
+        subsets_LA = np.concatenate([subsets_LA, d.leaf_A[None]])
+    removals = greedy_removals(d.quantiles_HKA, preorder.objectives, subsets_LA, levels, order)
+    return {name: level for name, (_, level) in removals.items()}
 
 
 def decision_rows(decisions: list[InspectedDecision], agent: Any, table: np.ndarray) -> list[dict]:
