@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),
     "mechanism": (
-        "priqn.analysis.mechanism",
+        "priqn.tools.mechanism",
         "replay Pr-IQN cells: safety removals and the safety head's calibration",
     ),
     "inspect": (

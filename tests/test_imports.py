@@ -268,3 +268,19 @@ def test_the_run_folder_knows_only_files() -> None:
     )
     text = _modules()["priqn.run.checkpoint"].read_text(encoding="utf-8")
     assert "\nimport torch" not in text, "priqn.run.checkpoint imports torch at module level"
+
+
+def test_the_analysis_replays_nothing() -> None:
+    """No module of priqn.analysis imports torch, SUMO or the rooms that play a policy
+    (env, sim, tools) -- at import or inside a function: it makes tables and figures from
+    files. Replaying decisions (priqn mechanism) is tools/' (docs/ARCHITECTURE.md)."""
+    banned = ("torch", "libsumo", "traci", "sumolib", "priqn.env", "priqn.sim", "priqn.tools")
+    found = []
+    for mod, path in _modules().items():
+        if room(mod) != "priqn.analysis":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        for node in _import_nodes(tree, module_level=False):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module]
+            found += [f"{mod}: {n}" for n in names if str(n).startswith(banned)]
+    assert not found, "the analysis imports what replays: " + ", ".join(found)

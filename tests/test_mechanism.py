@@ -15,7 +15,6 @@ from fake_runs import tiny_grid
 from priqn.agents.policy import Decision
 from priqn.analysis.mechanism import (
     MechanismConfig,
-    decision_rows,
     group_rows,
     reliability_table,
     seed_summary,
@@ -23,6 +22,7 @@ from priqn.analysis.mechanism import (
 from priqn.evaluation.protocol import EvalScene
 from priqn.evaluation.rollout import RolloutStep
 from priqn.objectives import OBJECTIVES
+from priqn.tools.mechanism import decision_rows
 
 A, K = 4, 4
 SPEEDS_A = np.array([0.0, 0.0, 3.0, 6.0])  # target speed of each action [m/s]

@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from priqn.agents.policy import Decision
-from priqn.analysis.standstill import go_survival, seed_summary, standstill_rows, stop_vs_go
+from priqn.analysis.standstill import seed_summary
 from priqn.preorder import Preorder, comparator_scores, optimal_subsets
+from priqn.tools.standstill import standstill_rows, stop_vs_go
 
 LEVELS = ("safety", "risk", "lane_keeping", "progress", "comfort")
 ABOVE = ("safety", "risk", "lane_keeping")  # progress chooses from lane_keeping's subset
@@ -23,18 +24,6 @@ GO_A = SPEEDS_A > 0
 def _subsets(*rows: str) -> np.ndarray:
     """``"TTFF"`` per level → bool [L, A]."""
     return np.array([[c == "T" for c in r] for r in rows])
-
-
-def test_go_survival_names_the_first_level_without_a_go_action() -> None:
-    # safety keeps go action 2; risk keeps only stops: risk removed the last go action.
-    s = _subsets("TTTF", "TTFF", "TFFF", "TFFF", "TFFF")
-    assert go_survival(s, LEVELS, ABOVE, GO_A) == (False, "risk")
-    # safety keeps only stops: safety is the remover, whatever the levels below do.
-    s = _subsets("TFFF", "TFFF", "TFFF", "TFFF", "TFFF")
-    assert go_survival(s, LEVELS, ABOVE, GO_A) == (False, "safety")
-    # go action 3 survives down to lane_keeping: progress can still choose to move.
-    s = _subsets("TTTT", "FTTT", "FFFT", "FFFT", "FFFT")
-    assert go_survival(s, LEVELS, ABOVE, GO_A) == (True, "")
 
 
 def test_stop_vs_go_by_hand_and_against_the_comparator() -> None:

@@ -1,30 +1,20 @@
-"""``priqn mechanism --standstill``: why a Pr-IQN policy stands still (descriptive).
+"""The measures, table and figure of ``priqn mechanism --standstill`` (descriptive).
 
-Replays evaluated cells on the first scenes of their own ``eval/`` (the one rollout loop,
-quantiles recorded, as ``priqn mechanism``) and counts, per decision (docs/mechanism.md,
-"Standing still"):
-
-1. **go survival**: whether any "go" action (target speed > 0) is still in the optimal
-   subset the ``--target`` level (default ``progress``) chooses from, i.e. in every level
-   above it in the total order; if not, the *remover*: the first level whose subset
-   holds no go action;
-2. **stop vs go**: for ``safety`` and ``risk``, the best stop and the best go action by
-   that head's mean over the K fixed-grid quantiles: their raw means (reward units), the
-   raw difference, the z-scored QD score difference the comparator saw (the raw
-   difference over the per-state spread ``s = max(std, 1e-6)`` of all K·A quantiles), and
-   that raw spread;
-3. for a scalar agent (IQN): whether its greedy (executed) action stands still.
-
-The counting works on :class:`priqn.evaluation.rollout.RolloutStep` records and needs no
-SUMO: :func:`go_survival`, :func:`stop_vs_go`, :func:`standstill_rows`,
-:func:`seed_summary`.
+``priqn mechanism --standstill`` (:mod:`priqn.tools.standstill`) replays evaluated cells
+and writes one row per decision: does a go action survive to the ``--target`` level, which
+level removed the last one, and the safety / risk heads' best stop vs best go
+(docs/mechanism.md, "Standing still"). Here, from those rows alone: :func:`seed_summary`
+(one cell's shares and medians), :func:`seed_row`, :func:`group_rows` and
+:func:`write_report` (``standstill.csv``, ``standstill.md``, ``standstill.png``), and the
+per-decision table helpers both ``priqn mechanism`` measures use (:data:`EPISODE_KEYS`,
+:func:`episodes_in`, :func:`replay_matches`). No torch, no SUMO.
 """
 
 from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,108 +27,9 @@ COMPARED: tuple[str, ...] = ("safety", "risk")
 """Objectives whose best stop and best go actions are compared per decision."""
 REMOVERS: tuple[str, ...] = ("safety", "risk", "lane_keeping")
 """The levels above ``progress`` in the total order, in order (the table's columns)."""
-MIN_STD = 1e-6
-"""The comparators' floor of the per-state spread (``priqn.preorder.MIN_STD``)."""
 
 
 # ----------------------------------------------------------------------------- counting
-
-
-def go_survival(
-    subsets_LA: np.ndarray, levels: Sequence[str], above: Sequence[str], go_A: np.ndarray
-) -> tuple[bool, str]:
-    """``(any go action survives every level of above, the first level of above whose
-    subset holds no go action or "")``.
-
-    ``subsets_LA``: bool ``[L, A]`` optimal subsets, L named by ``levels``; ``above``: the
-    levels from the root down to the target level's parent (total order); ``go_A``: bool
-    ``[A]``, the actions that move (target speed > 0).
-    """
-    go_A = np.asarray(go_A, dtype=bool)
-    for name in above:
-        if not (np.asarray(subsets_LA[levels.index(name)], dtype=bool) & go_A).any():
-            return False, name
-    return True, ""
-
-
-def stop_vs_go(
-    q_KA: np.ndarray,
-    go_A: np.ndarray,
-    candidates_A: np.ndarray | None = None,
-    spread_floor: float = 0.0,
-) -> dict[str, float | int]:
-    """One objective's fixed-grid quantiles ``[K, A]``: among ``candidates_A`` (the set its
-    level chooses from, its parent's subset; None = all actions) the best stop and the
-    best go action (argmax of the mean over K), their means, ``raw_diff`` = mean(stop) −
-    mean(go), ``z_diff`` = the QD score difference score(stop) − score(go) the comparator
-    sees (= raw_diff / s), and ``spread`` = the population std of all K·A entries, with
-    ``s = max(spread, 1e-6, spread_floor)`` as in :func:`priqn.preorder.normalised`.
-    The level keeps no go action iff ``z_diff`` > ε (QD, a total order). Without a stop
-    or a go candidate, those entries are NaN / -1."""
-    q = np.asarray(q_KA, dtype=np.float64)
-    go_A = np.asarray(go_A, dtype=bool)
-    cand_A = np.ones_like(go_A) if candidates_A is None else np.asarray(candidates_A, bool)
-    mean_A = q.mean(axis=0)
-    spread = float(q.std())
-    best = {}
-    for name, mask in (("stop", cand_A & ~go_A), ("go", cand_A & go_A)):
-        idx = np.flatnonzero(mask)
-        best[name] = int(idx[int(np.argmax(mean_A[idx]))]) if idx.size else -1
-    mean = {k: float(mean_A[i]) if i >= 0 else math.nan for k, i in best.items()}
-    raw = mean["stop"] - mean["go"]
-    return {
-        "best_stop": best["stop"],
-        "best_go": best["go"],
-        "mean_stop": mean["stop"],
-        "mean_go": mean["go"],
-        "raw_diff": raw,
-        "z_diff": raw / max(spread, MIN_STD, spread_floor),
-        "spread": spread,
-    }
-
-
-def standstill_rows(
-    steps: Sequence[Any],
-    objectives: Sequence[str],
-    above: Sequence[str],
-    speeds_A: np.ndarray,
-    spread_floor_O: Sequence[float] | None = None,
-) -> list[dict[str, Any]]:
-    """One episode's :class:`~priqn.evaluation.rollout.RolloutStep` records → one row per
-    decision. A decision with optimal subsets (Pr-IQN) gets the go survival through
-    ``above`` and :func:`stop_vs_go` of the :data:`COMPARED` heads among ``objectives``
-    (head order), each among its parent's subset in ``above`` (the root: all actions);
-    one without (IQN) only its action's speed."""
-    if not steps or steps[-1].episode is None:
-        raise ValueError("standstill_rows: needs one whole episode (its last step ends it)")
-    end = steps[-1].episode
-    go_A = np.asarray(speeds_A) > 0.0
-    rows = []
-    for s in steps:
-        d = s.decision
-        row: dict[str, Any] = {
-            "eval_run": s.scene.eval_run,
-            "net": s.scene.net,
-            "density": s.scene.density,
-            "episode": s.scene.episode,
-            "decision": s.step,
-            "action": s.action,
-            "stop": not bool(go_A[s.action]),
-            "episode_timeout": bool(end["timeout"]),
-            "episode_success": bool(end["success"]),
-        }
-        if d.subsets_BLA is not None:
-            survives, remover = go_survival(d.subsets_BLA[0], d.levels, above, go_A)
-            row.update(go_survives=survives, removed_by=remover)
-            for name in (o for o in COMPARED if o in objectives and o in above):
-                h, i = list(objectives).index(name), list(above).index(name)
-                floor = 0.0 if spread_floor_O is None else float(spread_floor_O[h])
-                parent = None if i == 0 else d.subsets_BLA[0, d.levels.index(above[i - 1])]
-                measures = stop_vs_go(d.quantiles_BHKA[0, h], go_A, parent, floor)
-                for key, v in measures.items():
-                    row[f"{name}_{key}"] = v
-        rows.append(row)
-    return rows
 
 
 def _rate(values: Any) -> float:
@@ -154,7 +45,8 @@ def _median(values: Any) -> float:
 
 
 def seed_summary(d: Any) -> dict[str, Any]:
-    """One cell's measures from its decision rows (a pandas frame of :func:`standstill_rows`).
+    """One cell's measures from its decision rows (a pandas frame of
+    :func:`priqn.tools.standstill.standstill_rows`).
 
     Shares over all decisions; ``<o>_*_removed`` are medians over the decisions whose
     remover is ``o`` (safety or risk), ``<o>_*_all`` over all decisions; NaN where none."""
@@ -179,63 +71,6 @@ def seed_summary(d: Any) -> dict[str, Any]:
             out[f"{name}_{key}_removed"] = _median(d.loc[hit, f"{name}_{key}"])
             out[f"{name}_{key}_all"] = _median(d[f"{name}_{key}"])
     return out
-
-
-# ----------------------------------------------------------------------------- replay
-
-
-def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) -> Any:
-    """Play ``scenes`` (a :class:`priqn.analysis.mechanism.ReplayCell`'s) with its policy,
-    quantiles recorded; its :func:`standstill_rows` (pandas)."""
-    import pandas as pd
-    import torch
-
-    from priqn.env.intersection import action_grid
-    from priqn.env.vector import make_vector_env
-    from priqn.evaluation.rollout import rollout
-    from priqn.evaluation.targets import evaluation_env
-    from priqn.run.folder import RunFolder
-
-    policy = RunFolder(cell.path).load_policy(device="cpu", snapshot=cell.snapshot)
-    agent = policy.agent
-    above: tuple[str, ...] = ()
-    floor = None
-    if agent.subsets is not None:
-        above = _above(agent.subsets.preorder, target)
-        if agent.subsets.scale is not None:
-            floor = [float(v) for v in agent.subsets.scale.floor().reshape(-1)]
-    env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
-    speeds_A = action_grid(env_cfg)[:, 0]
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    venv = make_vector_env(env_cfg, 1, seed=cell.eval_config.seed)
-    rows: list[dict[str, Any]] = []
-    open_steps: dict[Any, list[Any]] = {}
-    try:
-        for step in rollout(policy, venv, scenes, quantiles=agent.subsets is not None):
-            open_steps.setdefault(step.scene, []).append(step)
-            if step.episode is None:
-                continue
-            played = open_steps.pop(step.scene)
-            rows.extend(standstill_rows(played, agent.objectives, above, speeds_A, floor))
-            if progress is not None:
-                progress.update(1)
-    finally:
-        venv.close()
-        torch.set_num_threads(threads)
-    return pd.DataFrame(rows)
-
-
-def _above(preorder: Any, target: str) -> tuple[str, ...]:
-    """The levels above ``target`` in a total order, root first (error otherwise)."""
-    from priqn.errors import PriqnError
-
-    if not preorder.is_chain():
-        raise PriqnError("--standstill: needs a total-order preorder (a chain)")
-    order = tuple(preorder.topological_order())
-    if target not in order:
-        raise PriqnError(f"--target {target}: not a level ({', '.join(order)})")
-    return order[: order.index(target)]
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -354,50 +189,42 @@ def write_figure(table: Any, decisions: Any, eps: float, path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def analyse(
-    cells: Sequence[Any],
+def seed_row(group: str, run: str, seed: Any, evaluated: Any, decisions: Any) -> dict[str, Any]:
+    """One row of the table: the cell's group (its row name), name and training seed, the
+    timeout rate of its whole evaluation (``evaluated``: its ``episodes.csv``, pandas), the
+    share of replayed episodes that ended as evaluated (:func:`replay_matches`) and
+    :func:`seed_summary` of its decision rows."""
+    row = {"group": group, "run": run, "seed": seed}
+    row["holdout_timeout"] = _rate(evaluated["timeout"].astype(bool))
+    row["replay_matches"] = replay_matches(decisions, evaluated)
+    row.update(seed_summary(decisions))
+    return row
+
+
+def write_report(
+    seeds: Sequence[dict[str, Any]],
+    decisions: Sequence[Any],
+    replayed: dict[str, int],
+    eps: float,
+    target: str,
     out: Path,
-    decisions_dir: Path,
-    pick_scenes: Callable[[Any], Sequence[Any]],
-    target: str = "progress",
 ) -> Path:
-    """Replay every cell (``pick_scenes(cell)``: its scenes), write ``standstill.csv``,
-    ``standstill.md`` and ``standstill.png`` into ``out`` and one decision file per cell
-    into ``decisions_dir`` (a file there with the asked-for episodes is not replayed)."""
+    """Write ``standstill.csv``, ``standstill.png`` and ``standstill.md`` into ``out`` from
+    the seed rows (:func:`seed_row`), every cell's decision rows with a ``group`` column
+    (pandas frames), the episodes replayed per cell (name → count), the ε of the figure's
+    threshold line and the ``--target`` level; returns the table."""
     import pandas as pd
-    from tqdm.auto import tqdm
 
-    from priqn.run.folder import RunFolder
-
-    scenes = {c.name: list(pick_scenes(c)) for c in cells}
-    seeds, frames = [], []
-    with tqdm(total=sum(map(len, scenes.values())), desc="standstill", unit="ep") as bar:
-        for cell in cells:
-            cached = decisions_dir / f"{cell.name}.csv"
-            frame = pd.read_csv(cached) if cached.is_file() else None
-            if frame is None or episodes_in(frame) != len(scenes[cell.name]):
-                frame = replay(cell, scenes[cell.name], target, progress=bar)
-                write_csv(cached, frame, float_format=None)
-            else:
-                bar.update(len(scenes[cell.name]))
-            group = cell.name.split("__seed")[0]
-            frames.append(frame.assign(group=group))
-            row = {"group": group, "run": cell.name, "seed": RunFolder(cell.path).config().seed}
-            row["holdout_timeout"] = _rate(cell.episodes["timeout"].astype(bool))
-            row["replay_matches"] = replay_matches(frame, cell.episodes)
-            row.update(seed_summary(frame))
-            seeds.append(row)
     table = pd.DataFrame(seeds)
     full = pd.concat([table, group_rows(table)], ignore_index=True)
     write_csv(out / "standstill.csv", full, float_format=None)
-    eps = max((float(c.episodes["eps"].iloc[0]) for c in cells if "eps" in c.episodes), default=0.2)
-    write_figure(table, pd.concat(frames, ignore_index=True), eps, out / "standstill.png")
+    write_figure(table, pd.concat(decisions, ignore_index=True), eps, out / "standstill.png")
     shown = full[[c for c in TABLE_COLUMNS if c in full.columns]]
-    counts = ", ".join(f"{k}: {len(v)}" for k, v in list(scenes.items())[:1])
+    counts = ", ".join(f"{k}: {v}" for k, v in list(replayed.items())[:1])
     text = [
         "# Standing still (priqn mechanism --standstill)",
         "",
-        f"{len(cells)} cells, episodes per cell as replayed ({counts}, the first of each "
+        f"{len(seeds)} cells, episodes per cell as replayed ({counts}, the first of each "
         "cell's eval/ scenes by eval run, episode, net, density). Shares over decisions; "
         "`no_go_<level>`: no go action (target speed > 0) is left in the subset "
         f"{target} chooses from, and `<level>` is the first level whose subset holds none. "
