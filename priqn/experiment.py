@@ -2,7 +2,8 @@
 
 ``load_experiment`` reads the ``[experiment]`` table (name, seeds, pool, preset, budget,
 overrides), the ``[[policy]]`` rows (agent and Pr-IQN options), ``[evaluate]``,
-``[resources]`` and ``[sequential]``; every mistake is one line naming the file and the key.
+``[resources]`` and the designs (``[sequential]``, ``[[question]]``, ``[calibration]``);
+every mistake is one line naming the file and the key.
 
 Torch-free and below both readers of an experiment: :mod:`priqn.sweep` runs its cells,
 :mod:`priqn.analysis` reports on them. Where a cell's run folder lives is spelled here
@@ -205,11 +206,12 @@ class ComparisonSpec:
 
 @dataclass(frozen=True)
 class SequentialSpec:
-    """The ``[sequential]`` table: a pre-registered group-sequential design over seeds.
+    """One pre-registered group-sequential design over seeds: a ``[[question]]`` table, or
+    the ``[sequential]`` table (the one design of its file, unnamed).
 
-    Interim ``k`` (k = 1..K) looks at the first ``interims[k-1]`` seeds of every row still
-    in play; the seeds come in order ``prior_seeds + [experiment].seeds``. Written and
-    committed before any of the experiment's own cells train (docs/results.md, "Headline").
+    Interim ``k`` (k = 1..K) looks at the first ``interims[k-1]`` seeds (of :attr:`seeds`,
+    in look order) of every row or group still in play. Written and committed before any
+    of the experiment's own cells train (docs/results.md, "Headline").
     """
 
     comparisons: tuple[ComparisonSpec, ...]
@@ -238,15 +240,18 @@ class SequentialSpec:
     """Git commits a cell may have trained at (its ``meta.json`` ``git_sha``); the report
     refuses any other. Empty: not checked."""
     name: str = ""
-    """``[[question]]`` only: the question's name (``budget``), unique in the file."""
+    """``[[question]]`` only: the question's name (``budget``), unique in the file; empty
+    for the ``[sequential]`` table."""
     question: str = ""
     """``[[question]]`` only: the question in words, as the report prints it."""
     budget: int | None = None
-    """``[[question]]`` only: the training budget (decisions) the endpoint is read at: a
-    cell trained to it (``eval/``) or a longer cell's snapshot kept at it (``eval-at<N>/``)."""
+    """The training budget (decisions) the endpoint is read at: a cell trained to it
+    (``eval/``) or a longer cell's snapshot kept at it (``eval-at<N>/``). Written in a
+    ``[[question]]``; the ``[sequential]`` table's is ``[experiment].steps``."""
     seeds: tuple[int, ...] = ()
-    """``[[question]]`` only: the training seeds in look order (look k uses the first
-    ``interims[k-1]``); every group a comparison names must have each of them at ``budget``."""
+    """The training seeds in look order (look k uses the first ``interims[k-1]``); every
+    group a comparison names must have each of them at ``budget``. Written in a
+    ``[[question]]``; the ``[sequential]`` table's are ``prior_seeds + [experiment].seeds``."""
 
     def code_problem(self, git_sha: str) -> str | None:
         """Why a cell trained at ``git_sha`` (its ``meta.json`` ``git_sha``) cannot count:
@@ -381,18 +386,22 @@ class Experiment:
     """EvalConfig fields (``priqn.evaluation.protocol.EvalConfig``) for every cell."""
     resources: ResourceSpec = ResourceSpec()
     """Per-cell resource needs."""
-    sequential: SequentialSpec | None = None
-    """The pre-registered sequential design (``[sequential]``), if the grid has one."""
-    questions: tuple[SequentialSpec, ...] = ()
-    """Several pre-registered sequential designs over one grid (``[[question]]``), each
-    with its own endpoint, budget, seeds and looks, its comparisons naming row groups."""
+    designs: tuple[SequentialSpec, ...] = ()
+    """The pre-registered sequential designs over the grid, each with its own endpoint,
+    budget, seeds and looks: the ``[[question]]`` tables (named; comparisons name row
+    groups), or the ``[sequential]`` table as the one unnamed design (comparisons name
+    rows; its seeds ``prior_seeds + [experiment].seeds``, its budget ``[experiment].steps``)."""
     calibration: CalibrationSpec | None = None
     """A pre-registered rule choosing one row by its outcome mix (``[calibration]``)."""
 
     @property
-    def designs(self) -> tuple[SequentialSpec, ...]:
-        """Every pre-registered design: ``[sequential]`` or the ``[[question]]`` tables."""
-        return (self.sequential,) if self.sequential is not None else self.questions
+    def sequential(self) -> SequentialSpec | None:
+        """The ``[sequential]`` table's design (the one unnamed design), if the file has one."""
+        return self.designs[0] if self.designs and not self.designs[0].name else None
+
+    def design_where(self, design: SequentialSpec) -> str:
+        """How errors name ``design``: ``<file> [sequential]`` or ``<file> [[question]] <name>``."""
+        return f"{self.path} " + (f"[[question]] {design.name}" if design.name else "[sequential]")
 
     @property
     def code_commits(self) -> tuple[str, ...]:
@@ -558,16 +567,16 @@ def load_experiment(
             f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
             f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
         )
-    sequential = None
+    designs: tuple[SequentialSpec, ...] = ()
     if "sequential" in data:
-        sequential = _load_sequential(data["sequential"], exp, policies, p)
+        if "question" in data:
+            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
+        designs = (_load_sequential(data["sequential"], exp, policies, p),)
     # Absolute, so Ray workers (whose working directory differs) write to the same place.
     exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
-    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, sequential)
+    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, designs)
     if "question" in data:
-        if sequential is not None:
-            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
-        out = dataclasses.replace(out, questions=_load_questions(data["question"], out))
+        out = dataclasses.replace(out, designs=_load_questions(data["question"], out))
     if "calibration" in data:
         if out.designs:
             raise PriqnError(f"{p}: [calibration] and a sequential design: use one or the other")
@@ -712,16 +721,13 @@ def _load_questions(raw: Any, exp: Experiment) -> tuple[SequentialSpec, ...]:
 def _load_sequential(
     raw: Any, exp: ExperimentSpec, policies: Sequence[PolicySpec], p: Path
 ) -> SequentialSpec:
-    """Parse and check ``[sequential]`` and its ``[[sequential.comparison]]`` tables."""
+    """Parse and check ``[sequential]`` and its ``[[sequential.comparison]]`` tables: a
+    one-question design over the grid's rows, unnamed, its seeds in look order
+    ``prior_seeds + [experiment].seeds`` and its budget ``[experiment].steps``."""
     where = f"{p} [sequential]"
     seq = _parse_design(raw, where, "sequential.comparison", {pol.name for pol in policies})
     for key in ("name", "question", "budget", "seeds"):
-        if getattr(seq, key) != getattr(
-            SequentialSpec(
-                (),
-            ),
-            key,
-        ):
+        if getattr(seq, key) != getattr(SequentialSpec(()), key):
             raise PriqnError(f"{where}.{key}: only in a [[question]] table")
     order = list(seq.prior_seeds) + list(exp.seeds)
     if order != list(range(seq.interims[-1])):
@@ -733,7 +739,7 @@ def _load_sequential(
         raise PriqnError(
             f"{where}.prior_runs: required with prior_seeds (the earlier grid's folder)"
         )
-    return seq
+    return dataclasses.replace(seq, seeds=tuple(order), budget=exp.steps)
 
 
 def _parse_design(raw: Any, where: str, table: str, names: set[str]) -> SequentialSpec:

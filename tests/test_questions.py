@@ -5,11 +5,12 @@ question, violation verdict words, the cells the next looks need, and the report
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
 
-from priqn.analysis import questions, questions_report
+from priqn.analysis import questions, questions_report, sequential
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
@@ -141,7 +142,7 @@ def grid(tmp_path: Path, commits: str = "[]", sha: str = "abc", seeds=range(8)) 
 
 def test_endpoints_are_read_at_the_budget_from_cells_and_snapshots(tmp_path: Path) -> None:
     exp = grid(tmp_path)
-    safety, long = exp.questions
+    safety, long = exp.designs
     scores = questions.collect(exp, safety)
     a = scores[scores["policy"] == "a"]
     assert list(a["train_seed"]) == list(range(8)) and list(a["seed"]) == list(range(8))
@@ -155,13 +156,13 @@ def test_endpoints_are_read_at_the_budget_from_cells_and_snapshots(tmp_path: Pat
 
 def test_each_question_is_replayed_with_its_own_words(tmp_path: Path) -> None:
     exp = grid(tmp_path)
-    safety, long = exp.questions
+    safety, long = exp.designs
     _, result = questions.replay(exp, safety)
     assert result.decisions == {"a vs b": "larger"}
-    assert questions.verdict(safety, result, safety.comparisons[0]) == "a violates more"
+    assert sequential.verdict(safety, result, safety.comparisons[0]) == "a violates more"
     _, result = questions.replay(exp, long)
     assert result.decisions == {"a > b": "larger"}
-    assert questions.verdict(long, result, long.comparisons[0]) == "reproduced"
+    assert sequential.verdict(long, result, long.comparisons[0]) == "reproduced"
     assert questions.next_cells(exp) == []
 
 
@@ -172,6 +173,15 @@ def test_next_cells_are_the_grids_own_cells_the_next_looks_need(tmp_path: Path) 
     ]  # fmt: skip
 
 
+def forecast(exp: Any, question: Any) -> pd.DataFrame:
+    """:func:`priqn.analysis.forecast.forecast` of ``question`` from its complete cells."""
+    from priqn.analysis import forecast
+
+    rows = questions.rows_of(exp, question)
+    have = forecast.committed_rows(questions.collect(exp, question), rows)
+    return forecast.forecast(question, have, sims=3)
+
+
 def test_forecast_of_each_question_in_its_own_words(tmp_path: Path, capsys) -> None:
     """Two complete seeds per group (no spread): every simulated completion repeats them,
     so the forecast is certain; violation words, and no paper scenario without a paper
@@ -179,12 +189,12 @@ def test_forecast_of_each_question_in_its_own_words(tmp_path: Path, capsys) -> N
     from priqn.cli import main
 
     exp = grid(tmp_path, seeds=[0, 1])
-    safety, long = exp.questions
-    table = questions.forecast(safety, questions.collect(exp, safety), sims=3)
+    safety, long = exp.designs
+    table = forecast(exp, safety)
     assert table[["scenario", "verdict", "share"]].values.tolist() == [
         ["observed", "a violates more", 1.0]
     ]
-    table = questions.forecast(long, questions.collect(exp, long), sims=3)
+    table = forecast(exp, long)
     assert list(table["scenario"].unique()) == ["observed", "paper"]
     observed = table[table["scenario"] == "observed"]
     assert observed[["verdict", "share"]].values.tolist() == [["reproduced", 1.0]]
@@ -204,7 +214,7 @@ def test_forecast_of_each_question_in_its_own_words(tmp_path: Path, capsys) -> N
 def test_a_cell_at_another_commit_is_refused_in_one_line(tmp_path: Path) -> None:
     exp = grid(tmp_path, commits='["0123456789abcdef"]', sha="fedcba9876543210")
     with pytest.raises(PriqnError, match=r"trained at commit fedcba987654, which .* does not list"):
-        questions.collect(exp, exp.questions[0])
+        questions.collect(exp, exp.designs[0])
 
 
 def test_a_seed_no_row_reaches_at_the_budget_is_refused(tmp_path: Path) -> None:
@@ -288,7 +298,7 @@ def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> Non
     assert resumed_before(run, 200) and resumed_before(run, 400) and resumed_before(run)
     assert not resumed_before(run, 100)  # its policy at 100 came before the resume
     assert not resumed_before(exp.cell_dir("a-long", 0), 400)
-    scores = {q.name: questions.collect(exp, q) for q in exp.questions}
+    scores = {q.name: questions.collect(exp, q) for q in exp.designs}
     fig = questions_report.figure(exp, scores)
     squares = [
         (ax.get_title(loc="left").split(":")[0], line.get_xdata().size)
@@ -313,7 +323,7 @@ def test_budget_outcomes_figure_stacks_each_groups_outcomes_per_budget(tmp_path:
     among the 8 violations), leaves the road in 4 and times out in 1."""
     exp = grid(tmp_path)
     budgets = pd.concat(
-        [questions_report.budget_frame(exp, q) for q in exp.questions], ignore_index=True
+        [questions_report.budget_frame(exp, q) for q in exp.designs], ignore_index=True
     ).drop_duplicates(["group", "budget", "train_seed"])
     fig = questions_report.budget_outcomes_figure(budgets)
     a, b = fig.axes

@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 from matplotlib.collections import PolyCollection
 
-from priqn.analysis import sequential, sequential_report
+from priqn.analysis import questions, sequential, sequential_report
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.sweep import load_experiment
@@ -125,42 +125,48 @@ def scores_frame(rates: dict[str, list[float]]) -> pd.DataFrame:
 SAME = [0.8, 1.0, 0.9, 0.7, 1.0, 0.8, 0.9, 1.0]
 
 
+def replay(exp: Any, scores: pd.DataFrame) -> sequential.Replay:
+    """The ``[sequential]`` design's replay on ``scores`` (every row of the grid)."""
+    rows = [p.name for p in exp.policies]
+    return sequential.replay(exp.sequential, sequential.scores_by_policy(scores, rows))
+
+
 def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
     # Before any look: every row needs seeds 0-3.
-    empty = sequential.replay(exp, scores_frame({}))
+    empty = replay(exp, scores_frame({}))
     assert (empty.looks, empty.next_look) == ((), 1)
     # After look 1: good beats bad in all 4 seeds: of the 70 splits only the observed one
     # and its mirror image are as extreme (two-sided, 2/70 <= α/K = 0.05): decided. good
     # vs same is not (seeds overlap).
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
-    r = sequential.replay(exp, four)
+    r = replay(exp, four)
     assert [look.k for look in r.looks] == [1]
     assert r.decisions == {"good > bad": "larger", "good vs same": "continue"}
     assert r.open_rows == ("good", "same") and r.next_look == 2
     look = r.looks[0].comparisons[0]
     assert (look.diff, look.n_a, look.n_b, look.decided_at) == (pytest.approx(0.8), 4, 4, 1)
-    assert sequential.verdict(exp, r, exp.sequential.comparisons[0]) == "reproduced"
+    assert sequential.verdict(exp.sequential, r, exp.sequential.comparisons[0]) == "reproduced"
     # The boundary the open comparison (good - same = 0.90 - 0.85) failed to pass lies
     # between it and the decided one's 0.8.
     assert 0.05 < r.looks[0].needed["primary"] < 0.8
     # Look 2 needs seeds 4-7 of the open rows only.
     eight = scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME})
-    r2 = sequential.replay(exp, eight)
+    r2 = replay(exp, eight)
     assert r2.finished and r2.decisions["good vs same"] == "equal"
     assert r2.looks[1].seeds_per_row == {"good": 8, "bad": 4, "same": 8}
-    assert sequential.verdict(exp, r2, exp.sequential.comparisons[1]) == (
+    assert sequential.verdict(exp.sequential, r2, exp.sequential.comparisons[1]) == (
         "no difference found at 8 seeds"
     )
     # The replay is a pure function of the scores: the same frame, the same decisions.
-    assert sequential.replay(exp, eight) == r2
+    assert replay(exp, eight) == r2
 
 
 def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
-    assert sequential_report.looks_figure(exp, sequential.replay(exp, scores_frame({}))) is None
+    assert sequential_report.looks_figure(exp, replay(exp, scores_frame({}))) is None
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
-    r = sequential.replay(exp, four)
+    r = replay(exp, four)
     fig = sequential_report.looks_figure(exp, r)
     good_bad, good_same = fig.axes[:2]
     needed = 100 * r.looks[0].needed["primary"]
@@ -180,7 +186,7 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     assert [ln.get_ydata()[0] for ln in good_bad.lines[:2]] == [0, 50.0]
     # At the last look good vs same is "equal" (no difference found): not a difference,
     # so its dot stays black, inside the band drawn for that look.
-    r2 = sequential.replay(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
+    r2 = replay(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
     assert r2.finished and r2.decisions["good vs same"] == "equal"
     good_same = sequential_report.looks_figure(exp, r2).axes[1]
     dots = [ln for ln in good_same.lines if ln.get_marker() == "o"]
@@ -224,13 +230,13 @@ def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
     close = scores_frame(
         {"good": [0.5, 0.52, 0.48, 0.5, 0.51, 0.49, 0.5, 0.5], "bad": [0.5] * 8, "same": SAME}
     )
-    r = sequential.replay(exp, close)
+    r = replay(exp, close)
     assert r.decisions[claim.name] == "equal"
-    assert sequential.verdict(exp, r, claim) == "paper's effect ruled out"
+    assert sequential.verdict(exp.sequential, r, claim) == "paper's effect ruled out"
     # Wide: inconclusive.
     wide = scores_frame({"good": [0, 1, 1, 1, 0, 1, 1, 0], "bad": [0.2, 0.6] * 4, "same": SAME})
-    r = sequential.replay(exp, wide)
-    assert sequential.verdict(exp, r, claim) == "inconclusive at 8 seeds"
+    r = replay(exp, wide)
+    assert sequential.verdict(exp.sequential, r, claim) == "inconclusive at 8 seeds"
 
 
 def exact_two_sided_p(a: list[float], b: list[float]) -> float:
@@ -327,8 +333,8 @@ def test_headline_design_keeps_its_family_wise_error_under_the_null(
         any_rejection = {"primary": 0, "secondary": 0}
         for i in range(sims):
             rates = {r: list(rng.normal(0.65, 0.17, 20)) for r in rows}
-            design_i = dataclasses.replace(exp, sequential=dataclasses.replace(seq, seed=i))
-            decisions = sequential.replay(design_i, scores_frame(rates)).decisions
+            scores_S = {r: np.asarray(x) for r, x in rates.items()}
+            decisions = sequential.replay(dataclasses.replace(seq, seed=i), scores_S).decisions
             for family in any_rejection:
                 any_rejection[family] += any(
                     decisions[c.name] in ("larger", "smaller")
@@ -353,9 +359,7 @@ def test_ten_seeds_a_look_keep_their_error_under_the_null_and_spend_it_at_every_
     standard errors, and looks 2 and 3 reject too (adastop's own counts, divided by 1
     after look 1, cannot). B 2,000 instead of 10,000 keeps it quick (C(20, 10) = 184,756
     splits either way)."""
-    from priqn.analysis import questions
-
-    question = next(q for q in load_experiment("explain").questions if q.name == "safety-60k")
+    question = next(q for q in load_experiment("explain").designs if q.name == "safety-60k")
     (comparison,) = question.comparisons
     assert (question.seeds_per_look, len(question.interims), question.alpha) == (10, 3, 0.1)
     design = dataclasses.replace(question, permutations=2000)
@@ -364,8 +368,7 @@ def test_ten_seeds_a_look_keep_their_error_under_the_null_and_spend_it_at_every_
     rng = np.random.default_rng(0)
     for i in range(sims):
         rates = {comparison.a: rng.normal(0.25, 0.13, 30), comparison.b: rng.normal(0.25, 0.13, 30)}
-        view = questions.view(dataclasses.replace(design, seed=i))
-        result = sequential.replay(view, scores_frame(rates))
+        result = sequential.replay(dataclasses.replace(design, seed=i), rates)
         if result.decisions[comparison.name] in ("larger", "smaller"):
             rejected_at[len(result.looks) - 1] += 1
     print(f"rejections by look {rejected_at} of {sims}")
@@ -459,7 +462,7 @@ def test_cells_at_an_unlisted_commit_are_refused(tmp_path: Path, fake_cell: str)
         }
     ).to_csv(run / "eval" / "episodes.csv", index=False)
     with pytest.raises(PriqnError, match="trained at commit fedcba9876, which .* does not list"):
-        sequential.collect_scores(exp)
+        questions.collect(exp, exp.sequential)
 
 
 def test_commit_leaves_cells_at_an_unlisted_commit_uncommitted(
@@ -572,9 +575,10 @@ def test_forecast_completes_the_committed_seeds_and_tallies_the_verdicts(tmp_pat
     )
     observed = {"good": 0.8625, "bad": 0.1375, "same": 0.85}
     # The paper says good - bad = +0.5: bad's future seeds sit 0.5 below good's mean.
-    assert forecast.scenario_means(exp, observed, "paper")["bad"] == pytest.approx(0.3625)
-    assert forecast.scenario_means(exp, observed, "observed") == observed
-    table = forecast.forecast(exp, scores, sims=4, permutations=200)
+    seq, rows = exp.sequential, [p.name for p in exp.policies]
+    assert forecast.scenario_means(seq, observed, "paper")["bad"] == pytest.approx(0.3625)
+    assert forecast.scenario_means(seq, observed, "observed") == observed
+    table = forecast.forecast(seq, forecast.committed_rows(scores, rows), sims=4, permutations=200)
     assert list(table.columns) == list(forecast.FORECAST_COLUMNS)
     # good beats bad in every committed seed (two-sided 2/70 <= α/K = 0.05): decided at
     # look 1 in every simulated experiment, whatever the future draws are.
@@ -586,7 +590,7 @@ def test_forecast_completes_the_committed_seeds_and_tallies_the_verdicts(tmp_pat
     # Every simulated experiment ends with one verdict per comparison.
     assert table.groupby(["scenario", "comparison"])["share"].sum().tolist() == [1.0] * 4
     with pytest.raises(PriqnError, match=r"need at least 2 committed seeds per row: bad \(1\)"):
-        forecast.forecast(exp, scores_frame({"good": [0.9] * 4, "bad": [0.1], "same": SAME}))
+        forecast.committed_rows(scores_frame({"good": [0.9] * 4, "bad": [0.1], "same": SAME}), rows)
 
 
 def test_sweep_forecast_prints_the_verdict_shares_and_trains_nothing(

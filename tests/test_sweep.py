@@ -1403,13 +1403,13 @@ def test_explain_design_reaches_every_seed_at_every_budget(tmp_path: Path) -> No
     """explain.toml (issue 33): four questions over two groups trained to 60k and 240k;
     every question's seeds exist at its budget, and the 240k cells keep 60k and 120k."""
     exp = load_experiment(experiments_dir() / "explain.toml", runs_dir=tmp_path)
-    assert [q.name for q in exp.questions] == ["budget", "safety-60k", "safety-240k", "weights"]
-    assert {q.endpoint for q in exp.questions} == {"success", "violation"}
+    assert [q.name for q in exp.designs] == ["budget", "safety-60k", "safety-240k", "weights"]
+    assert {q.endpoint for q in exp.designs} == {"success", "violation"}
     cells = expand(exp)
     long = [c for c in cells if c.steps == 240000]
     assert len(long) == 20 and all(c.snapshots == (60000, 120000) for c in long)
     assert len(cells) == 80  # 20 halving + 2 x 10 long + 2 x 20 short
-    safety = exp.questions[1]
+    safety = exp.designs[1]
     sources = [exp.cell_at("iqn", k, 60000)[2] for k in safety.seeds]
     assert sources == ["at60000"] * 10 + [""] * 20
     assert (

@@ -12,20 +12,20 @@ clipped to the endpoint's range [0, 1], around a mean set by a **scenario**:
 
 AdaStop is then replayed on each completed data set exactly as the report replays it
 (:func:`priqn.analysis.sequential.replay`), with ``permutations`` draws instead of the
-design's for time. Arrays: ``scores_S`` per row, seeds in order.
+design's for time. Arrays: ``scores_S`` per row, seeds in look order.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from priqn.analysis import sequential
 from priqn.errors import PriqnError
+from priqn.experiment import SequentialSpec
 
 SCENARIOS: tuple[str, ...] = ("observed", "paper")
 """The scenarios :func:`forecast` simulates, in order."""
@@ -54,24 +54,35 @@ experiments that ended with that pre-registered verdict
 took over all of them (decided early: fewer)."""
 
 
-def scenario_means(exp: Any, observed: dict[str, float], scenario: str) -> dict[str, float]:
+def scenarios_for(design: SequentialSpec) -> tuple[str, ...]:
+    """The :data:`SCENARIOS` that apply to ``design``: ``paper`` only where a comparison
+    has a paper difference."""
+    if any(c.paper_difference is not None for c in design.comparisons):
+        return SCENARIOS
+    return ("observed",)
+
+
+def scenario_means(
+    design: SequentialSpec, observed: dict[str, float], scenario: str
+) -> dict[str, float]:
     """Row -> the mean its future seeds are drawn around under ``scenario``."""
     if scenario == "observed":
         return dict(observed)
     if scenario != "paper":
         raise PriqnError(f"forecast scenario {scenario!r}: expected one of {list(SCENARIOS)}")
     means, pinned = dict(observed), set()
-    for c in exp.sequential.comparisons:
+    for c in design.comparisons:
         if c.paper_difference is not None and c.b not in pinned:
             means[c.b] = observed[c.a] - c.paper_difference
             pinned.add(c.b)
     return means
 
 
-def committed_rows(exp: Any, scores: pd.DataFrame) -> dict[str, np.ndarray]:
-    """Row -> ``scores_S`` of its committed contiguous seeds; a one-line PriqnError when a
-    row has fewer than two (no spread to draw its future seeds with)."""
-    have = sequential.scores_by_policy(scores, [p.name for p in exp.policies])
+def committed_rows(scores: pd.DataFrame, rows: list[str]) -> dict[str, np.ndarray]:
+    """Row (of ``rows``) -> ``scores_S`` of its committed contiguous seeds
+    (:func:`priqn.analysis.sequential.scores_by_policy`); a one-line PriqnError when a row
+    has fewer than two (no spread to draw its future seeds with)."""
+    have = sequential.scores_by_policy(scores, rows)
     few = [f"{r} ({v.size})" for r, v in have.items() if v.size < 2]
     if few:
         raise PriqnError(f"forecast: need at least 2 committed seeds per row: {', '.join(few)}")
@@ -79,51 +90,37 @@ def committed_rows(exp: Any, scores: pd.DataFrame) -> dict[str, np.ndarray]:
 
 
 def forecast(
-    exp: Any,
-    scores: pd.DataFrame,
+    design: SequentialSpec,
+    have: dict[str, np.ndarray],
     sims: int = 200,
     permutations: int = PERMUTATIONS,
     seed: int = 0,
     on_sim: Callable[[], None] | None = None,
-    scenarios: tuple[str, ...] = SCENARIOS,
 ) -> pd.DataFrame:
-    """:data:`FORECAST_COLUMNS` for every scenario (of ``scenarios``) and comparison (see
-    the module docstring).
+    """:data:`FORECAST_COLUMNS` for every scenario of :func:`scenarios_for` and comparison
+    (see the module docstring), in the design's verdict words.
 
-    ``exp``: an experiment with a ``sequential`` design, or anything shaped like one
-    (:class:`priqn.analysis.questions.QuestionView`). ``scores`` are the committed cells
-    (:func:`sequential.collect_scores`); every row needs at least two seeds for its
-    spread. ``seed`` seeds the draws and the permutations; ``on_sim`` is called once per
-    simulated experiment (a progress bar)."""
-    seq = exp.sequential
-    have = committed_rows(exp, scores)
-    rows = list(have)
+    ``have``: every row of the design -> its committed ``scores_S`` (:func:`committed_rows`:
+    at least two seeds each, for the spread). ``seed`` seeds the draws and the
+    permutations; ``on_sim`` is called once per simulated experiment (a progress bar)."""
     observed = {r: float(v.mean()) for r, v in have.items()}
     sd = {r: float(v.std(ddof=1)) for r, v in have.items()}
-    cap, cap_look = seq.interims[-1], len(seq.interims)
+    cap, cap_look = design.interims[-1], len(design.interims)
     rng = np.random.default_rng(seed)
     out = []
-    for scenario in scenarios:
-        means = scenario_means(exp, observed, scenario)
-        verdicts: dict[str, dict[str, int]] = {c.name: {} for c in seq.comparisons}
+    for scenario in scenarios_for(design):
+        means = scenario_means(design, observed, scenario)
+        verdicts: dict[str, dict[str, int]] = {c.name: {} for c in design.comparisons}
         seeds_used = dict.fromkeys(verdicts, 0)
         for i in range(sims):
-            frame = pd.DataFrame(
-                [
-                    {"policy": r, "seed": s, "score": x}
-                    for r in rows
-                    for s, x in enumerate(_completed(have[r], means[r], sd[r], cap, rng))
-                ]
-            )
-            run = dataclasses.replace(
-                exp, sequential=dataclasses.replace(seq, permutations=permutations, seed=seed + i)
-            )
-            result = sequential.replay(run, frame)
+            completed = {r: _completed(have[r], means[r], sd[r], cap, rng) for r in have}
+            run = dataclasses.replace(design, permutations=permutations, seed=seed + i)
+            result = sequential.replay(run, completed)
             last = {c.name: c for c in result.looks[-1].comparisons}
-            for c in seq.comparisons:
+            for c in design.comparisons:
                 word = sequential.verdict(run, result, c)
                 verdicts[c.name][word] = verdicts[c.name].get(word, 0) + 1
-                seeds_used[c.name] += seq.interims[(last[c.name].decided_at or cap_look) - 1]
+                seeds_used[c.name] += design.interims[(last[c.name].decided_at or cap_look) - 1]
             if on_sim is not None:
                 on_sim()
         out += [

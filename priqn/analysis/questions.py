@@ -1,34 +1,31 @@
-"""Several pre-registered sequential designs over one grid (``[[question]]``), replayed.
+"""A pre-registered design's cells over one grid, scored and replayed.
 
-An experiment file may hold several questions (``priqn/data/experiments/explain.toml``),
-each a sequential design of its own (:class:`priqn.experiment.SequentialSpec` with a name,
-an endpoint, a training budget and its seeds in look order), whose comparisons name row
-*groups*: one policy trained to different budgets by several rows. For each question this
-module
+An experiment file's designs (:attr:`priqn.experiment.Experiment.designs`) are its
+``[[question]]`` tables (``priqn/data/experiments/explain.toml``) or its ``[sequential]``
+table, loaded as one unnamed question (``headline.toml``). Each is a sequential design
+(:class:`priqn.experiment.SequentialSpec`) with an endpoint, a training budget and its
+seeds in look order; a question's comparisons name row *groups* (one policy trained to
+different budgets by several rows), the ``[sequential]`` table's name rows. For each
+design this module
 
-1. collects one endpoint score per (group, seed) at the question's budget
+1. collects one endpoint score per (row or group, seed) at the design's budget
    (:func:`collect`): a cell trained to that budget (``eval/``) or a longer cell's policy
-   kept at it (``eval-at<N>/``), or a cell an earlier grid trained (``reuse``), checked to
-   train the same policy and at a commit the question lists;
-2. replays it with :func:`priqn.analysis.sequential.replay`, the headline's AdaStop
-   replay, through a :class:`QuestionView` (the question's groups as rows, its seed
-   order as seeds 0, 1, ...);
-3. gives each comparison its verdict words (:func:`verdict`) and says which cells the
-   next looks need (:func:`next_cells`).
+   kept at it (``eval-at<N>/``), a cell an earlier grid trained (``reuse``, or the
+   ``[sequential]`` table's ``prior_runs``), checked to train at a commit the design lists
+   (and, reused by a row, to train that row's policy);
+2. replays it with :func:`priqn.analysis.sequential.replay` (:func:`replay`);
+3. says which cells the next looks need (:func:`cells_needed`, :func:`next_cells`).
 
-The report is :mod:`priqn.analysis.questions_report`.
+The reports are :mod:`priqn.analysis.sequential_report` (the ``[sequential]`` table) and
+:mod:`priqn.analysis.questions_report` (``[[question]]`` tables).
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 
-from priqn.analysis import forecast as planning
 from priqn.analysis import sequential
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
@@ -36,6 +33,7 @@ from priqn.experiment import (
     Experiment,
     PolicySpec,
     SequentialSpec,
+    cell_dir_name,
     check_code,
     policy_difference,
 )
@@ -77,28 +75,16 @@ def outcome_rates(eval_dir: str | Path) -> tuple[dict[str, float], int]:
     return rates, len(episodes)
 
 
-@dataclasses.dataclass(frozen=True)
-class Row:
-    """A group seen as one row of a sequential design (what the replay reads: ``name``)."""
-
-    name: str
-
-
-@dataclasses.dataclass(frozen=True)
-class QuestionView:
-    """One question in the shape :func:`priqn.analysis.sequential.replay` reads an
-    experiment: ``sequential`` (the design), ``policies`` (its groups as rows)."""
-
-    sequential: SequentialSpec
-    policies: tuple[Row, ...]
-
-
-def view(question: SequentialSpec) -> QuestionView:
-    """The question's groups, in the order its comparisons name them."""
+def rows_of(exp: Experiment, design: SequentialSpec) -> list[str]:
+    """What ``design``'s replay counts as rows: for the ``[sequential]`` table every row of
+    the grid, in file order; for a question its groups, in the order its comparisons name
+    them."""
+    if not design.name:  # the [sequential] table
+        return [pol.name for pol in exp.policies]
     groups: list[str] = []
-    for c in question.comparisons:
+    for c in design.comparisons:
         groups += [g for g in (c.a, c.b) if g not in groups]
-    return QuestionView(question, tuple(Row(g) for g in groups))
+    return groups
 
 
 COLUMNS: tuple[str, ...] = (
@@ -111,32 +97,33 @@ COLUMNS: tuple[str, ...] = (
     "run_dir",
     "evaluation",
 )
-"""Columns of :func:`collect`: ``policy`` is the group, ``seed`` the position in the
-question's seed order (what the replay counts), ``train_seed`` the training seed."""
+"""Columns of :func:`collect`: ``policy`` is the row or group, ``seed`` the position in
+the design's seed order (what the replay counts), ``train_seed`` the training seed."""
 
 
-def collect(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
-    """The endpoint of every complete cell of ``question`` (columns :data:`COLUMNS`).
+def collect(exp: Experiment, design: SequentialSpec) -> pd.DataFrame:
+    """The endpoint of every complete cell of ``design`` (columns :data:`COLUMNS`), by row
+    (:func:`rows_of`) then position.
 
-    A cell trained at a commit the question does not list, from a dirty checkout, or (a
+    A cell trained at a commit the design does not list, from a dirty checkout, or (a
     reused one) with a config that does not train its row's policy, is refused in one
-    line: a question never mixes code versions or policies.
+    line: a design never mixes code versions or policies.
     """
+    if design.prior_seeds and not Path(str(design.prior_runs)).is_dir():
+        raise PriqnError(
+            f"{exp.design_where(design)}.prior_runs: {design.prior_runs} is not a folder here "
+            f"({Path.cwd()}); run from the folder it is relative to (the repository root)"
+        )
     rows = []
-    for group in (r.name for r in view(question).policies):
-        for position, seed in enumerate(question.seeds):
-            where = exp.cell_at(group, seed, question.budget)
-            if where is None:  # load_experiment checked every seed exists: unreachable
-                raise PriqnError(f"{exp.path}: group {group!r} has no seed {seed}")
-            pol, run_dir, evaluation = where
+    for group in rows_of(exp, design):
+        for position, seed in enumerate(design.seeds):
+            pol, run_dir, evaluation = cell_of(exp, design, group, seed)
             folder = RunFolder(run_dir)
             if not folder.evaluation_complete(evaluation):
                 continue
             sha = str(folder.meta().get("git_sha", ""))
-            _check_cell(exp, question, pol, seed, folder, sha)
-            per_density, n = endpoint_by_density(
-                folder.evaluation_dir(evaluation), question.endpoint
-            )
+            _check_cell(exp, design, pol, seed, folder, sha)
+            per_density, n = endpoint_by_density(folder.evaluation_dir(evaluation), design.endpoint)
             rows.append(
                 (
                     group,
@@ -152,18 +139,34 @@ def collect(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(COLUMNS))
 
 
+def cell_of(
+    exp: Experiment, design: SequentialSpec, group: str, seed: int
+) -> tuple[PolicySpec, Path, str]:
+    """Where ``design`` reads ``group``'s seed ``seed``: ``(row, run folder, evaluation)``
+    (:meth:`priqn.experiment.Experiment.cell_at`; for the ``[sequential]`` table, whose
+    comparisons name rows, the row's own cell or its prior grid's)."""
+    if not design.name:  # the [sequential] table
+        pol = next(p for p in exp.policies if p.name == group)
+        root = Path(str(design.prior_runs)) if seed in design.prior_seeds else exp.runs_dir
+        return pol, root / cell_dir_name(group, seed), ""
+    where = exp.cell_at(group, seed, design.budget or 0)
+    if where is None:  # load_experiment checked every seed exists: unreachable
+        raise PriqnError(f"{exp.path}: group {group!r} has no seed {seed}")
+    return where
+
+
 def _check_cell(
     exp: Experiment,
-    question: SequentialSpec,
+    design: SequentialSpec,
     pol: PolicySpec,
     seed: int,
     folder: RunFolder,
     sha: str,
 ) -> None:
-    """One line when a cell cannot count for ``question`` (its code or its policy)."""
-    check_code(question, sha, folder.path, f"{exp.path} [[question]] {question.name}")
-    if seed in exp.row_seeds(pol):
-        return  # trained by this grid: the sweep built its config from the row
+    """One line when a cell cannot count for ``design`` (its code or its policy)."""
+    check_code(design, sha, folder.path, exp.design_where(design))
+    if seed in exp.row_seeds(pol) or seed in design.prior_seeds:
+        return  # trained by this grid (the sweep built its config from the row) or its prior
     wanted = exp.row_config(pol, seed)
     difference = policy_difference(wanted, folder.config())
     if difference:
@@ -173,79 +176,40 @@ def _check_cell(
         )
 
 
-def replay(exp: Experiment, question: SequentialSpec) -> tuple[pd.DataFrame, sequential.Replay]:
-    """The question's scores and its AdaStop replay (:func:`sequential.replay`)."""
-    scores = collect(exp, question)
-    return scores, sequential.replay(view(question), scores)
+def replay(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, sequential.Replay]:
+    """The design's scores (:func:`collect`) and its AdaStop replay
+    (:func:`priqn.analysis.sequential.replay`)."""
+    scores = collect(exp, design)
+    by_row = sequential.scores_by_policy(scores, rows_of(exp, design))
+    return scores, sequential.replay(design, by_row)
 
 
-def verdict(question: SequentialSpec, result: sequential.Replay, comparison: Any) -> str:
-    """The pre-registered verdict words (explain.toml, "Questions and verdict words"):
-    the headline's for a success comparison; for a violation rate (lower is better, no
-    paper difference) ``a violates more`` / ``a violates less`` / ``no difference
-    found at N seeds``."""
-    return reword(question, comparison, sequential.verdict(view(question), result, comparison))
-
-
-def reword(question: SequentialSpec, comparison: Any, word: str) -> str:
-    """A verdict word of :func:`priqn.analysis.sequential.verdict` in the question's own
-    words: for a violation rate without a paper difference, ``a better`` is ``a violates
-    more`` and ``a worse`` ``a violates less``."""
-    if question.endpoint != "violation" or comparison.paper_difference is not None:
-        return word
-    return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
-
-
-def forecast_scenarios(question: SequentialSpec) -> tuple[str, ...]:
-    """The :data:`priqn.analysis.forecast.SCENARIOS` that apply to ``question``: ``paper``
-    only where a comparison has a paper difference."""
-    if any(c.paper_difference is not None for c in question.comparisons):
-        return planning.SCENARIOS
-    return ("observed",)
-
-
-def forecast(
-    question: SequentialSpec,
-    scores: pd.DataFrame,
-    sims: int,
-    seed: int = 0,
-    on_sim: Callable[[], None] | None = None,
-) -> pd.DataFrame:
-    """:func:`priqn.analysis.forecast.forecast` of one question from its complete cells'
-    ``scores`` (:func:`collect`), in the question's verdict words, over
-    :func:`forecast_scenarios`. Planning only. A one-line PriqnError when a group has
-    fewer than two complete seeds (no spread to draw from)."""
-    table = planning.forecast(
-        view(question),
-        scores,
-        sims=sims,
-        seed=seed,
-        on_sim=on_sim,
-        scenarios=forecast_scenarios(question),
-    )
-    by_name = {c.name: c for c in question.comparisons}
-    table["verdict"] = [
-        reword(question, by_name[name], word)
-        for name, word in zip(table["comparison"], table["verdict"], strict=True)
-    ]
-    return table
+def cells_needed(
+    exp: Experiment, design: SequentialSpec, scores: pd.DataFrame, result: sequential.Replay
+) -> list[tuple[str, int]]:
+    """``(row, training seed)`` cells this grid must train for ``design``'s next look (none
+    when finished), in seed order: the open rows' positions up to the look not among
+    ``scores`` (its complete cells, which ``result`` was replayed from), each once; cells
+    an earlier grid trained (reused, prior) are never trained here."""
+    if result.next_look is None:
+        return []
+    done = {(g, s) for g, s in scores[["policy", "seed"]].itertuples(index=False)}
+    upto = result.next_look * design.seeds_per_look
+    out: list[tuple[str, int]] = []
+    for position, seed in enumerate(design.seeds[:upto]):
+        for group in result.open_rows:
+            if (group, position) in done:
+                continue
+            pol, _, _ = cell_of(exp, design, group, seed)
+            if seed in exp.row_seeds(pol) and (pol.name, seed) not in out:
+                out.append((pol.name, seed))
+    return out
 
 
 def next_cells(exp: Experiment) -> list[tuple[str, int]]:
-    """``(row, training seed)`` cells this grid must train for the next look of every open
-    question, in question then seed order, each once (reused cells are never trained)."""
+    """:func:`cells_needed` of every design of ``exp``, in design order, each cell once."""
     out: list[tuple[str, int]] = []
-    for question in exp.questions:
-        scores, result = replay(exp, question)
-        if result.next_look is None:
-            continue
-        done = {(g, s) for g, s in scores[["policy", "seed"]].itertuples(index=False)}
-        upto = result.next_look * question.seeds_per_look
-        for position, seed in enumerate(question.seeds[:upto]):
-            for group in result.open_rows:
-                if (group, position) in done:
-                    continue
-                pol, _, _ = exp.cell_at(group, seed, question.budget)
-                if seed in exp.row_seeds(pol) and (pol.name, seed) not in out:
-                    out.append((pol.name, seed))
+    for design in exp.designs:
+        scores, result = replay(exp, design)
+        out += [c for c in cells_needed(exp, design, scores, result) if c not in out]
     return out

@@ -28,7 +28,7 @@ from priqn.analysis.load import (
     resumed_text,
 )
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import Replay, relative_path
+from priqn.analysis.sequential import Replay, relative_path, verdict
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.io import atomic_write_text
 from priqn.run.episodes import resolve_outcomes
@@ -56,8 +56,7 @@ def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
     one per :data:`questions.OUTCOME_RATES` (success, violation, timeout, collision,
     off_road), episodes."""
     rows = []
-    groups = [r.name for r in questions.view(question).policies]
-    for group in groups:
+    for group in questions.rows_of(exp, question):
         for budget in budgets_of(exp, group):
             for seed in question.seeds:
                 where = exp.cell_at(group, seed, budget)
@@ -136,7 +135,7 @@ def _comparison_rows(
                 "paper_difference": c.paper_difference,
                 "decision": result.decisions[c.name],
                 "looks": len(result.looks),
-                "verdict": questions.verdict(question, result, c),
+                "verdict": verdict(question, result, c),
             }
         )
     return out
@@ -155,11 +154,11 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
 
     colors = row_colors(list(dict.fromkeys(p.group_name for p in exp.policies)))
     own = Path(exp.runs_dir).resolve()
-    names = [q.name for q in exp.questions]
+    names = [q.name for q in exp.designs]
     fig, axes = plt.subplots(len(names), 1, figsize=(7.5, 1.45 * len(names) + 0.6), squeeze=False)
-    for ax, q in zip(axes[:, 0], exp.questions, strict=True):
+    for ax, q in zip(axes[:, 0], exp.designs, strict=True):
         scores = scores_by_question[q.name]
-        groups = [r.name for r in questions.view(q).policies]
+        groups = questions.rows_of(exp, q)
         for i, group in enumerate(groups):
             mine = scores[scores["policy"] == group]
             x = mine["score"].to_numpy(float)
@@ -289,7 +288,7 @@ def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
 def _question_lines(exp: Experiment, looks: pd.DataFrame) -> list[str]:
     """The "Questions" section: each question's pre-registered design and looks taken."""
     lines = ["## Questions", ""]
-    for q in exp.questions:
+    for q in exp.designs:
         mine = looks[looks["question"] == q.name]
         lines += [
             f"### {q.name}",
@@ -421,7 +420,7 @@ def _budget_tables(
 ) -> tuple[pd.DataFrame, list[pd.DataFrame]] | None:
     """``question``'s budget frame and its comparisons' change frames, when one of its
     groups reaches more than one budget (else None)."""
-    groups = (r.name for r in questions.view(question).policies)
+    groups = questions.rows_of(exp, question)
     if not any(len(budgets_of(exp, g)) > 1 for g in groups):
         return None
     frame = budget_frame(exp, question)
@@ -442,7 +441,7 @@ def returns_tables(exp: Experiment, scores: pd.DataFrame) -> dict[int, tables.Ta
     the group's name where two groups share a label). Unranked: descriptive."""
     if scores.empty:
         return {}
-    budget_of = {q.name: q.budget for q in exp.questions}
+    budget_of = {q.name: q.budget for q in exp.designs}
     cells = scores.assign(budget=scores["question"].map(budget_of)).drop_duplicates(
         ["budget", "policy", "train_seed"]
     )
@@ -531,7 +530,7 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     out = Path(out_dir)
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
-    for q in exp.questions:
+    for q in exp.designs:
         scores, result = questions.replay(exp, q)
         scores_by_q[q.name] = scores
         comparison_rows += _comparison_rows(exp, q, scores, result)

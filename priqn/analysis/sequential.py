@@ -1,24 +1,17 @@
-"""A pre-registered group-sequential experiment over training seeds, replayed from its cells.
+"""AdaStop replayed look by look on a pre-registered design's per-seed scores.
 
-The design lives in the experiment file's ``[sequential]`` table
-(:class:`priqn.experiment.SequentialSpec`); this module only reads it. From the
-run folders it
+A design (:class:`priqn.experiment.SequentialSpec`: a ``[sequential]`` table or a
+``[[question]]``) is read from the experiment file; its cells' scores are collected by
+:mod:`priqn.analysis.questions`. This module holds what is left once the scores are in:
 
-1. collects one **endpoint** score per (row, training seed): the hold-out success rate
-   averaged over the evaluation densities (:func:`collect_scores`), refusing any cell
-   trained at a commit the design does not list;
-2. **replays AdaStop** look by look on those scores (:func:`replay`): each family gets its
-   own ``adastop.MultipleAgentsComparator`` with the design's n, K, B, α, β and seed, and
-   look k is taken once every row still in an open comparison has its first k·n seeds
-   — the decisions are a pure function of the committed scores, so a report regenerates
-   them exactly;
-3. says which cells the next look needs (:func:`next_cells`), which is what ``priqn
-   sweep`` trains for such an experiment;
-4. gives each comparison its pre-registered **verdict word** (:func:`verdict`).
+1. :func:`replay` takes the design and each row's ``scores_S`` and replays **AdaStop**
+   look by look: each family gets its own ``adastop.MultipleAgentsComparator`` with the
+   design's n, K, B, α, β and seed, and look k is taken once every row still in an open
+   comparison has its first k·n seeds — the decisions are a pure function of the
+   committed scores, so a report regenerates them exactly;
+2. :func:`verdict` gives each comparison its pre-registered **verdict word**.
 
-The report (tables, figures, ``report.md``) is :mod:`priqn.analysis.sequential_report`.
-
-Arrays: ``scores_S`` is one row's per-seed scores in seed order (seed 0 first).
+Arrays: ``scores_S`` is one row's per-seed scores in look order (position 0 first).
 """
 
 from __future__ import annotations
@@ -32,53 +25,12 @@ import numpy as np
 import pandas as pd
 
 from priqn.analysis import inference
-from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
-from priqn.experiment import cell_dir_name, check_code
-from priqn.run.folder import RunFolder
+from priqn.experiment import ComparisonSpec, SequentialSpec
 
 DECISIONS: tuple[str, ...] = ("larger", "smaller", "equal", "continue")
 """AdaStop's decision words for ``a`` vs ``b``: a larger, a smaller, not different (only at
 the last look with β = 0), or undecided yet."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Score:
-    """One cell's endpoint."""
-
-    policy: str
-    seed: int
-    score: float
-    """Hold-out success rate averaged over the evaluation densities."""
-    episodes: int
-    """Hold-out episodes behind it."""
-    git_sha: str
-    """The commit the cell trained at (``meta.json``)."""
-    run_dir: str
-    """The run folder, relative to the working directory when possible."""
-
-
-def success_by_density(run_dir: str | Path) -> tuple[pd.Series, int]:
-    """A cell's hold-out success rate per evaluation density (index: density, sorted) and
-    the number of episodes behind it, from its ``eval/episodes.csv``."""
-    episodes = read_episodes(RunFolder(run_dir).eval_dir)
-    return episodes.groupby("density")["success"].mean().astype(float), len(episodes)
-
-
-def _cell_score(run_dir: Path, policy: str, seed: int) -> Score | None:
-    """The endpoint of one complete cell, or None when it is not complete yet."""
-    folder = RunFolder(run_dir)
-    if not folder.evaluation_complete():
-        return None
-    per_density, episodes = success_by_density(run_dir)
-    return Score(
-        policy,
-        seed,
-        float(per_density.mean()),
-        episodes,
-        str(folder.meta().get("git_sha", "")),
-        relative_path(run_dir),
-    )
 
 
 def relative_path(path: Path) -> str:
@@ -89,35 +41,9 @@ def relative_path(path: Path) -> str:
         return str(path)
 
 
-def collect_scores(exp: Any) -> pd.DataFrame:
-    """Endpoint scores of every complete cell of the design's rows and seeds.
-
-    Seeds in ``prior_seeds`` come from ``<prior_runs>/<policy>__seed<k>``, the others from
-    the experiment's own folder. A cell trained at a commit not in ``code_commits`` (when
-    the design lists any) is refused in one line. Columns: those of :class:`Score`.
-    """
-    seq = exp.sequential
-    if seq.prior_seeds and not Path(seq.prior_runs).is_dir():
-        raise PriqnError(
-            f"{exp.path} [sequential].prior_runs: {seq.prior_runs} is not a folder here "
-            f"({Path.cwd()}); run from the folder it is relative to (the repository root)"
-        )
-    rows = []
-    for pol in exp.policies:
-        for seed in [*seq.prior_seeds, *exp.experiment.seeds]:
-            root = Path(seq.prior_runs) if seed in seq.prior_seeds else exp.runs_dir
-            run_dir = root / cell_dir_name(pol.name, seed)
-            score = _cell_score(run_dir, pol.name, seed)
-            if score is None:
-                continue
-            check_code(seq, score.git_sha, run_dir, f"{exp.path} [sequential]")
-            rows.append(dataclasses.asdict(score))
-    columns = [f.name for f in dataclasses.fields(Score)]
-    return pd.DataFrame(rows, columns=columns)
-
-
 def scores_by_policy(scores: pd.DataFrame, policies: list[str]) -> dict[str, np.ndarray]:
-    """Policy -> ``scores_S`` of its *contiguous* seeds 0, 1, ... (a gap ends the run)."""
+    """Row -> ``scores_S`` of its *contiguous* positions 0, 1, ... (a gap ends the run);
+    ``scores``: columns ``policy`` (the row or group) and ``seed`` (the position)."""
     out = {}
     for policy in policies:
         mine = scores[scores["policy"] == policy].set_index("seed")["score"]
@@ -228,7 +154,9 @@ def two_sided_comparator() -> type:
     return TwoSidedComparator
 
 
-def _family_comparator(seq: Any, comparisons: list[Any]) -> tuple[Any, list[str]]:
+def _family_comparator(
+    design: SequentialSpec, comparisons: list[ComparisonSpec]
+) -> tuple[Any, list[str]]:
     """A fresh (two-sided) AdaStop comparator of one family and its agent order."""
     MultipleAgentsComparator = two_sided_comparator()  # noqa: N806 - a class
     agents: list[str] = []
@@ -238,36 +166,35 @@ def _family_comparator(seq: Any, comparisons: list[Any]) -> tuple[Any, list[str]
                 agents.append(row)
     pairs = np.array([(agents.index(c.a), agents.index(c.b)) for c in comparisons])
     comparator = MultipleAgentsComparator(
-        n=seq.seeds_per_look,
-        K=len(seq.interims),
-        B=seq.permutations,
+        n=design.seeds_per_look,
+        K=len(design.interims),
+        B=design.permutations,
         comparisons=pairs,
-        alpha=seq.alpha,
-        beta=seq.beta,
-        seed=seq.seed,
+        alpha=design.alpha,
+        beta=design.beta,
+        seed=design.seed,
     )
     return comparator, agents
 
 
-def replay(exp: Any, scores: pd.DataFrame) -> Replay:
-    """AdaStop, look by look, on the committed scores (see the module docstring)."""
+def replay(design: SequentialSpec, scores_S: dict[str, np.ndarray]) -> Replay:
+    """AdaStop, look by look, on the committed scores (see the module docstring).
+
+    ``scores_S``: every row (or group) of the design -> its scores in look order, contiguous
+    from position 0 (:func:`scores_by_policy`); its keys, in order, are the rows the looks
+    report (``Look.seeds_per_row``), and every row a comparison names must be among them."""
     import contextlib
     import io
 
-    seq = exp.sequential
-    n, K = seq.seeds_per_look, len(seq.interims)
-    policies = [p.name for p in exp.policies]
-    by_policy = scores_by_policy(scores, policies)
-    families = seq.families()
-    state = {f: _family_comparator(seq, cs) for f, cs in families.items()}
-    decisions = {c.name: "continue" for c in seq.comparisons}
+    n, K = design.seeds_per_look, len(design.interims)
+    families = design.families()
+    state = {f: _family_comparator(design, cs) for f, cs in families.items()}
+    decisions = {c.name: "continue" for c in design.comparisons}
     decided_at: dict[str, int] = {}
     looks: list[Look] = []
     for k in range(K):
-        open_rows = {
-            r for c in seq.comparisons if decisions[c.name] == "continue" for r in (c.a, c.b)
-        }
-        if not open_rows or any(len(by_policy[r]) < (k + 1) * n for r in open_rows):
+        open_rows = _open_rows(design, decisions, list(scores_S))
+        if not open_rows or any(len(scores_S[r]) < (k + 1) * n for r in open_rows):
             break
         level: dict[str, float] = {}
         needed: dict[str, float] = {}
@@ -276,12 +203,7 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
             if comparator.is_finished:
                 level[family] = float(comparator.level_spent)
                 continue
-            values = {
-                a: by_policy[a][: (k + 1) * n]
-                if a in open_rows
-                else by_policy[a][: min(len(by_policy[a]), (k + 1) * n)]
-                for a in agents
-            }
+            values = {a: scores_S[a][: (k + 1) * n] for a in agents}
             with contextlib.redirect_stdout(io.StringIO()):  # adastop prints "Step k"
                 comparator.partial_compare(values, verbose=False)
             for c, pair in zip(comps, comparator.comparisons, strict=True):
@@ -291,21 +213,10 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
                 decisions[c.name] = word
             level[family] = float(comparator.level_spent)
             needed[family] = float(comparator.boundary[-1][1]) / (k + 1)
-        seeds_now = {r: min(len(by_policy[r]), (k + 1) * n) for r in policies}
-        looks.append(
-            Look(
-                k + 1,
-                seeds_now,
-                _look_rows(seq, by_policy, seeds_now, decisions, decided_at),
-                level,
-                needed,
-            )
-        )
-    open_rows = tuple(
-        r
-        for r in policies
-        if any(decisions[c.name] == "continue" and r in (c.a, c.b) for c in seq.comparisons)
-    )
+        seeds_now = {r: min(len(x), (k + 1) * n) for r, x in scores_S.items()}
+        rows = _look_rows(design, scores_S, seeds_now, decisions, decided_at)
+        looks.append(Look(k + 1, seeds_now, rows, level, needed))
+    open_rows = _open_rows(design, decisions, list(scores_S))
     finished = not open_rows
     return Replay(
         tuple(looks),
@@ -316,18 +227,26 @@ def replay(exp: Any, scores: pd.DataFrame) -> Replay:
     )
 
 
+def _open_rows(
+    design: SequentialSpec, decisions: dict[str, str], rows: list[str]
+) -> tuple[str, ...]:
+    """The rows (in ``rows``' order) still in a comparison AdaStop has not decided."""
+    still = {r for c in design.comparisons if decisions[c.name] == "continue" for r in (c.a, c.b)}
+    return tuple(r for r in rows if r in still)
+
+
 def _look_rows(
-    seq: Any,
-    by_policy: dict[str, np.ndarray],
+    design: SequentialSpec,
+    scores_S: dict[str, np.ndarray],
     seeds_now: dict[str, int],
     decisions: dict[str, str],
     decided_at: dict[str, int],
 ) -> tuple[ComparisonLook, ...]:
     out = []
-    for c in seq.comparisons:
-        a, b = by_policy[c.a][: seeds_now[c.a]], by_policy[c.b][: seeds_now[c.b]]
+    for c in design.comparisons:
+        a, b = scores_S[c.a][: seeds_now[c.a]], scores_S[c.b][: seeds_now[c.b]]
         lo, hi = inference.welch_interval(a, b)
-        m = sum(x.family == c.family for x in seq.comparisons)
+        m = sum(x.family == c.family for x in design.comparisons)
         out.append(
             ComparisonLook(
                 c.name,
@@ -339,7 +258,7 @@ def _look_rows(
                 float(a.mean() - b.mean()),
                 lo,
                 hi,
-                inference.upper_bound(a, b, seq.alpha / m),
+                inference.upper_bound(a, b, design.alpha / m),
                 decisions[c.name],
                 decided_at.get(c.name),
             )
@@ -347,21 +266,21 @@ def _look_rows(
     return tuple(out)
 
 
-def next_cells(exp: Any, result: Replay, scores: pd.DataFrame) -> list[tuple[str, int]]:
-    """(policy, seed) cells the next look needs that are not among ``scores`` (the complete
-    cells, :func:`collect_scores`, which ``result`` was replayed from), in seed order."""
-    if result.next_look is None:
-        return []
-    seq = exp.sequential
-    upto = result.next_look * seq.seeds_per_look
-    done = {(p, s) for p, s in scores[["policy", "seed"]].itertuples(index=False)}
-    return [
-        (row, seed) for seed in range(upto) for row in result.open_rows if (row, seed) not in done
-    ]
+def verdict(design: SequentialSpec, result: Replay, comparison: ComparisonSpec) -> str:
+    """The pre-registered verdict words of one comparison (headline.toml, "verdicts";
+    explain.toml, "Questions and verdict words"): ``reproduced`` / ``contradicted`` /
+    ``paper's effect ruled out`` / ``inconclusive at N seeds`` where the paper gives a
+    difference; otherwise ``a better`` / ``a worse`` / ``no difference found at N seeds``,
+    where for a violation rate (lower is better) ``a better`` is ``a violates more`` and
+    ``a worse`` ``a violates less``; ``open: look k pending`` while undecided."""
+    word = _verdict(result, comparison)
+    if design.endpoint != "violation" or comparison.paper_difference is not None:
+        return word
+    return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
 
 
-def verdict(exp: Any, result: Replay, comparison: Any) -> str:
-    """The pre-registered verdict word of one comparison (headline.toml, "verdicts")."""
+def _verdict(result: Replay, comparison: ComparisonSpec) -> str:
+    """:func:`verdict` in the success endpoint's words."""
     decision = result.decisions[comparison.name]
     look = result.looks[-1] if result.looks else None
     n = (

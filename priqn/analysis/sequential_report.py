@@ -17,19 +17,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from priqn.analysis import inference
+from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import (
-    ComparisonLook,
-    Replay,
-    collect_scores,
-    next_cells,
-    relative_path,
-    replay,
-    success_by_density,
-    verdict,
-)
+from priqn.analysis.sequential import ComparisonLook, Replay, relative_path, verdict
 from priqn.experiment import cell_dir_name
 from priqn.run.folder import RunFolder
 
@@ -39,6 +30,9 @@ CURVE_REPS = 2000
 """Bootstrap replications of the sample-efficiency curves' intervals."""
 PAPER_TRAINING_DECISIONS = 2_000_000
 """The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
+SCORE_COLUMNS: tuple[str, ...] = ("policy", "seed", "score", "episodes", "git_sha", "run_dir")
+"""Columns of ``tables/scores.csv``: :data:`priqn.analysis.questions.COLUMNS` less the
+training seed and the evaluation (a row's seed is its position; every cell is ``eval/``)."""
 
 
 def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
@@ -54,7 +48,10 @@ def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
         if mine.empty:
             continue
         success_SD = pd.DataFrame(  # one row per cell (seed), one column per density
-            [success_by_density(d)[0] for d in mine["run_dir"]]
+            [
+                questions.endpoint_by_density(RunFolder(d).eval_dir, "success")[0]
+                for d in mine["run_dir"]
+            ]
         ).sort_index(axis=1)
         label = RunFolder(mine["run_dir"].iloc[0]).meta().get("labels", {}).get("label")
         paper = dict(zip(PAPER_DENSITIES, PAPER_SUCCESS.get(str(label), ()), strict=False))
@@ -217,7 +214,7 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         ax.set_xticks(range(1, K + 1), [f"{n}" for n in seq.interims], fontsize=8)
         ax.set_xlim(0.4, K + 0.6)
         ax.set_xlabel("seeds per row at the look", fontsize=8)
-        ax.set_title(f"{c.name}: {verdict(exp, result, c)}", fontsize=8)
+        ax.set_title(f"{c.name}: {verdict(seq, result, c)}", fontsize=8)
         ax.tick_params(axis="y", labelsize=8)
     for ax in axes.flat[len(comps) :]:
         ax.set_visible(False)
@@ -400,7 +397,7 @@ def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
             decided += f" (look {row.decided_at})"
         lines.append(
             f"| {c.name} | {c.family} | {paper} | {est} | {seeds} | {decided} | "
-            f"**{verdict(exp, result, c)}** |"
+            f"**{verdict(exp.sequential, result, c)}** |"
         )
     return [
         *lines,
@@ -461,7 +458,7 @@ def _looks_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
 
 def _next_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
     """The "Next" section: finished, or the cells the next look needs."""
-    nxt = next_cells(exp, result, scores)
+    nxt = questions.cells_needed(exp, exp.sequential, scores, result)
     return [
         "## Next",
         "",
@@ -509,8 +506,8 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     from priqn.io import atomic_write_json, atomic_write_text
 
     out = Path(out_dir)
-    scores = collect_scores(exp)
-    result = replay(exp, scores)
+    scores, result = questions.replay(exp, exp.sequential)
+    scores = scores[list(SCORE_COLUMNS)]
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     write_csv(out / "tables" / "scores.csv", scores)
     write_csv(out / "tables" / "looks.csv", looks_frame(result))
@@ -532,7 +529,9 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
             "experiment": exp.path.name,
             "looks": len(result.looks),
             "decisions": result.decisions,
-            "verdicts": {c.name: verdict(exp, result, c) for c in exp.sequential.comparisons},
+            "verdicts": {
+                c.name: verdict(exp.sequential, result, c) for c in exp.sequential.comparisons
+            },
             "finished": result.finished,
             "cells": len(scores),
             **(

@@ -183,37 +183,31 @@ def _commit(exp: Any) -> int:
 
 
 def _forecast(exp: Any, sims: int) -> int:
-    """``--forecast SIMS``: the planning simulation of a sequential design, or of each
-    ``[[question]]`` (stdout); a question whose groups lack two complete seeds is named
-    and skipped."""
+    """``--forecast SIMS``: the planning simulation of each sequential design (stdout): the
+    ``[sequential]`` table or each ``[[question]]``; a design whose rows lack two complete
+    seeds is named and skipped."""
     from tqdm import tqdm
 
-    from priqn.analysis import forecast, questions, sequential
+    from priqn.analysis import forecast, questions
 
     if sims < 1:
         raise PriqnError(f"--forecast {sims}: expected a positive number of simulations")
-    if exp.sequential is None and not exp.questions:
+    if not exp.designs:
         raise PriqnError(f"--forecast: {exp.path} has no [sequential] design or [[question]]")
-    name = exp.experiment.name
-    if exp.sequential is not None:
-        scores = sequential.collect_scores(exp)
-        have = forecast.committed_rows(exp, scores)
-        with tqdm(
-            total=sims * len(forecast.SCENARIOS), desc="forecast", unit="sim", disable=None
-        ) as bar:
-            table = forecast.forecast(exp, scores, sims=sims, on_sim=bar.update)
-        _print_forecast(name, exp.sequential, have, table)
-    for q in exp.questions:
-        scores = questions.collect(exp, q)
+    for design in exp.designs:
+        title = " ".join(filter(None, (exp.experiment.name, design.name)))
+        scores = questions.collect(exp, design)
         try:
-            have = forecast.committed_rows(questions.view(q), scores)
+            have = forecast.committed_rows(scores, questions.rows_of(exp, design))
         except PriqnError as exc:
-            print(f"{name} {q.name}: not forecast ({str(exc).removeprefix('forecast: ')})")
+            print(f"{title}: not forecast ({str(exc).removeprefix('forecast: ')})")
             continue
-        total = sims * len(questions.forecast_scenarios(q))
-        with tqdm(total=total, desc=f"forecast {q.name}", unit="sim", disable=None) as bar:
-            table = questions.forecast(q, scores, sims=sims, on_sim=bar.update)
-        _print_forecast(f"{name} {q.name}", q, have, table)
+        total = sims * len(forecast.scenarios_for(design))
+        with tqdm(
+            total=total, desc=f"forecast {design.name}".strip(), unit="sim", disable=None
+        ) as bar:
+            table = forecast.forecast(design, have, sims=sims, on_sim=bar.update)
+        _print_forecast(title, design, have, table)
     print(
         f"({sims} simulated experiments a scenario, {forecast.PERMUTATIONS} permutations each; "
         "planning only, not a verdict: docs/statistics.md)"
@@ -290,23 +284,24 @@ def _time_left_line(exp: Any, left: list[Any], slots: int) -> str:
 
 def _design_plan(exp: Any) -> tuple[list[tuple[str, int]], str]:
     """``((row, seed) cells the next looks need, where the design stands in one line)``
-    of a ``[sequential]`` design or of every open ``[[question]]``."""
-    from priqn.analysis import questions, sequential
+    over every design: the ``[sequential]`` table or each ``[[question]]``."""
+    from priqn.analysis import questions
 
+    cells: list[tuple[str, int]] = []
+    plans = []
+    for design in exp.designs:
+        scores, plan = questions.replay(exp, design)
+        cells += [c for c in questions.cells_needed(exp, design, scores, plan) if c not in cells]
+        plans.append((design, plan))
     if exp.sequential is None:
-        cells = questions.next_cells(exp)
-        states = []
-        for q in exp.questions:
-            _, plan = questions.replay(exp, q)
-            states.append(
-                f"{q.name} finished after {len(plan.looks)} look(s)"
-                if plan.finished
-                else f"{q.name} at look {plan.next_look}"
-            )
+        states = [
+            f"{q.name} finished after {len(plan.looks)} look(s)"
+            if plan.finished
+            else f"{q.name} at look {plan.next_look}"
+            for q, plan in plans
+        ]
         return cells, f"{'; '.join(states)}; {len(cells)} cell(s) needed"
-    scores = sequential.collect_scores(exp)
-    plan = sequential.replay(exp, scores)
-    cells = sequential.next_cells(exp, plan, scores)
+    ((_, plan),) = plans
     if plan.finished or not cells:
         state = "finished" if plan.finished else f"waiting for look {plan.next_look}"
         words = "; ".join(f"{k}: {v}" for k, v in plan.decisions.items())
