@@ -720,9 +720,25 @@ def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
     return exp
 
 
-def write_design_report(exp: Any, out: str | Path, command: str | None = None) -> Path:
-    """The report of a pre-registered experiment, by its kind (the one place a design's
-    writer is chosen): ``[calibration]``, ``[sequential]`` or ``[[question]]``."""
+def write_experiment_report(exp: Any, out: str | Path, command: str | None = None) -> Path:
+    """The report of an experiment, by its kind: the one place a report's writer is chosen
+    (``priqn report`` on an experiment's runs, ``priqn sweep`` after its cells). A
+    ``[calibration]`` design's, a ``[sequential]`` table's (the one-question layout:
+    :mod:`priqn.analysis.sequential_report`), ``[[question]]`` tables'
+    (:mod:`priqn.analysis.questions_report`), else the grid's Tables I/II report
+    (:func:`make_report`, seeded by ``[experiment].report_seed``). ``command``: the one
+    recorded in ``meta.json``; by default ``priqn sweep <file>`` for a grid and, for a
+    design, the ``priqn report`` that regenerates it."""
+    if not exp.designs and exp.calibration is None:
+        return make_report(
+            exp.runs_dir,
+            out,
+            seed=exp.experiment.report_seed,
+            command=command or f"priqn sweep {exp.path}",
+        )
+    from priqn.analysis.sequential import relative_path
+
+    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     if exp.calibration is not None:
         from priqn.analysis import calibration
 
@@ -742,7 +758,7 @@ def run(args: argparse.Namespace) -> int:
         if args.reference:
             raise PriqnError("--reference: not for a sequential experiment's report")
         command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(write_design_report(exp, out, command))
+        print(write_experiment_report(exp, out, command))
         return 0
     command = (
         f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "

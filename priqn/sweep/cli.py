@@ -325,9 +325,9 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
         if result.failed or result.interrupted:
             return _summarise(exp, result)
     if report:
-        from priqn.analysis.report import write_design_report
+        from priqn.analysis.report import write_experiment_report
 
-        path = write_design_report(exp, exp.report_dir)
+        path = write_experiment_report(exp, exp.report_dir)
         print(f"priqn sweep: report in {path}", file=sys.stderr)
     return 0
 

@@ -334,20 +334,10 @@ def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> N
 
 def _run_report(exp: Experiment, say: Callable[[str], None]) -> Path | None:
     try:
-        from priqn.analysis.report import make_report, write_design_report
+        from priqn.analysis.report import write_experiment_report
     except ModuleNotFoundError as exc:
         say(f"priqn sweep: report skipped ({exc.name} is not installed)")
         return None
-    if exp.calibration is not None:
-        runs, report = (os.path.relpath(p) for p in (exp.runs_dir, exp.report_dir))
-        out = write_design_report(exp, exp.report_dir, f"priqn report {runs} --out {report}")
-        say(f"priqn sweep: report in {out}")
-        return Path(out)
-    out = make_report(
-        exp.runs_dir,
-        exp.report_dir,
-        seed=exp.experiment.report_seed,
-        command=f"priqn sweep {exp.path}",
-    )
+    out = write_experiment_report(exp, exp.report_dir)
     say(f"priqn sweep: report in {out}")
     return Path(out)
