@@ -1,16 +1,45 @@
 """Analysis of evaluated runs, cut like rliable by what the user does.
 
+Read and estimate:
+
 - :mod:`analysis.load` — every evaluated run under a folder into one episode table
   (refusing mixed inputs);
 - :mod:`analysis.stats` — rliable estimates (IQM, optimality gap, P(X > Y),
   performance profiles) on ``scores_RT`` matrices;
+- :mod:`analysis.inference` — intervals, tests, Holm, power and verdict words over
+  training seeds;
+- :mod:`analysis.paper` — what the paper reports (Table II rows, success rates, quoted
+  gains), with sources;
+- :mod:`analysis.claims` — the paper's claims as data and the verdict rule;
+- :mod:`analysis.curves` — sample-efficiency curves (success against training decisions).
+
+Pre-registered designs of an experiment file:
+
+- :mod:`analysis.questions` — a design's cells (a ``[sequential]`` table or each
+  ``[[question]]``) scored at its budget, replayed, and the cells its next look needs;
+- :mod:`analysis.sequential` — AdaStop replayed look by look on a design's scores, and
+  the verdict words;
+- :mod:`analysis.forecast` — how likely a design is to decide (a planning simulation);
+- :mod:`analysis.calibration` — a ``[calibration]`` rule: the row whose outcome mix is
+  nearest a target, and its report.
+
+Tables, figures and reports:
+
 - :mod:`analysis.tables` — Table II and Table I as data, Markdown, LaTeX and CSV;
 - :mod:`analysis.figures` — the paper-style figures (PNG + PDF);
-- :mod:`analysis.report` — ``priqn report`` / :func:`analysis.report.make_report`;
+- :mod:`analysis.render` — the one CSV writer and Markdown table renderer;
+- :mod:`analysis.report` — ``priqn report`` / :func:`analysis.report.make_report`, and
+  :func:`analysis.report.write_experiment_report`, the one place an experiment's report
+  writer is chosen;
+- :mod:`analysis.claims_report` — the claims section and ``tables/claims.csv``;
+- :mod:`analysis.sequential_report` — the report of a ``[sequential]`` table;
+- :mod:`analysis.questions_report` — the report of ``[[question]]`` tables;
 - :mod:`analysis.generalisation` — evaluations on other nets (``priqn evaluate --nets``),
   reported apart from Table II;
 - :mod:`analysis.reference` — reference drivers (``priqn evaluate --reference``) as
-  unranked rows.
+  unranked rows;
+- :mod:`analysis.mechanism`, :mod:`analysis.standstill` — ``priqn mechanism``: replayed
+  decisions of evaluated cells, counted (torch and SUMO imported inside the command).
 
 The protocol and every statistical choice are documented in ``docs/evaluation.md``.
 """
