@@ -694,7 +694,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def sequential_experiment(runs: str | Path, name: str | None = None) -> Any:
+def design_experiment(runs: str | Path, name: str | None = None) -> Any:
     """The experiment with a ``[sequential]``, ``[[question]]`` or ``[calibration]`` design
     whose runs live in ``runs``: the one named ``name``, else the experiment file named like
     the folder (``results/headline`` -> ``headline``) if it has such a design; None otherwise."""
@@ -753,7 +753,7 @@ def run(args: argparse.Namespace) -> int:
     if args.reps < 1:
         raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
     out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
-    exp = sequential_experiment(args.runs, args.experiment)
+    exp = design_experiment(args.runs, args.experiment)
     if exp is not None:
         if args.reference:
             raise PriqnError("--reference: not for a sequential experiment's report")

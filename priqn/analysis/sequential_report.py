@@ -1,11 +1,14 @@
-"""The report of a pre-registered sequential experiment, from its replay.
+"""The report of a ``[sequential]`` table (the one-question layout), from its replay.
 
 :func:`write_report` writes, deterministically (the same committed cells give the same
 bytes): ``report.md`` (verdicts, each look, per-density success, the next cells, every
 cell), ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` / ``sample_efficiency.csv`` and
 ``figures/headline`` (per-seed success of each row), ``figures/looks`` (each comparison
 look by look) and ``figures/sample_efficiency`` (:mod:`priqn.analysis.curves`). The
-design and the decisions are :mod:`priqn.analysis.sequential`'s; nothing here decides.
+scores are :mod:`priqn.analysis.questions`' (as for any design), the decisions
+:mod:`priqn.analysis.sequential`'s; nothing here decides. ``[[question]]`` tables have
+their own layout, :mod:`priqn.analysis.questions_report`; the choice is
+:func:`priqn.analysis.report.write_experiment_report`'s.
 """
 
 from __future__ import annotations
