@@ -794,9 +794,10 @@ BUDGET_KEYS: tuple[str, ...] = (
     "checkpoint.keep_at",
     "exploration.decay_fraction",
     "exploration.decay_steps",
+    "replay.storage",
 )
 """TrainConfig keys in which two runs of one policy may differ (the ε decay only as long
-as it spans the same absolute decisions)."""
+as it spans the same absolute decisions; ``replay.storage`` moves the same batches)."""
 
 
 def policy_difference(a: Any, b: Any) -> str | None:

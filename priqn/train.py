@@ -177,6 +177,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     was_complete = resume and run.recorded_status() == Status.COMPLETE
     # Everything that can refuse the run comes before its folder is touched.
     origin = provenance.gather(cfg)
+    _check_replay_storage(cfg)
     # The session's one agent, for the run's objectives.
     agent = build_agent(cfg)
     run.prepare(cfg, resume, force, origin, policy_labels(cfg, agent))
@@ -270,6 +271,8 @@ class Trainer:
             cfg.learner.n_step,
             cfg.learner.gamma,
             num_objectives=len(self.objectives),
+            storage=cfg.replay.storage,
+            device=device,
         )
         self.rng_replay = np.random.default_rng(seeds["replay"])
         self.rng_act = np.random.default_rng(seeds["explore"])
@@ -461,6 +464,16 @@ class Trainer:
             run.update_meta(
                 steps_done=self.step, episodes_done=self.episodes, wall_s=round(wall, 1)
             )
+
+
+def _check_replay_storage(cfg: TrainConfig) -> None:
+    """A ``replay.storage`` that cannot run on the run's device: one line, before the run
+    folder is touched (whether ``device`` storage fits is checked when it is allocated)."""
+    if cfg.replay.storage == "host":
+        return
+    from priqn.agents.frames import check_storage
+
+    check_storage(cfg.replay.storage, select_device(cfg.device))
 
 
 def _declarations(cfg: TrainConfig) -> list[dict[str, Any]]:

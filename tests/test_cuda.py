@@ -118,3 +118,40 @@ def test_a_policy_trained_on_cuda_acts_the_same_on_cpu(tmp_path):
     # convolutions (10-bit mantissa inputs), so within 1 % of the largest quantile.
     err = (q_cpu - q_gpu).abs().max().item()
     assert err <= 1e-2 * q_cpu.abs().max().item(), err
+
+
+def test_replay_storages_give_host_batches_on_cuda(tmp_path: Path) -> None:
+    """``replay.storage`` on a GPU: ``device`` (rings in GPU memory) and ``pinned``
+    (page-locked staging, asynchronous copies, two slots taking turns) give ``host``'s
+    batches bit for bit, a GPU ring saves and loads as a host one, and ``device`` storage
+    that cannot fit on the GPU is one line before anything is allocated."""
+    from test_replay_storage import SPEC, as_numpy, assert_same_batch, filled
+
+    from priqn.agents.replay import ReplayBuffer
+    from priqn.errors import PriqnError
+
+    dev = torch.device("cuda")
+    host = filled("host")
+    others = {s: filled(s, device=dev) for s in ("device", "pinned")}
+    assert others["device"].obs["bev"].is_cuda
+    rngs = {s: np.random.default_rng(3) for s in ("host", *others)}
+    kept = []
+    for _ in range(6):
+        want = as_numpy(host.sample(16, rngs["host"]))
+        for s, rb in others.items():
+            got = rb.sample(16, rngs[s])
+            assert got["obs"]["bev"].is_cuda
+            kept.append((want, got))
+    slot = others["pinned"].frames._slots[0]
+    assert all(t.is_pinned() for name, t in slot.items() if name != "event")
+    torch.cuda.synchronize()
+    for want, got in kept:
+        assert_same_batch(want, got)
+    with open(tmp_path / "rows.npz", "wb") as fh:
+        others["device"].save_rows(fh, np.zeros(3, np.int64))
+    back = filled("host", steps=0)
+    back.load_rows(tmp_path / "rows.npz")
+    for k in SPEC:
+        assert np.array_equal(back.obs[k], host.obs[k]), k
+    with pytest.raises(PriqnError, match=r"replay.storage = 'device': the buffer needs .* GB"):
+        ReplayBuffer(SPEC, 3, 3_000_000_000, storage="device", device=dev)

@@ -10,6 +10,10 @@ row that starts no transition, and the reset observation follows it.
 n-step returns are assembled at sampling time: Σ_{k<m} γ^k r_{p+k} over the m ≤ n
 steps before the episode ends, bootstrapped from row p+m with discount γ^m (0 when
 the episode terminated; a truncation — timeout — still bootstraps).
+
+Where the observations live (numpy on the host, or torch tensors on the learner's
+device) and how a batch reaches the device is the ``storage``
+(:mod:`priqn.agents.frames`); the rows a batch holds do not depend on it.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from priqn.agents.frames import assign, host_view, make_frames
 from priqn.objectives import NUM_OBJECTIVES
 
 
@@ -33,7 +38,11 @@ class ReplayBuffer:
         n_step: int = 1,
         gamma: float | Sequence[float] = 0.99,
         num_objectives: int = NUM_OBJECTIVES,
+        storage: str = "host",
+        device: Any = None,
     ) -> None:
+        """``storage``: ``replay.storage`` (:data:`~priqn.agents.frames.REPLAY_STORAGES`);
+        ``device``: the learner's torch device (``None``: the CPU)."""
         if capacity < 2 * num_envs:
             raise ValueError(f"replay capacity {capacity} too small for {num_envs} envs")
         if n_step < 1:
@@ -49,7 +58,8 @@ class ReplayBuffer:
             np.asarray(gamma, dtype=np.float64), (self.num_objectives,)
         ).copy()
         E, R = self.num_envs, self.rows
-        self.obs = {k: np.zeros((E, R, *shape), dtype=dt) for k, (shape, dt) in obs_spec.items()}
+        self.frames = make_frames(storage, obs_spec, E, R, device)
+        """The observations' store (its ``arrays``: per key the ring ``[E, R, ...]``)."""
         self.action = np.zeros((E, R), dtype=np.int64)
         self.reward = np.zeros((E, R, self.num_objectives), dtype=np.float32)
         self.starts = np.zeros((E, R), dtype=bool)
@@ -60,16 +70,28 @@ class ReplayBuffer:
         self.written = np.zeros(E, dtype=np.int64)
         """Rows written so far per env (absolute position of the next row)."""
 
+    @property
+    def obs(self) -> dict[str, Any]:
+        """Per observation key the ring ``[E, R, ...]`` (numpy arrays; torch tensors on the
+        learner's device with ``storage = "device"``)."""
+        return self.frames.arrays
+
     # ------------------------------------------------------------------ writing
 
-    def _write_row(self, e: int, obs: Mapping[str, np.ndarray], i: int | None) -> int:
+    def _claim_row(self, e: int) -> int:
+        """Env ``e``'s next ring row, its flags cleared (``written`` counts it)."""
         r = int(self.written[e] % self.rows)
-        for k, arr in self.obs.items():
-            arr[e, r] = obs[k] if i is None else obs[k][i]
         self.starts[e, r] = False
         self.ended[e, r] = False
         self.terminated[e, r] = False
         self.written[e] += 1
+        return r
+
+    def _write_row(self, e: int, obs: Mapping[str, np.ndarray]) -> int:
+        """Store one observation (keys → one row) as env ``e``'s next row, starting none."""
+        r = self._claim_row(e)
+        row = {k: np.asarray(obs[k])[None] for k in self.frames.shapes}
+        self.frames.write(np.array([e]), np.array([r]), row)
         return r
 
     def add(
@@ -86,18 +108,19 @@ class ReplayBuffer:
         ``final_obs[e]`` is the true last observation of env ``e`` when its episode ended
         in this step (SAME_STEP autoreset puts the reset observation in the next ``obs``).
         """
-        for e in range(self.num_envs):
-            r = self._write_row(e, obs, e)
-            end = bool(terminated_E[e] or truncated_E[e])
-            self.action[e, r] = actions_E[e]
-            self.reward[e, r] = rewards_EO[e]
-            self.starts[e, r] = True
-            self.ended[e, r] = end
-            self.terminated[e, r] = bool(terminated_E[e])
-            if end:
-                if final_obs[e] is None:
-                    raise ValueError(f"env {e} ended without a final observation")
-                self._write_row(e, final_obs[e], None)
+        e_E = np.arange(self.num_envs)
+        r_E = np.array([self._claim_row(e) for e in range(self.num_envs)], dtype=np.int64)
+        self.frames.write(e_E, r_E, obs)  # every env's row at once (one copy per key)
+        end_E = np.logical_or(terminated_E, truncated_E)
+        self.action[e_E, r_E] = actions_E
+        self.reward[e_E, r_E] = rewards_EO
+        self.starts[e_E, r_E] = True
+        self.ended[e_E, r_E] = end_E
+        self.terminated[e_E, r_E] = terminated_E
+        for e in np.flatnonzero(end_E).tolist():
+            if final_obs[e] is None:
+                raise ValueError(f"env {e} ended without a final observation")
+            self._write_row(e, final_obs[e])
 
     def truncate_open_episodes(self, next_obs: Mapping[str, np.ndarray]) -> None:
         """End every env's open episode here (a resume): its last transition is truncated
@@ -108,7 +131,7 @@ class ReplayBuffer:
             r = int((self.written[e] - 1) % self.rows)
             if self.starts[e, r] and not self.ended[e, r]:
                 self.ended[e, r] = True
-                self._write_row(e, next_obs, e)
+                self._write_row(e, {k: next_obs[k][e] for k in self.frames.shapes})
 
     # ------------------------------------------------------------------ reading
 
@@ -118,20 +141,23 @@ class ReplayBuffer:
 
     def bytes_per_row(self) -> int:
         """Memory of one row (one observation + action, reward and flags), in bytes."""
-        per_obs = sum(a[0, 0].nbytes for a in self.obs.values())
-        return int(per_obs + 8 + 4 * self.num_objectives + 3)
+        return int(self.frames.row_nbytes() + 8 + 4 * self.num_objectives + 3)
 
     def nbytes(self) -> int:
-        """Memory held by the buffer's arrays, in bytes."""
-        arrays = [*self.obs.values(), self.action, self.reward, self.starts, self.ended]
-        return int(sum(a.nbytes for a in arrays) + self.terminated.nbytes)
+        """Memory held by the buffer's arrays (on the host and on the device), in bytes."""
+        arrays = [self.action, self.reward, self.starts, self.ended, self.terminated]
+        obs = self.num_envs * self.rows * self.frames.row_nbytes()
+        return int(obs + sum(a.nbytes for a in arrays))
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, Any]:
         """``batch_size`` n-step transitions, uniform over stored ones.
 
-        Returns numpy arrays: ``obs`` / ``next_obs`` (dicts of ``[B, ...]``), ``action [B]``,
-        ``reward [B, O]`` (n-step discounted sum), ``discount [B, O]`` (γ_i^m per objective,
-        0 if terminated); ``O`` = ``num_objectives``.
+        Returns ``obs`` / ``next_obs`` (dicts of ``[B, ...]``), ``action [B]``, ``reward
+        [B, O]`` (n-step discounted sum), ``discount [B, O]`` (γ_i^m per objective, 0 if
+        terminated); ``O`` = ``num_objectives``. Numpy arrays with ``storage = "host"``;
+        ``"device"``: the observations are torch tensors on the device (the rest numpy);
+        ``"pinned"``: everything is torch tensors on the device, copied asynchronously.
+        The values are the same in every storage.
         """
         lo = np.maximum(self.written - self.rows, 0)
         avail = self.written - lo
@@ -183,13 +209,12 @@ class ReplayBuffer:
             disc = np.where(alive[:, None], disc * self.gamma_O, disc)
             alive &= ~end
         r0, r1 = p % self.rows, nxt % self.rows
-        return {
-            "obs": {k: a[e, r0] for k, a in self.obs.items()},
-            "next_obs": {k: a[e, r1] for k, a in self.obs.items()},
+        rest = {
             "action": self.action[e, r0],
             "reward": reward,
             "discount": np.where(done[:, None], 0.0, disc).astype(np.float32),
         }
+        return self.frames.batch(e, r0, r1, rest)
 
     # ------------------------------------------------------------------ persistence
 
@@ -199,7 +224,7 @@ class ReplayBuffer:
         Only rows written so far are saved (a young buffer makes a small file).
         """
         used = int(min(self.written.max(), self.rows))
-        arrays = {f"obs.{k}": a[:, :used] for k, a in self.obs.items()}
+        arrays = {f"obs.{k}": host_view(a[:, :used]) for k, a in self.obs.items()}
         for name in _ROW_ARRAYS:
             arrays[name] = getattr(self, name)[:, :used]
         arrays["written"] = self.written
@@ -232,7 +257,7 @@ class ReplayBuffer:
         for s, (e, lo, hi) in enumerate(segments):
             rows = slice(lo % self.rows, lo % self.rows + hi - lo)
             for k, a in self.obs.items():
-                arrays[f"obs.{k}.{s}"] = a[e, rows]
+                arrays[f"obs.{k}.{s}"] = host_view(a[e, rows])
             for name in _ROW_ARRAYS:
                 arrays[f"{name}.{s}"] = getattr(self, name)[e, rows]
         write_arrays(fh, arrays)
@@ -266,16 +291,18 @@ class ReplayBuffer:
                 self._copy(getattr(self, name), data[name], name)
 
     @staticmethod
-    def _copy(dst: np.ndarray, src: np.ndarray, name: str) -> None:
-        """Copy saved rows ``src`` into the front of ``dst`` (rows may be fewer)."""
-        if dst.ndim != src.ndim or dst.shape[:1] != src.shape[:1] or dst.shape[2:] != src.shape[2:]:
-            raise ValueError(f"replay {name}: saved shape {src.shape} does not fit {dst.shape}")
-        if dst.ndim == 1:
-            dst[...] = src
-        elif src.shape[1] > dst.shape[1]:
-            raise ValueError(f"replay {name}: saved {src.shape[1]} rows > capacity {dst.shape[1]}")
+    def _copy(dst: Any, src: np.ndarray, name: str) -> None:
+        """Copy saved rows ``src`` into the front of ``dst`` (rows may be fewer; ``dst`` a
+        numpy array or a torch tensor)."""
+        shape = tuple(dst.shape)
+        if len(shape) != src.ndim or shape[:1] != src.shape[:1] or shape[2:] != src.shape[2:]:
+            raise ValueError(f"replay {name}: saved shape {src.shape} does not fit {shape}")
+        if len(shape) == 1:
+            assign(dst, src)
+        elif src.shape[1] > shape[1]:
+            raise ValueError(f"replay {name}: saved {src.shape[1]} rows > capacity {shape[1]}")
         else:
-            dst[:, : src.shape[1]] = src
+            assign(dst[:, : src.shape[1]], src)
 
 
 _ROW_ARRAYS = ("action", "reward", "starts", "ended", "terminated")
@@ -339,8 +366,9 @@ def _pieces(lo: int, hi: int, rows: int) -> list[tuple[int, int]]:
     return out
 
 
-def _put(dst: np.ndarray, src: np.ndarray, name: str) -> None:
-    """``dst[...] = src`` for one segment's rows, refusing saved rows of another shape."""
-    if src.shape != dst.shape:
-        raise ValueError(f"replay {name}: saved rows {src.shape} do not fit {dst.shape}")
-    dst[...] = src
+def _put(dst: Any, src: np.ndarray, name: str) -> None:
+    """``dst[...] = src`` for one segment's rows (``dst`` a numpy array or a torch tensor),
+    refusing saved rows of another shape."""
+    if src.shape != tuple(dst.shape):
+        raise ValueError(f"replay {name}: saved rows {src.shape} do not fit {tuple(dst.shape)}")
+    assign(dst, src)

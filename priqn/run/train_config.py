@@ -26,6 +26,7 @@ from priqn.agents.config import (
     agent_spec,
     resolve_spec,
 )
+from priqn.agents.frames import REPLAY_STORAGES
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import apply_overrides, from_dict, load_toml, to_dict
 from priqn.env.intersection import EnvConfig
@@ -49,6 +50,19 @@ class ReplayConfig:
     """Env decisions collected before the first update."""
     decisions_per_update: int = 4
     """Env decisions (summed over workers) per gradient update."""
+    storage: str = "host"
+    """Where the observations are kept and how a batch reaches the learner's device: host
+    (numpy in host memory; the learner copies each batch), pinned (host memory; batches
+    gathered into page-locked buffers and copied asynchronously; CUDA only) or device
+    (torch tensors on the learner's device, batches gathered there; GPU memory on CUDA,
+    checked up front). Every storage gives the same batches, so the same training
+    (docs/implementation-details.md §12)."""
+
+    def __post_init__(self) -> None:
+        if self.storage not in REPLAY_STORAGES:
+            raise ValueError(
+                f"storage: unknown {self.storage!r} (valid: {', '.join(REPLAY_STORAGES)})"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
