@@ -161,3 +161,26 @@ def test_bench_env_without_the_reference_sensors(tmp_path: Path) -> None:
     env = data["density"]["0.5"]["env"]
     assert env["sensors_ref_ms"] == 0 and env["parts_ms"]["sensors_ms"] > 0
     assert "(not timed)" in proc.stdout
+
+
+def test_bench_train_replay_storage_times_each_storage_against_host() -> None:
+    """``--replay-storage``: every agent samples and learns from the same full buffer in
+    each storage, host first; each other storage's line is its rates over host's."""
+    from priqn.bench.feed import feed_rates, ratio_lines
+
+    rows = feed_rates("default", ["iqn"], ("host", "device"), 4, 0.05, "cpu", 400, rounds=1)
+    assert [(r["agent"], r["storage"]) for r in rows] == [("iqn", "host"), ("iqn", "device")]
+    assert all(r["samples_per_s"] > 0 and r["updates_per_s"] > 0 for r in rows)
+    assert all(r["transitions"] == 400 and r["update_kind"] == "eager" for r in rows)
+
+    def row(storage: str, samples: float, updates: float) -> dict:
+        return {"agent": "iqn", "storage": storage, "device": "cuda",
+                "samples_per_s": samples, "updates_per_s": updates}  # fmt: skip
+
+    made = [row("host", 100.0, 50.0), row("device", 400.0, 80.0), row("pinned", 200.0, 60.0)]
+    assert ratio_lines(made) == [
+        "iqn: device / host on cuda: 4.00x samples/s (10.00 -> 2.50 ms/sample), "
+        "1.60x updates/s with sampling (20.00 -> 12.50 ms/update)",
+        "iqn: pinned / host on cuda: 2.00x samples/s (10.00 -> 5.00 ms/sample), "
+        "1.20x updates/s with sampling (20.00 -> 16.67 ms/update)",
+    ]

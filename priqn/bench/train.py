@@ -11,6 +11,10 @@ once per named setting (``graphs``: CUDA graphs of the eager kernels; ``on``:
 torch.compile), taking turns in the same rounds on the same device, and prints each /
 eager; ``learner.compile = "auto"`` follows what this measured
 (docs/implementation-details.md §12).
+
+``--replay-storage device,pinned`` times, for every preset and agent, replay sampling
+alone and sample → update from a full buffer in each ``replay.storage`` against ``host``
+(:mod:`priqn.bench.feed`), and prints each / host.
 """
 
 from __future__ import annotations
@@ -57,8 +61,22 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--loop-compile",
         choices=("auto", "graphs", "on", "off"),
         default="auto",
-        help="learner.compile of the end-to-end loop (default auto, as training; its wall "
-        "time includes the compiling)",
+        help="learner.compile of the end-to-end loop and the replay feed (default auto, as "
+        "training; the loop's wall time includes the compiling)",
+    )
+    parser.add_argument(
+        "--replay-storage",
+        default="",
+        metavar="STORAGES",
+        help="also time replay sampling and sample -> update from a full buffer with these "
+        "replay.storage settings, comma-separated (device, pinned), against host",
+    )
+    parser.add_argument(
+        "--replay-capacity",
+        type=int,
+        default=0,
+        help="transitions in the buffer of --replay-storage (default: the preset's "
+        "replay.capacity)",
     )
     parser.add_argument(
         "--bf16",
@@ -359,8 +377,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
+    from priqn.agents.frames import check_storage
+    from priqn.bench.feed import feed_rates, print_feed
+    from priqn.run.train_config import select_device
+
     presets = [p for p in args.presets.split(",") if p]
     agents = [a for a in args.agents.split(",") if a]
+    others = [s for s in args.replay_storage.split(",") if s and s != "host"]
+    storages = ("host", *others) if others else ()
+    for s in others:  # one line before anything is timed
+        check_storage(s, select_device(args.device))
     print(
         f"priqn bench train: Learner.update at batch {args.batch_size}, "
         f"{torch.get_num_threads()} torch threads, {args.seconds:g} s per case, "
@@ -390,37 +416,48 @@ def run(args: argparse.Namespace) -> int:
             )
         for line in twin_ratios(results):
             print(f"{preset:<8} {line}", flush=True)
+        if storages:
+            print_feed(
+                feed_rates(preset, agents, storages, args.batch_size, args.seconds, args.device,
+                           args.replay_capacity, args.loop_compile),
+                args.batch_size,
+            )  # fmt: skip
     if args.loop_steps > 0:
-        print(
-            f"\nend-to-end training loop (default preset, learning on: one update per "
-            f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}, "
-            f"learner.compile = {args.loop_compile}"
-        )
-        print(
-            f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
-            f"{'serial dec/s':>13} {'env-only dec/s':>15}"
-        )
-        results = []
-        for name in agents:
-            # Same workers, same acting, no learning: the ceiling the loop is measured against;
-            # the serial loop (update after the step) is the baseline of the overlap.
-            steps, dev, comp = args.loop_steps, args.device, args.loop_compile
-            env_only = loop_throughput(args.net, name, steps, dev, False, compile_=comp)
-            serial = loop_throughput(args.net, name, steps, dev, overlap=False, compile_=comp)
-            r = loop_throughput(args.net, name, steps, dev, compile_=comp)
-            r["env_only"] = env_only["decisions_per_s"]
-            r["serial"] = serial["decisions_per_s"]
-            results.append(r)
-            print(
-                f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} "
-                f"{r['updates_per_s']:>10.1f} {r['serial']:>13.1f} {r['env_only']:>15.1f}",
-                flush=True,
-            )
-        for r in results:
-            print(
-                f"{r['agent']}: end-to-end / env-only: {r['decisions_per_s'] / r['env_only']:.2f}"
-                f"   (serial loop: {r['serial'] / r['env_only']:.2f}; overlap / serial: "
-                f"{r['decisions_per_s'] / r['serial']:.2f})"
-            )
-        print_time_table(results)
+        print_loop(args, agents)
     return 0
+
+
+def print_loop(args: argparse.Namespace, agents: list[str]) -> None:
+    """Part 2: the end-to-end loop of every agent, with its env-only and serial twins."""
+    print(
+        f"\nend-to-end training loop (default preset, learning on: one update per "
+        f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}, "
+        f"learner.compile = {args.loop_compile}"
+    )
+    print(
+        f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
+        f"{'serial dec/s':>13} {'env-only dec/s':>15}"
+    )
+    results = []
+    for name in agents:
+        # Same workers, same acting, no learning: the ceiling the loop is measured against;
+        # the serial loop (update after the step) is the baseline of the overlap.
+        steps, dev, comp = args.loop_steps, args.device, args.loop_compile
+        env_only = loop_throughput(args.net, name, steps, dev, False, compile_=comp)
+        serial = loop_throughput(args.net, name, steps, dev, overlap=False, compile_=comp)
+        r = loop_throughput(args.net, name, steps, dev, compile_=comp)
+        r["env_only"] = env_only["decisions_per_s"]
+        r["serial"] = serial["decisions_per_s"]
+        results.append(r)
+        print(
+            f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} "
+            f"{r['updates_per_s']:>10.1f} {r['serial']:>13.1f} {r['env_only']:>15.1f}",
+            flush=True,
+        )
+    for r in results:
+        print(
+            f"{r['agent']}: end-to-end / env-only: {r['decisions_per_s'] / r['env_only']:.2f}"
+            f"   (serial loop: {r['serial'] / r['env_only']:.2f}; overlap / serial: "
+            f"{r['decisions_per_s'] / r['serial']:.2f})"
+        )
+    print_time_table(results)
