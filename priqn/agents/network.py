@@ -29,7 +29,9 @@ OBS_KEYS: tuple[str, ...] = ("bev", "lidar", "command", "kinematics")
 
 def to_tensors(obs: Mapping[str, Any], device: torch.device) -> dict[str, torch.Tensor]:
     """Numpy observation batch → the network's input tensors on ``device`` (uint8 grids stay
-    uint8); what acting (:mod:`priqn.agents.policy`) and learning both feed the network."""
+    uint8); what acting (:mod:`priqn.agents.policy`) and learning both feed the network.
+    Tensors already on ``device`` (a replay batch with ``replay.storage`` device or pinned)
+    pass as they are."""
     return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in obs.items()}
 
 
