@@ -37,7 +37,7 @@ from priqn.objectives import subset_columns
 from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
-from priqn.run.metrics import metric_columns, metrics_row
+from priqn.run.metrics import metric_columns, metrics_row, read_metrics, write_metrics
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
     NETS,
@@ -83,7 +83,7 @@ class TrainLogger:
         from tqdm import tqdm
 
         self.cfg, self.run = cfg, run
-        self.rows: list[dict[str, Any]] = run.read_metrics(step) if resume else []
+        self.rows: list[dict[str, Any]] = read_metrics(run.metrics_path, step) if resume else []
         self.recent: deque[dict[str, Any]] = deque(maxlen=100)
         self.objectives = cfg.objective_names
         self.subset_columns = subset_columns(self.objectives)
@@ -119,18 +119,18 @@ class TrainLogger:
             print(f"{self.run.name} step {step}/{self.cfg.total_steps} {line}", flush=True)
         for key, value in scalars.items():  # epsilon, updates/s, loss, target |S_r|
             self.writer.add_scalar(f"train/{key}", value, step)
-        self.run.write_metrics(self.rows, self.columns)
+        write_metrics(self.run.metrics_path, self.rows, self.columns)
 
     def evaluation(self, rows: list[dict[str, Any]], step: int) -> None:
         self.rows.extend(rows)
         for key in ("success", "return_weighted"):
             self.writer.add_scalar(f"eval/{key}", float(np.mean([r[key] for r in rows])), step)
-        self.run.write_metrics(self.rows, self.columns)
+        write_metrics(self.run.metrics_path, self.rows, self.columns)
 
     def checkpoint(self) -> None:
         from priqn.analysis.figures import write_training_curve
 
-        self.run.write_metrics(self.rows, self.columns)
+        write_metrics(self.run.metrics_path, self.rows, self.columns)
         self.writer.flush()
         write_training_curve(self.rows, self.run.learning_curve_path, self.run.name)
 

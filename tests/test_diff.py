@@ -19,6 +19,7 @@ from test_train import TINY, cli
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.run.folder import RunFolder
+from priqn.run.metrics import write_metrics
 from priqn.tools.diff import diff_runs, verdict
 
 
@@ -83,7 +84,7 @@ def test_each_part_names_its_first_difference(trained: Path, tmp_path: Path) -> 
         rows = list(csv.DictReader(fh))
     loss = rows[1]["loss"]
     rows[1]["loss"] = "12345.0"
-    RunFolder(b).write_metrics(rows, list(rows[0]))
+    write_metrics(RunFolder(b).metrics_path, rows, list(rows[0]))
     # config: the seed
     text = (b / "config.toml").read_text()
     (b / "config.toml").write_text(text.replace("seed = 0\n", "seed = 1\n", 1))

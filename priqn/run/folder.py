@@ -25,9 +25,7 @@ as ``interrupted`` (:meth:`RunFolder.status`).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import os
 import shutil
 import socket
@@ -49,7 +47,6 @@ from priqn.io import (
 )
 from priqn.run import checkpoint
 from priqn.run.checkpoint import Checkpoint, PolicyState
-from priqn.run.metrics import METRIC_COLUMNS
 
 
 class Status(StrEnum):
@@ -491,28 +488,6 @@ class RunFolder:
             "seeds": derive_seeds(cfg.seed),
             "sessions": [],
         }
-
-    # ---------------------------------------------------------------- metrics
-    def write_metrics(
-        self, rows: Sequence[Mapping[str, Any]], columns: Sequence[str] = METRIC_COLUMNS
-    ) -> None:
-        """metrics.csv with ``columns`` (atomically): :func:`priqn.run.metrics.metric_columns`
-        of the run's objectives, :data:`priqn.run.metrics.METRIC_COLUMNS` by default."""
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-        atomic_write_text(self.metrics_path, buf.getvalue())
-
-    def read_metrics(self, max_step: int | None = None) -> list[dict[str, Any]]:
-        """metrics.csv rows (as strings) up to ``max_step``; [] when there is none yet."""
-        if not self.metrics_path.is_file():
-            return []
-        with self.metrics_path.open(encoding="utf-8", newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        if max_step is None:
-            return rows
-        return [r for r in rows if int(float(r["step"])) <= max_step]
 
     # ---------------------------------------------------------------- checkpoints and policy
     def save_checkpoint(self, state: Checkpoint, replay: Any | None) -> Checkpoint:

@@ -3,17 +3,23 @@
 One row per training episode (``kind`` train) or in-training evaluation episode
 (``kind`` eval). :func:`metrics_row` fills the episode's own columns; the training loop
 adds where it stood (``step``, ``episode``, ``wall_s``, ``epsilon``, ``updates``,
-``loss``) and, for the preorder agents, the mean optimal-subset sizes. The file itself
-is written and read by :class:`priqn.run.folder.RunFolder`.
+``loss``) and, for the preorder agents, the mean optimal-subset sizes.
+:func:`write_metrics` and :func:`read_metrics` write and read the file (its place in a
+run folder: :attr:`priqn.run.folder.RunFolder.metrics_path`).
 """
 
 from __future__ import annotations
 
+import csv
+import io
+import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from priqn.io import atomic_write_text
 from priqn.objectives import OBJECTIVES, return_columns, subset_columns
 
 
@@ -70,3 +76,29 @@ def metrics_row(
     row["net"] = net
     row["command"] = str(values.get("command", ""))
     return row
+
+
+def write_metrics(
+    path: str | os.PathLike,
+    rows: Sequence[Mapping[str, Any]],
+    columns: Sequence[str] = METRIC_COLUMNS,
+) -> None:
+    """metrics.csv at ``path`` with ``columns`` (atomically): :func:`metric_columns` of the
+    run's objectives, :data:`METRIC_COLUMNS` by default."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write_text(path, buf.getvalue())
+
+
+def read_metrics(path: str | os.PathLike, max_step: int | None = None) -> list[dict[str, Any]]:
+    """metrics.csv rows at ``path`` (as strings) up to ``max_step``; [] when there is none yet."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    with path.open(encoding="utf-8", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if max_step is None:
+        return rows
+    return [r for r in rows if int(float(r["step"])) <= max_step]

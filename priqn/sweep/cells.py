@@ -21,6 +21,7 @@ from priqn.errors import PriqnError
 from priqn.experiment import Experiment, PolicySpec, cell_dir_name, policy_difference
 from priqn.io import read_json
 from priqn.run.folder import RunFolder, Status
+from priqn.run.metrics import read_metrics
 
 # --------------------------------------------------------------------------- cells
 
@@ -285,7 +286,7 @@ def cell_budget(cell: Cell) -> int | None:
 
 def training_progress(cell: Cell) -> tuple[int, int | None]:
     """``(decisions its metrics.csv has logged, its budget)`` (:func:`cell_budget`)."""
-    rows = RunFolder(cell.run_dir).read_metrics()
+    rows = read_metrics(RunFolder(cell.run_dir).metrics_path)
     return (int(float(rows[-1]["step"])) if rows else 0), cell_budget(cell)
 
 
@@ -311,7 +312,7 @@ def training_minutes_to_go(cell: Cell) -> float | None:
     since = int(sessions[-1].get("from_step") or 0) if sessions else 0
     rows = [
         (int(float(r["step"])), float(r["wall_s"]))
-        for r in folder.read_metrics()
+        for r in read_metrics(folder.metrics_path)
         if r.get("wall_s") not in (None, "") and int(float(r["step"])) > since
     ]
     if not total or len(rows) < 2:

@@ -30,6 +30,7 @@ from typing import Any
 from priqn.errors import PriqnError
 from priqn.io import sha256_file
 from priqn.run.folder import RunFolder, Status
+from priqn.run.metrics import read_metrics
 
 IGNORED_METRICS = ("wall_s",)
 """metrics.csv columns that differ between identical trainings (wall-clock time)."""
@@ -131,7 +132,7 @@ def _first_difference(
 
 
 def _metrics_part(a: RunFolder, b: RunFolder, upto: int) -> Part:
-    rows_a, rows_b = (_rows(f.read_metrics(upto), IGNORED_METRICS) for f in (a, b))
+    rows_a, rows_b = (_rows(read_metrics(f.metrics_path, upto), IGNORED_METRICS) for f in (a, b))
     if not rows_a and not rows_b:
         return Part("metrics", None, "neither run has logged a row yet")
     short = [(w, f) for w, f in (("A", a), ("B", b)) if f.trained_to() < upto]
