@@ -38,6 +38,7 @@ from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import metric_columns, metrics_row, read_metrics, write_metrics
+from priqn.run.session import mark_resume_exact, same_cpu_as_before, start_session
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
     NETS,
@@ -180,7 +181,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     _check_replay_storage(cfg)
     # The session's one agent, for the run's objectives.
     agent = build_agent(cfg)
-    run.prepare(cfg, resume, force, origin, policy_labels(cfg, agent))
+    start_session(run, cfg, resume, force, origin, policy_labels(cfg, agent))
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
     failed_status = Status.COMPLETE if was_complete else Status.FAILED
@@ -560,8 +561,8 @@ def _start_episodes(
                     f"the checkpoint's observation ('{key}' differs): the code, the nets or "
                     "SUMO changed since it was written; train it again with --force"
                 )
-        if t.same_learner and run.same_cpu_as_before():
-            run.mark_resume_exact()
+        if t.same_learner and same_cpu_as_before(run):
+            mark_resume_exact(run)
         else:
             print(
                 f"priqn train: {run.path.name}: resumed with its episodes in flight and replay "

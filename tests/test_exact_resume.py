@@ -188,6 +188,7 @@ def test_a_resume_on_another_cpu_model_is_not_exact(tmp_path: Path) -> None:
     """The learner's floats depend on the CPU model: only a resume on the model of the
     session before counts as exact (an unknown or missing model does not)."""
     from priqn.run.folder import RunFolder
+    from priqn.run.session import same_cpu_as_before
 
     run = RunFolder(tmp_path / "run")
     run.path.mkdir()
@@ -196,6 +197,6 @@ def test_a_resume_on_another_cpu_model_is_not_exact(tmp_path: Path) -> None:
     for before, now, same in cases:
         sessions = [{"resume": False, "cpu": before}, {"resume": True, "cpu": now}]
         run.write_meta({"sessions": [{k: v for k, v in s.items() if v} for s in sessions]})
-        assert run.same_cpu_as_before() is same, (before, now)
+        assert same_cpu_as_before(run) is same, (before, now)
     run.write_meta({"sessions": [{"resume": False, "cpu": "Xeon"}]})
-    assert run.same_cpu_as_before() is False
+    assert same_cpu_as_before(run) is False

@@ -143,10 +143,11 @@ def test_train_net_file_records_the_nets_with_their_hashes(own: Path, tmp_path: 
 
     from priqn.run.folder import RunFolder
     from priqn.run.provenance import gather, own_nets_manifest
+    from priqn.run.session import start_session
     from priqn.run.train_config import default_run_name, policy_labels, resolve_config
 
     def prepare(run: RunFolder, cfg, resume: bool) -> dict:
-        return run.prepare(cfg, resume, False, gather(cfg), policy_labels(cfg))
+        return start_session(run, cfg, resume, False, gather(cfg), policy_labels(cfg))
 
     cfg = resolve_config(net=str(own / "grid.net.xml"), overrides=["env.junction=B"])
     assert cfg.env.nets == (str((own / "grid.net.xml").resolve()),)

@@ -19,6 +19,7 @@ from priqn.errors import PriqnError
 from priqn.run import checkpoint
 from priqn.run.folder import load_policy
 from priqn.run.metrics import METRIC_COLUMNS
+from priqn.run.session import remove_run
 from priqn.run.train_config import (
     ExplorationConfig,
     TrainConfig,
@@ -442,7 +443,7 @@ def test_force_over_a_read_only_run_is_one_line_and_deletes_nothing(
         os, "access", lambda p, mode: False if Path(p) == run / "eval" else real_access(p, mode)
     )
     with pytest.raises(PriqnError) as info:
-        RunFolder(run).remove()
+        remove_run(RunFolder(run))
     msg = str(info.value)
     assert "\n" not in msg and msg.startswith(f"{run / 'eval'}: read-only") and "--force" in msg
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before

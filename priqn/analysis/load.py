@@ -23,6 +23,7 @@ from priqn.io import read_json
 from priqn.objectives import OBJECTIVES, names_in_columns
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.folder import RunFolder, Status
+from priqn.run.session import resumed_at
 
 SORT_COLUMNS: tuple[str, ...] = ("label", "train_seed", "eval_run", "net", "density", "episode")
 """Canonical row order of the loaded table (so every statistic sees the same order)."""
@@ -295,7 +296,7 @@ def resumed_text(run_dir: str | Path) -> str:
     folder = RunFolder(run_dir)
     if not folder.meta_path.is_file():
         return "–"
-    return ", ".join(map(budget_text, folder.resumed_at())) or "–"
+    return ", ".join(map(budget_text, resumed_at(folder))) or "–"
 
 
 def resumed_before(run_dir: str | Path, budget: int | None = None) -> bool:
@@ -305,7 +306,7 @@ def resumed_before(run_dir: str | Path, budget: int | None = None) -> bool:
     folder = RunFolder(run_dir)
     if not folder.meta_path.is_file():
         return False
-    return any(budget is None or b < budget for b in folder.resumed_at())
+    return any(budget is None or b < budget for b in resumed_at(folder))
 
 
 def commit_text(run_dir: str | Path) -> str:

@@ -27,20 +27,17 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 import socket
 from collections.abc import Mapping, Sequence
-from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from priqn.config import config_differences, dumps_toml, from_dict, load_toml, to_dict
+from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
 from priqn.io import (
     atomic_open,
     atomic_write_json,
-    atomic_write_text,
     read_json,
     remove_stale_temp_files,
     sha256_file,
@@ -78,8 +75,8 @@ class Provenance:
     """Where a training session comes from, as meta.json (and nets.json) record it.
 
     Gathered by the training side (:func:`priqn.run.provenance.gather`) and handed to
-    :meth:`RunFolder.prepare`: the run folder writes it and compares it on a resume, but
-    never reads a net or asks SUMO itself.
+    :func:`priqn.run.session.start_session`: the run folder writes it and compares it on a
+    resume, but never reads a net or asks SUMO itself.
     """
 
     git_sha: str
@@ -306,37 +303,6 @@ class RunFolder:
         """The evaluation names (``at<N>``) of the snapshots meta.json records as kept."""
         return [self.snapshot_evaluation(int(b)) for b in self.meta().get("snapshots") or {}]
 
-    def resumed_at(self) -> list[int]:
-        """The decisions at which training resumed after an interruption (meta.json
-        ``sessions``) the old way: from the last checkpoint with fresh scenes (and a refilled
-        replay buffer unless saved), so the training after it differs from an uninterrupted
-        run's. An exact resume (:meth:`mark_resume_exact`) is not listed."""
-        sessions = self.meta().get("sessions") or []
-        return [
-            int(s["from_step"])
-            for s in sessions
-            if s.get("resume") and "from_step" in s and not s.get("exact")
-        ]
-
-    def mark_resume_exact(self) -> None:
-        """Record that this session's resume restored the replay buffer and the episodes in
-        flight on the CPU model of the session before (meta.json ``sessions[-1].exact``):
-        the run cannot tell it was stopped, so :meth:`resumed_at` and the reports no longer
-        list it."""
-        meta = self.meta()
-        meta["sessions"][-1]["exact"] = True
-        self.write_meta(meta)
-
-    def same_cpu_as_before(self) -> bool:
-        """This session runs on the CPU model the previous one ran on (both recorded): the
-        learner's float results depend on it (measured: another Xeon / EPYC gave a loss
-        differing in its 7th digit after 2,552 decisions), so only then is a resume exact."""
-        sessions = self.meta().get("sessions") or []
-        if len(sessions) < 2:
-            return False
-        before, now = sessions[-2].get("cpu"), sessions[-1].get("cpu")
-        return bool(before) and before == now and before != "unknown"
-
     def trained_to(self) -> int:
         """Decisions the run has trained, as its meta.json records them: the budget
         (``total_steps``) once complete, else the last checkpoint's ``steps_done``."""
@@ -375,119 +341,6 @@ class RunFolder:
     def eval_meta(self) -> dict[str, Any]:
         """eval/meta.json."""
         return read_json(self.eval_meta_path)
-
-    # ---------------------------------------------------------------- starting a session
-    def prepare(
-        self,
-        cfg: Any,
-        resume: bool,
-        force: bool,
-        provenance: Provenance,
-        labels: Mapping[str, Any],
-    ) -> dict[str, Any]:
-        """Check / create the folder for a training session; write config.toml, nets.json
-        (own nets) and meta.json (``provenance``, ``labels``, status running, this process
-        as the trainer). Returns the meta.
-
-        Everything that can refuse the run comes before the folder is touched (what
-        gathering ``provenance`` refuses comes before this call).
-        """
-        owner = self.live_trainer()
-        if owner is not None and (resume or force):
-            raise PriqnError(
-                f"{self.path}: still being trained by {owner} (meta.json status running); "
-                "stop that process first (a run folder has one writer)"
-            )
-        meta = self._resumed_meta(cfg, provenance) if resume else self._new_meta(cfg, force)
-        try:
-            self.path.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise PriqnError(f"{self.path}: cannot create the run folder ({exc.strerror})") from exc
-        atomic_write_text(self.config_path, dumps_toml(to_dict(cfg)))
-        if provenance.own_nets is not None:
-            atomic_write_json(self.nets_manifest_path, provenance.own_nets)
-        meta.update(
-            {
-                "run": self.path.name,
-                "status": Status.RUNNING,
-                "error": None,
-                "git_sha": provenance.git_sha,
-                "versions": dict(provenance.versions),
-                "manifest_hashes": dict(provenance.manifest_hashes),
-                "labels": dict(labels),
-                "total_steps": cfg.total_steps,
-                "host": socket.gethostname(),
-                "pid": os.getpid(),
-            }
-        )
-        meta.setdefault("steps_done", 0)
-        meta["sessions"].append(
-            {
-                "started": datetime.now(UTC).isoformat(timespec="seconds"),
-                "resume": resume,
-                "from_step": int(meta.get("steps_done", 0)) if resume else 0,
-                "cpu": provenance.versions.get("cpu", "unknown"),
-            }
-        )
-        self.write_meta(meta)
-        return meta
-
-    def _resumed_meta(self, cfg: Any, provenance: Provenance) -> dict[str, Any]:
-        """meta.json of the run to resume; refused unless it has a checkpoint, the same
-        config (bar total_steps and device) and unchanged own nets."""
-        if not self.latest_checkpoint.is_file():
-            raise PriqnError(
-                f"{self.path}: nothing to resume (no {self.rel(self.latest_checkpoint)})"
-            )
-        diff = config_differences(
-            to_dict(self.config()), to_dict(cfg), ignore=("total_steps", "device")
-        )
-        if diff:
-            k, old, new = diff[0]
-            raise PriqnError(
-                f"{self.path}: --resume with a different config ({k} = {old!r} in the run, {new!r} now)"
-            )
-        meta = self.meta()
-        recorded = meta.get("objectives")  # absent before objectives were declared: the five
-        if recorded is not None and tuple(recorded) != tuple(cfg.objective_names):
-            raise PriqnError(
-                f"{self.path}: --resume: the run was trained for objectives "
-                f"({', '.join(recorded)}) but {self.CONFIG} lists "
-                f"({', '.join(cfg.objective_names)}); restore it or start a new run"
-            )
-        written_at = meta.get("git_sha")
-        if written_at and written_at != provenance.git_sha:
-            raise PriqnError(
-                f"{self.path}: --resume: its checkpoint was written by the code at "
-                f"{written_at[:12]}, this is {provenance.git_sha[:12]}; resume it with that "
-                "code (a worktree of it: docs/sweeps.md) so that it goes on as it would have"
-            )
-        own_hash = provenance.manifest_hashes.get("own")
-        if own_hash is not None and meta.get("manifest_hashes", {}).get("own") != own_hash:
-            raise PriqnError(
-                f"{self.path}: --resume: a net of env.nets changed since the run started "
-                f"(see {self.NETS_MANIFEST}); restore it or start a new run"
-            )
-        remove_stale_temp_files(self.path)  # left by a killed write of the last session
-        return meta
-
-    def _new_meta(self, cfg: Any, force: bool) -> dict[str, Any]:
-        """The first meta.json of a new run; an existing folder is refused, or removed with
-        ``force``."""
-        from priqn.run.train_config import derive_seeds
-
-        if self.path.exists() and any(self.path.iterdir()):
-            if not force:
-                raise PriqnError(
-                    f"{self.path}: run folder already exists; use --resume to continue it or --force to overwrite"
-                )
-            self.remove()
-        return {
-            "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            "seed": cfg.seed,
-            "seeds": derive_seeds(cfg.seed),
-            "sessions": [],
-        }
 
     # ---------------------------------------------------------------- checkpoints and policy
     def save_checkpoint(self, state: Checkpoint, replay: Any | None) -> Checkpoint:
@@ -609,22 +462,6 @@ class RunFolder:
     def remove_stale_temp_files(self) -> int:
         """Temp files a killed write left behind (only while this process is the writer)."""
         return remove_stale_temp_files(self.path)
-
-    def remove(self) -> None:
-        """Delete the folder (``--force``); refused in one line, touching nothing, when any
-        part of it cannot be deleted (a read-only folder)."""
-        locked = [d for d, _, _ in os.walk(self.path) if not os.access(d, os.W_OK | os.X_OK)]
-        if locked:
-            raise PriqnError(
-                f"{locked[0]}: read-only, so --force cannot replace the run; "
-                "make it writable (chmod -R u+w) or pick another --name"
-            )
-        try:
-            shutil.rmtree(self.path)
-        except OSError as exc:
-            raise PriqnError(
-                f"{exc.filename or self.path}: cannot delete the old run for --force ({exc.strerror})"
-            ) from None
 
 
 def load_policy(run_dir: str | os.PathLike, device: str = "cpu") -> Any:

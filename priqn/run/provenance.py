@@ -4,7 +4,7 @@
 (:mod:`priqn.sim.scenario`), your own nets (:mod:`priqn.env.scenes`,
 :mod:`priqn.sim.roadmap`), SUMO (:mod:`priqn.sim.sumo`), git and the installed packages —
 and returns a :class:`priqn.run.folder.Provenance`, which :func:`priqn.train.train` hands to
-:meth:`priqn.run.folder.RunFolder.prepare`; the run folder only writes it. Everything here
+:func:`priqn.run.session.start_session`; the run folder only writes it. Everything here
 that can refuse a run (a family without generated nets, a net that cannot be used) runs
 before the run folder is touched.
 """
