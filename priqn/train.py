@@ -35,6 +35,13 @@ from priqn.env.vector import restore_episodes
 from priqn.errors import PriqnError
 from priqn.objectives import subset_columns
 from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
+from priqn.run.checkpointer import (
+    load_checkpoint,
+    replay_files,
+    save_checkpoint,
+    save_policy,
+    save_snapshot,
+)
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import metric_columns, metrics_row, read_metrics, write_metrics
@@ -421,7 +428,7 @@ class Trainer:
     def keep_snapshot(self, run: RunFolder) -> None:
         """snapshots/policy-at<step>.pt (checkpoint.keep_at), its SHA-256 in meta.json."""
         with self.clock("checkpoint"):
-            sha = run.save_snapshot(self.policy_state())
+            sha = save_snapshot(run, self.policy_state())
             snapshots = dict(run.meta().get("snapshots") or {})
             snapshots[str(self.step)] = {
                 "file": run.rel(run.snapshot_path(self.step)),
@@ -457,8 +464,8 @@ class Trainer:
                     "update_stats": dict(self.latest_update_stats),
                 },
             )
-            saved = run.save_checkpoint(
-                state, self.replay if self.cfg.checkpoint.save_replay else None
+            saved = save_checkpoint(
+                run, state, self.replay if self.cfg.checkpoint.save_replay else None
             )
             self.replay_chunks = saved.replay_chunks
             logger.checkpoint()
@@ -499,7 +506,7 @@ def _torch_device(cfg: TrainConfig) -> Any:
 def _resume(run: RunFolder, t: Trainer, device: Any) -> Checkpoint:
     """Restore the latest checkpoint into ``t``: the learner, both generators, the counters,
     the logging state and the replay buffer when it was saved. Returns the checkpoint."""
-    state = run.load_checkpoint(device)
+    state = load_checkpoint(run, device)
     if tuple(state.objectives) != tuple(t.objectives):
         raise PriqnError(
             f"{run.path}: --resume: the checkpoint was trained for objectives "
@@ -524,7 +531,7 @@ def _resume(run: RunFolder, t: Trainer, device: Any) -> Checkpoint:
         t.subset_sizes.count_E[...] = np.asarray(state.logging["subset_count"], dtype=np.float64)
         t.latest_update_stats = dict(state.logging["update_stats"])
     t.replay_chunks = state.replay_chunks
-    for replay_file in run.replay_files(state):
+    for replay_file in replay_files(run, state):
         try:
             if state.replay_chunks is None:
                 t.replay.load_state_file(replay_file)
@@ -571,7 +578,7 @@ def _start_episodes(
             )
         return obs
     obs, _ = envs.reset(seed=reset_seed)
-    if resumed is not None and run.replay_files(resumed):
+    if resumed is not None and replay_files(run, resumed):
         t.replay.truncate_open_episodes(resumed.obs)
     return obs
 
@@ -580,7 +587,7 @@ def _finish(run: RunFolder, t: Trainer) -> None:
     """policy.pt and meta.json's final record (status complete) of a finished session."""
     # The final policy alone (online weights + the agent's learned state, a few MB):
     # what a committed result folder keeps instead of checkpoints and replay.
-    run.save_policy(t.policy_state())
+    save_policy(run, t.policy_state())
     time_s = t.clock.totals()
     if t.learner.agent.subsets is not None:  # inside "act" and "update"
         time_s["algorithm1"] = round(t.learner.agent.subsets.seconds, 4)

@@ -15,6 +15,7 @@ from priqn.io import CHECKSUM_SUFFIX, atomic_torch_save
 from priqn.objectives import OBJECTIVES
 from priqn.run import checkpoint
 from priqn.run.checkpoint import Checkpoint, PolicyState
+from priqn.run.checkpointer import load_checkpoint, replay_files, save_checkpoint
 from priqn.run.folder import RunFolder
 
 CHECKPOINT_KEYS = [
@@ -200,17 +201,20 @@ def test_replay_chunks_are_written_first_named_and_dropped_once_overwritten(
     # Rings of 6 rows per env. Checkpoint 1 after 4 rows, 2 after 8 (rows 4-7), 3 after 12
     # (rows 8-11): every row of chunk 1 (rows 0-3) is overwritten by then, chunk 2's rows
     # 6 and 7 are not.
-    saved = run.save_checkpoint(make_checkpoint(step=40), _replay_with(4))
+    saved = save_checkpoint(run, make_checkpoint(step=40), _replay_with(4))
     assert saved.replay_chunks == [{"file": "replay-000000000040.npz", "end": [4, 4]}]
-    saved = run.save_checkpoint(
+    saved = save_checkpoint(
+        run,
         dataclasses.replace(make_checkpoint(step=80), replay_chunks=saved.replay_chunks),
         _replay_with(8),
     )
     replay = _replay_with(12)
-    saved = run.save_checkpoint(
-        dataclasses.replace(make_checkpoint(step=120), replay_chunks=saved.replay_chunks), replay
+    saved = save_checkpoint(
+        run,
+        dataclasses.replace(make_checkpoint(step=120), replay_chunks=saved.replay_chunks),
+        replay,
     )
-    back = run.load_checkpoint("cpu")
+    back = load_checkpoint(run, "cpu")
     assert [c["file"] for c in back.replay_chunks] == [
         "replay-000000000080.npz",
         "replay-000000000120.npz",
@@ -219,7 +223,7 @@ def test_replay_chunks_are_written_first_named_and_dropped_once_overwritten(
         c["file"] for c in back.replay_chunks
     ]
     fresh = ReplayBuffer({"x": ((1,), np.uint8)}, num_envs=2, capacity=12)
-    for path in run.replay_files(back):
+    for path in replay_files(run, back):
         fresh.load_rows(path)
     assert fresh.written.tolist() == [12, 12]
     assert np.array_equal(fresh.obs["x"], replay.obs["x"])  # rows 6-11 of each env
@@ -227,10 +231,10 @@ def test_replay_chunks_are_written_first_named_and_dropped_once_overwritten(
     assert np.array_equal(fresh.action, replay.action) and np.array_equal(
         fresh.starts, replay.starts
     )
-    run.save_checkpoint(make_checkpoint(step=160), None)  # checkpoint.save_replay = false
-    back = run.load_checkpoint("cpu")
-    assert back.replay_chunks is None and run.replay_files(back) == []
+    save_checkpoint(run, make_checkpoint(step=160), None)  # checkpoint.save_replay = false
+    back = load_checkpoint(run, "cpu")
+    assert back.replay_chunks is None and replay_files(run, back) == []
     assert not list(run.checkpoint_dir.glob("replay-*.npz"))
     run.latest_checkpoint.write_bytes(b"")
     with pytest.raises(PriqnError, match=r"latest\.pt: damaged or unreadable checkpoint"):
-        run.load_checkpoint("cpu")
+        load_checkpoint(run, "cpu")

@@ -195,7 +195,9 @@ TORCH_FREE: tuple[str, ...] = (
     "priqn.experiment",
     "priqn.run.metrics",
     "priqn.run.folder",
+    "priqn.run.session",
     "priqn.run.checkpoint",
+    "priqn.run.checkpointer",
     "priqn.analysis.load",
     "priqn.sweep.scheduler",
     "priqn.cli",
@@ -256,14 +258,16 @@ def test_the_experiment_file_is_below_its_readers() -> None:
 
 
 def test_the_run_folder_knows_only_files() -> None:
-    """run/folder.py is handed provenance (priqn.run.provenance) and never reads a net or
-    asks SUMO; the checkpoint format stays torch-free at import (analysis reads run
-    folders)."""
+    """run/folder.py and the modules that work on a run folder's files (session,
+    checkpointer) are handed provenance (priqn.run.provenance) and never read a net or ask
+    SUMO; the checkpoint format stays torch-free at import (analysis reads run folders)."""
     graph = import_graph()
-    below = sorted(d for d in graph["priqn.run.folder"] if d.startswith(("priqn.sim", "priqn.env")))
-    assert not below, f"priqn.run.folder imports {below}"
+    for mod in ("folder", "session", "checkpointer"):
+        mod = f"priqn.run.{mod}"
+        below = sorted(d for d in graph[mod] if d.startswith(("priqn.sim", "priqn.env")))
+        assert not below, f"{mod} imports {below}"
     assert (
-        "priqn.run.checkpoint" in graph["priqn.run.folder"]
+        "priqn.run.checkpoint" in graph["priqn.run.checkpointer"]
         and "priqn.run.checkpoint" in graph["priqn.train"]
     )
     text = _modules()["priqn.run.checkpoint"].read_text(encoding="utf-8")

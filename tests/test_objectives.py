@@ -256,7 +256,7 @@ def test_an_objective_from_a_test_module_trains_evaluates_and_shows(own_objectiv
 def test_a_policy_or_resume_with_another_objective_list_is_refused(own_objective_run, tmp_path):
     import shutil
 
-    from priqn.run.folder import load_policy
+    from priqn.run.checkpointer import load_policy
 
     copy = tmp_path / "copy"
     shutil.copytree(own_objective_run, copy)

@@ -26,6 +26,7 @@ from priqn.errors import PriqnError
 from priqn.io import CHECKSUM_SUFFIX, atomic_torch_save
 from priqn.objectives import OBJECTIVES
 from priqn.run import checkpoint
+from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -181,7 +182,7 @@ def test_weights_that_do_not_fit_are_one_line(tmp_path, damage):
         online[key] = torch.zeros(3, 3)
     atomic_torch_save({**state, "online": online}, run / "policy.pt")
     with pytest.raises(PriqnError) as info:
-        RunFolder(run).load_policy()
+        load_policy(RunFolder(run))
     msg = str(info.value)
     assert msg.startswith(f"{run / 'policy.pt'}: its weights do not fit") and "\n" not in msg
     res = priqn("evaluate", str(run), "--episodes", "1", "--eval-runs", "1")
@@ -191,11 +192,11 @@ def test_weights_that_do_not_fit_are_one_line(tmp_path, damage):
 
 def test_every_committed_policy_loads_through_the_safe_path():
     """All committed policy.pt files are tensors and plain data (format 1, no ``format``
-    key); a sample builds its policy through RunFolder.load_policy."""
+    key); a sample builds its policy through checkpointer.load_policy."""
     assert len(COMMITTED) >= 100, len(COMMITTED)
     for path in COMMITTED:
         state = checkpoint.load_policy_state(path)
         assert state.online and state.num_actions > 0, path
     for path in COMMITTED[:: max(1, len(COMMITTED) // 4)]:
-        policy = RunFolder(path.parent).load_policy()
+        policy = load_policy(RunFolder(path.parent))
         assert policy.labels["agent"], path

@@ -17,7 +17,7 @@ import torch
 
 from priqn.errors import PriqnError
 from priqn.run import checkpoint
-from priqn.run.folder import load_policy
+from priqn.run.checkpointer import load_policy
 from priqn.run.metrics import METRIC_COLUMNS
 from priqn.run.session import remove_run
 from priqn.run.train_config import (

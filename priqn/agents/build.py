@@ -6,9 +6,10 @@
    an :class:`~priqn.agents.registry.Agent` with the run's weights and, when the spec
    ``uses_preorder``, its optimal-subset function (:func:`~priqn.agents.registry.make_agent`).
 2. :func:`build_network`: the :class:`QuantileNetwork` with the spec's number of heads.
-3. :func:`build_learner` (training) and :func:`build_policy` (acting) around that network.
+3. :func:`build_learner` (training) and :func:`build_policy` (acting) around that network;
+   :func:`build_trained_policy`: that network with a trained run's weights, acting.
 
-``priqn.train.train``, ``RunFolder.load_policy`` and ``priqn bench train`` build through
+``priqn.train.train``, ``priqn.run.checkpointer.load_policy`` and ``priqn bench train`` build through
 here, so a plug-in agent (docs/your-own-agent.md) trains, evaluates and is inspected
 exactly like a shipped one. The config is a :class:`priqn.run.train_config.TrainConfig`
 (typed by :class:`RunConfig`, as this package sits below it).
@@ -16,7 +17,7 @@ exactly like a shipped one. The config is a :class:`priqn.run.train_config.Train
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -44,6 +45,14 @@ class RunConfig(Protocol):
 
     @property
     def objective_names(self) -> tuple[str, ...]: ...
+
+
+class TrainedState(Protocol):
+    """What building a trained policy reads of a :class:`priqn.run.checkpoint.PolicyState`."""
+
+    online: dict[str, Any]
+    agent: dict[str, Any]
+    num_actions: int
 
 
 def build_agent(cfg: RunConfig) -> Agent:
@@ -103,3 +112,25 @@ def build_policy(
 ) -> Policy:
     """Greedy acting with ``network`` by ``agent``'s acting rule on the run's τ grid."""
     return Policy(network, agent, cfg.learner.num_quantiles, device, env_config, labels)
+
+
+def build_trained_policy(
+    cfg: RunConfig,
+    agent: Agent,
+    obs_space: Any,
+    state: TrainedState,
+    device: torch.device | str = "cpu",
+    env_config: Any = None,
+    labels: Mapping[str, Any] | None = None,
+    restore: Callable[[Callable[[], Any]], Any] = lambda load_state: load_state(),
+) -> Policy:
+    """:func:`build_policy` around the run's network with the trained weights of ``state``:
+    ``state.online`` loaded into it (built from seed 0, then overwritten; eval mode) and
+    ``state.agent`` into ``agent`` (the scaled normalisation's scale). ``restore`` calls
+    each ``load_state_dict``; a run folder passes one that turns weights that do not fit
+    into one line naming their file (:func:`priqn.run.checkpoint.restore`)."""
+    network = build_network(cfg, obs_space, int(state.num_actions), seed=0, agent=agent)
+    restore(lambda: network.load_state_dict(state.online))
+    network.eval()
+    restore(lambda: agent.load_state_dict(state.agent))
+    return build_policy(cfg, agent, network, device, env_config, labels)

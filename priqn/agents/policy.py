@@ -74,7 +74,7 @@ class Policy:
     alone. Pr-IQN samples uniformly from its leaf optimal subset using ``rng``; the other
     agents are deterministic (``rng`` is still advanced by one draw per state so every
     agent consumes the same stream). ``env_config`` and ``labels`` are filled by
-    ``priqn.run.folder.load_policy``. :meth:`near_greedy` gives the same network acting by the
+    ``priqn.run.checkpointer.load_policy``. :meth:`near_greedy` gives the same network acting by the
     near-greedy control rule.
     """
 

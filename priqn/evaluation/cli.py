@@ -38,6 +38,7 @@ from priqn.evaluation.reference import (
 )
 from priqn.evaluation.store import earlier_evaluation, evaluate_policy
 from priqn.evaluation.targets import evaluation_env, evaluation_target, find_runs
+from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder, Status
 
 
@@ -72,7 +73,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     from priqn.env.vector import make_vector_env
 
-    policy = run.load_policy(device=cfg.device, snapshot=cfg.snapshot)
+    policy = load_policy(run, device=cfg.device, snapshot=cfg.snapshot)
     if cfg.acting == "near-greedy":
         policy = policy.near_greedy(cfg.acting_eps)
     env_cfg = evaluation_env(policy.env_config, cfg, nets)

@@ -36,14 +36,10 @@ from typing import Any
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
 from priqn.io import (
-    atomic_open,
     atomic_write_json,
     read_json,
     remove_stale_temp_files,
-    sha256_file,
 )
-from priqn.run import checkpoint
-from priqn.run.checkpoint import Checkpoint, PolicyState
 
 
 class Status(StrEnum):
@@ -343,130 +339,9 @@ class RunFolder:
         return read_json(self.eval_meta_path)
 
     # ---------------------------------------------------------------- checkpoints and policy
-    def save_checkpoint(self, state: Checkpoint, replay: Any | None) -> Checkpoint:
-        """The replay rows added since the previous checkpoint (``state.replay_chunks``, the
-        previous one's list) as a new compressed file, then latest.pt naming every replay
-        file still needed, then the files it does not name removed. Returns the state as
-        saved (its ``replay_chunks`` are the next checkpoint's previous list).
-
-        ``replay`` None saves no buffer (``checkpoint.save_replay = false``). Each file is
-        atomic and latest.pt is the commit point, so a kill at any moment, in the middle of
-        this too, leaves a latest.pt whose replay files are all there. The format is
-        :mod:`priqn.run.checkpoint`'s.
-        """
-        chunks = None
-        if replay is not None:
-            chunks = [c for c in state.replay_chunks or [] if not replay.overwritten(c["end"])]
-            since = chunks[-1]["end"] if chunks else [0] * replay.num_envs
-            name = f"replay-{state.step:012d}.npz"
-            with atomic_open(self.checkpoint_dir / name, "wb") as fh:
-                end = replay.save_rows(fh, since)
-            chunks.append({"file": name, "end": [int(n) for n in end]})
-        state = dataclasses.replace(state, replay_file=None, replay_chunks=chunks)
-        checkpoint.save(state, self.latest_checkpoint)
-        keep = {c["file"] for c in chunks or []}
-        for old in self.checkpoint_dir.glob("replay-*.npz"):
-            if old.name not in keep:
-                old.unlink(missing_ok=True)
-        return state
-
-    def load_checkpoint(self, device: Any) -> Checkpoint:
-        """The latest checkpoint (a damaged file is a one-line error saying what to do)."""
-        return checkpoint.load(
-            self.latest_checkpoint,
-            device,
-            f"delete the run folder's {self.CHECKPOINTS}/ and train again with --force",
-        )
-
-    def replay_files(self, state: Checkpoint) -> list[Path]:
-        """The replay buffer files a checkpoint names, in the order to load them: its
-        compressed chunks, or the one uncompressed file of an older checkpoint ([] if it
-        saved none)."""
-        if state.replay_chunks is not None:
-            return [self.checkpoint_dir / c["file"] for c in state.replay_chunks]
-        return [self.checkpoint_dir / state.replay_file] if state.replay_file else []
-
-    def save_policy(self, state: PolicyState) -> None:
-        """policy.pt: the final online weights and the agent's learned state (a few MB)."""
-        checkpoint.save(state, self.policy_path)
-
-    def save_snapshot(self, state: PolicyState) -> str:
-        """``snapshots/policy-at<step>.pt`` (same format as policy.pt); returns its SHA-256,
-        which meta.json keeps (``snapshots``) so a snapshot not committed stays checkable."""
-        path = self.snapshot_path(state.step)
-        checkpoint.save(state, path)
-        return sha256_file(path)
-
-    def load_policy(self, device: str = "cpu", snapshot: int = 0) -> Any:
-        """Greedy :class:`priqn.agents.policy.Policy` of this run.
-
-        From the latest checkpoint when present (a run in progress, or resumable); else
-        from policy.pt, which is all a committed result folder keeps. ``snapshot`` N > 0:
-        the policy kept at N decisions (``snapshots/policy-at<N>.pt``) instead.
-        """
-        from priqn.agents.build import build_agent, build_network, build_policy
-        from priqn.run.train_config import observation_space, policy_labels, select_device
-
-        cfg = self.config()
-        latest, final = self.latest_checkpoint, self.policy_path
-        dev = select_device(device)
-        remedy = "restore it from git or re-train the run (priqn train --force)"
-        if snapshot:
-            source = self.snapshot_path(snapshot)
-            state = self._load_snapshot(snapshot, cfg.checkpoint.keep_at, dev)
-        elif latest.is_file():
-            source, state = latest, checkpoint.load(latest, dev, remedy).policy_state()
-        elif final.is_file():
-            source, state = final, checkpoint.load_policy_state(final, dev, remedy)
-        else:
-            raise PriqnError(
-                f"{self.path}: no {self.rel(latest)} or {self.rel(final)} to load a policy from"
-            )
-        names = cfg.objective_names
-        if tuple(state.objectives) != names:
-            raise PriqnError(
-                f"{self.path}: the policy was trained for objectives "
-                f"({', '.join(state.objectives)}) but {self.CONFIG} lists ({', '.join(names)}); "
-                "restore the run's config.toml or train again"
-            )
-        agent = build_agent(cfg)
-        space = observation_space(state.obs_shapes)
-        network = build_network(cfg, space, int(state.num_actions), seed=0, agent=agent)
-        checkpoint.restore(lambda: network.load_state_dict(state.online), source, remedy)
-        network.eval()
-        checkpoint.restore(lambda: agent.load_state_dict(state.agent), source, remedy)  # scale
-        labels = policy_labels(cfg, agent)
-        return build_policy(cfg, agent, network, dev, cfg.env, labels)
-
-    def _load_snapshot(self, budget: int, keep_at: tuple[int, ...], device: Any) -> PolicyState:
-        """The :class:`PolicyState` kept at ``budget``, checked against meta.json's SHA-256."""
-        path = self.snapshot_path(budget)
-        if budget not in keep_at:
-            kept = ", ".join(map(str, keep_at)) or "none"
-            raise PriqnError(
-                f"{self.path}: no snapshot at {budget} decisions (checkpoint.keep_at of this run: {kept})"
-            )
-        if not path.is_file():
-            raise PriqnError(
-                f"{self.path}: {self.rel(path)} is missing (snapshots are not committed with a "
-                "result folder; meta.json keeps their SHA-256): re-train the run to get it back"
-            )
-        recorded = (self.meta().get("snapshots") or {}).get(str(budget), {}).get("sha256")
-        if recorded and recorded != sha256_file(path):
-            raise PriqnError(
-                f"{path}: not the snapshot this run kept (its SHA-256 differs from meta.json's)"
-            )
-        remedy = "re-train the run to get it back (priqn train --force)"
-        return checkpoint.load_policy_state(path, device, remedy)
-
     def remove_stale_temp_files(self) -> int:
         """Temp files a killed write left behind (only while this process is the writer)."""
         return remove_stale_temp_files(self.path)
-
-
-def load_policy(run_dir: str | os.PathLike, device: str = "cpu") -> Any:
-    """Greedy policy of the trained run in ``run_dir`` (:meth:`RunFolder.load_policy`)."""
-    return RunFolder(run_dir).load_policy(device)
 
 
 def live_trainer(run_dir: str | os.PathLike) -> str | None:

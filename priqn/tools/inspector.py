@@ -39,6 +39,7 @@ import numpy as np
 from priqn.checks import check_acting_eps, check_density
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
+from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 from priqn.tools.decisions import KEPT, greedy_removals
 
@@ -443,7 +444,7 @@ def inspect_run(run_dir: str | Path, out_dir: str | Path, cfg: InspectConfig) ->
     if not run.is_run():
         raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
     scenes, eval_cfg = inspection_scenes(run_dir, cfg)
-    policy = run.load_policy(device="cpu")
+    policy = load_policy(run, device="cpu")
     if cfg.near_greedy_eps is not None:
         policy = policy.near_greedy(cfg.near_greedy_eps)
     env_cfg = dataclasses.replace(policy.env_config, family=eval_cfg.family, nets=(), junction="")

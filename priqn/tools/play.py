@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from priqn.errors import PriqnError
+from priqn.run import checkpointer
 from priqn.run.folder import RunFolder
 from priqn.tools.inspector import (
     InspectConfig,
@@ -134,7 +135,7 @@ def load_policy(run_dir: Path) -> Any:
     if not run.is_run():
         raise PriqnError(f"{run_dir}: not a run folder (no {run.CONFIG})")
     try:
-        return run.load_policy(device="cpu")
+        return checkpointer.load_policy(run, device="cpu")
     except PriqnError:
         raise
     except Exception as exc:  # a foreign or damaged file the loaders did not catch
