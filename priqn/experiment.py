@@ -32,7 +32,7 @@ from priqn.agents.config import (
 )
 from priqn.config import from_dict, load_toml, toml_value
 from priqn.errors import PriqnError
-from priqn.run.folder import RunFolder
+from priqn.run.evaluations import snapshot_evaluation
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -475,7 +475,7 @@ class Experiment:
             if self.row_steps(pol) == budget:
                 found.insert(0, (pol, run, ""))
             elif budget in pol.keep_at:
-                found.append((pol, run, RunFolder.snapshot_evaluation(budget)))
+                found.append((pol, run, snapshot_evaluation(budget)))
         return found[0] if found else None
 
     @property

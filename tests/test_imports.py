@@ -198,6 +198,7 @@ TORCH_FREE: tuple[str, ...] = (
     "priqn.run.session",
     "priqn.run.checkpoint",
     "priqn.run.checkpointer",
+    "priqn.run.evaluations",
     "priqn.analysis.load",
     "priqn.sweep.scheduler",
     "priqn.cli",
@@ -259,10 +260,11 @@ def test_the_experiment_file_is_below_its_readers() -> None:
 
 def test_the_run_folder_knows_only_files() -> None:
     """run/folder.py and the modules that work on a run folder's files (session,
-    checkpointer) are handed provenance (priqn.run.provenance) and never read a net or ask
-    SUMO; the checkpoint format stays torch-free at import (analysis reads run folders)."""
+    checkpointer, evaluations) are handed provenance (priqn.run.provenance) and never read
+    a net or ask SUMO; the checkpoint format stays torch-free at import (analysis reads run
+    folders)."""
     graph = import_graph()
-    for mod in ("folder", "session", "checkpointer"):
+    for mod in ("folder", "session", "checkpointer", "evaluations"):
         mod = f"priqn.run.{mod}"
         below = sorted(d for d in graph[mod] if d.startswith(("priqn.sim", "priqn.env")))
         assert not below, f"{mod} imports {below}"

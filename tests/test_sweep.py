@@ -24,6 +24,7 @@ from fake_runs import tiny_grid
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.paths import experiments_dir
+from priqn.run.evaluations import evaluated, evaluation_dir, kept_evaluations
 from priqn.run.folder import RunFolder, Status
 from priqn.sweep import (
     Cell,
@@ -453,12 +454,12 @@ def test_a_run_folder_is_evaluated_with_each_kept_snapshot(tmp_path: Path) -> No
     folder = RunFolder(tmp_path / "r")
     atomic_write_json(folder.meta_path, {"status": "complete", "snapshots": {"60000": "ab"}})
     atomic_write_json(folder.eval_meta_path, {"status": "complete"})
-    assert folder.kept_evaluations() == ["at60000"]
-    assert folder.evaluated() and not folder.evaluated(folder.kept_evaluations())
-    atomic_write_json(folder.evaluation_dir("at60000") / "meta.json", {"status": "complete"})
-    assert folder.evaluated(folder.kept_evaluations())
+    assert kept_evaluations(folder) == ["at60000"]
+    assert evaluated(folder) and not evaluated(folder, kept_evaluations(folder))
+    atomic_write_json(evaluation_dir(folder, "at60000") / "meta.json", {"status": "complete"})
+    assert evaluated(folder, kept_evaluations(folder))
     atomic_write_json(folder.meta_path, {"status": "running", "snapshots": {"60000": "ab"}})
-    assert not folder.evaluated(folder.kept_evaluations())
+    assert not evaluated(folder, kept_evaluations(folder))
 
     bad = tmp_path / "bad.toml"
     bad.write_text(

@@ -26,6 +26,7 @@ from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
 from priqn.io import atomic_write_json, atomic_write_text
+from priqn.run.evaluations import evaluated
 from priqn.run.folder import RunFolder
 
 MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
@@ -49,7 +50,7 @@ def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
     for pol in exp.policies:
         for seed in exp.row_seeds(pol):
             run = RunFolder(exp.cell_dir(pol.name, seed))
-            if not run.evaluated():
+            if not evaluated(run):
                 missing.append(f"{run.path.name}: not complete")
                 continue
             check_code(

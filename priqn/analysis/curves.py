@@ -38,6 +38,7 @@ import pandas as pd
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import snapshot_budget
+from priqn.run.evaluations import control_evaluations, evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 
 PERIODIC = "periodic"
@@ -110,12 +111,12 @@ def snapshot_points(run: Path) -> pd.DataFrame | str:
     snapshot, no control), or a string saying why there are none."""
     folder = RunFolder(run)
     found: list[tuple[int, Path]] = []
-    for name in folder.control_evaluations():
+    for name in control_evaluations(folder):
         budget, rest = snapshot_budget(name)
-        if budget and not rest and folder.recorded_eval_status(name) == Status.COMPLETE:
-            found.append((budget, folder.evaluation_dir(name)))
+        if budget and not rest and recorded_eval_status(folder, name) == Status.COMPLETE:
+            found.append((budget, evaluation_dir(folder, name)))
     total = _total_steps(folder)
-    if total and folder.recorded_eval_status() == Status.COMPLETE:
+    if total and recorded_eval_status(folder) == Status.COMPLETE:
         found.append((total, folder.eval_dir))
     if not found:
         return "no complete evaluation with a known budget (meta.json total_steps)"

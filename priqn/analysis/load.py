@@ -22,6 +22,7 @@ from priqn.evaluation.protocol import episode_columns, is_nets_evaluation, snaps
 from priqn.io import read_json
 from priqn.objectives import OBJECTIVES, names_in_columns
 from priqn.run.episodes import resolve_outcomes
+from priqn.run.evaluations import control_evaluations, evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 from priqn.run.session import resumed_at
 
@@ -121,11 +122,11 @@ def list_evaluations(
     unfinished: list[str] = []
     for run in run_dirs:
         folder = RunFolder(run)
-        names = [c for c in folder.control_evaluations() if is_nets_evaluation(c) == nets]
+        names = [c for c in control_evaluations(folder) if is_nets_evaluation(c) == nets]
         for control in names if nets else ["", *names]:
-            eval_dir = folder.evaluation_dir(control)
+            eval_dir = evaluation_dir(folder, control)
             name = f"{run.name}/{eval_dir.name}" if control else run.name
-            if folder.recorded_eval_status(control) == Status.COMPLETE:
+            if recorded_eval_status(folder, control) == Status.COMPLETE:
                 complete.append((name, run, eval_dir))
             else:
                 unfinished.append(name)

@@ -26,6 +26,7 @@ from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX
 from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
 from priqn.io import read_json
 from priqn.run.episodes import resolve_outcomes
+from priqn.run.evaluations import evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder
 
 ENV_NEUTRAL_FIELDS: frozenset[str] = SCENE_NEUTRAL_FIELDS | {"ego_driver"}
@@ -74,7 +75,7 @@ def load_references(
     run_env = _runs_env(evaluation)
     for d in dirs:
         folder = RunFolder(d)
-        if folder.recorded_eval_status() != "complete":
+        if recorded_eval_status(folder) != "complete":
             raise PriqnError(
                 f"{folder.path}: no complete reference evaluation in {folder.eval_dir.name}/; make "
                 f"one with 'priqn evaluate --reference sumo --out {folder.path}' (the runs' settings)"
@@ -103,10 +104,10 @@ def load_references(
         infos.append(info)
         for group in groups:
             name = f"{NETS_PREFIX}{group.nets_hash[:NETS_HASH_CHARS]}"
-            if folder.recorded_eval_status(name) != "complete":
+            if recorded_eval_status(folder, name) != "complete":
                 continue
             nets_frame, nets_info = read_evaluation(
-                str(d), folder.path, folder.evaluation_dir(name), reference=True
+                str(d), folder.path, evaluation_dir(folder, name), reference=True
             )
             if nets_info.holdout_hash != group.nets_hash:
                 continue

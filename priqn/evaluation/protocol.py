@@ -34,7 +34,8 @@ from priqn.checks import check_acting_eps, check_density
 from priqn.config import config_differences, to_dict
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES, return_columns, subset_columns
-from priqn.run.folder import SNAPSHOT_PREFIX, RunFolder
+from priqn.run.evaluations import SNAPSHOT_PREFIX, evaluation_dir, snapshot_evaluation
+from priqn.run.folder import RunFolder
 
 LABEL_KEYS: tuple[str, ...] = (*CONFIG_COLUMNS, "train_seed", "label")
 """Keys of ``Policy.labels`` copied into every episode row."""
@@ -258,7 +259,7 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
             if cfg.acting_eps == EvalConfig.acting_eps
             else f"{cfg.acting}-eps{cfg.acting_eps:g}"
         )
-    snapshot = RunFolder.snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
+    snapshot = snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
     nets = f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}" if cfg.nets else ""
     return "-".join(p for p in (snapshot, nets, control) if p)
 
@@ -298,4 +299,4 @@ def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
 
 def eval_dir_of(run: RunFolder, cfg: EvalConfig, nets_hash: str = "") -> Path:
     """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/`` (:func:`evaluation_name`)."""
-    return run.evaluation_dir(evaluation_name(cfg, nets_hash))
+    return evaluation_dir(run, evaluation_name(cfg, nets_hash))

@@ -16,6 +16,7 @@ from priqn.evaluation.protocol import LABEL_KEYS, EvalConfig, evaluation_name
 from priqn.evaluation.store import evaluate_policy
 from priqn.evaluation.targets import evaluation_env, evaluation_target, find_runs
 from priqn.io import read_json
+from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder
 
 REFERENCES: dict[str, str] = {"sumo": "SUMO driver", "random": "Random actions"}
@@ -121,7 +122,7 @@ def evaluate_reference(
     driver = ReferenceDriver(name, env_config.n_speeds * env_config.n_offsets)
     net_ids, holdout_hash, nets = evaluation_target(cfg, env_config.commands)
     folder = RunFolder(out_dir)
-    eval_dir = folder.evaluation_dir(evaluation_name(cfg, holdout_hash if nets else ""))
+    eval_dir = evaluation_dir(folder, evaluation_name(cfg, holdout_hash if nets else ""))
     env_cfg = evaluation_env(env_config, cfg, nets)
     env_cfg = dataclasses.replace(env_cfg, ego_driver="sumo" if name == "sumo" else "planner")
     meta_path = eval_dir / RunFolder.META

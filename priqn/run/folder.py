@@ -1,4 +1,4 @@
-"""The run folder: one type that owns every file of a training run.
+"""The run folder: the paths of a training run's files, its config, meta.json and status.
 
 A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds::
 
@@ -13,10 +13,16 @@ A run folder (``runs/<name>/``, or a committed ``results/<grid>/<cell>/``) holds
     eval/cells/            finished evaluation cells, kept for a resumed evaluation)
     nets.json              your own nets (env.nets) with their SHA-256, when the run used them
 
-Every command reads and writes these through :class:`RunFolder`, so no other module
-spells a file name; the torch files are in :mod:`priqn.run.checkpoint`'s format. The run
-folder only knows files: what meta.json records about the run's origin (nets, SUMO, git)
-is gathered by :mod:`priqn.run.provenance` and handed in as a :class:`Provenance`.
+:class:`RunFolder` names these files (its constants and paths; no other module spells a
+file name) and reads and writes config.toml and meta.json, the run's status among them.
+What the run does with the other files has its own module beside it:
+:mod:`priqn.run.session` starts and resumes training sessions (meta.json ``sessions``),
+:mod:`priqn.run.checkpointer` saves and loads the torch files (in
+:mod:`priqn.run.checkpoint`'s format) and the policy, :mod:`priqn.run.metrics` writes and
+reads metrics.csv, :mod:`priqn.run.evaluations` reads the evaluations' names and status.
+The run folder only knows files: what meta.json records about the run's origin (nets,
+SUMO, git) is gathered by :mod:`priqn.run.provenance` and handed in as a
+:class:`Provenance`.
 
 A run folder has one writer: ``meta.json`` records the trainer's pid and host while it
 runs (:meth:`RunFolder.live_trainer`), and a ``running`` run whose trainer is gone reads
@@ -28,18 +34,14 @@ from __future__ import annotations
 import dataclasses
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from priqn.config import from_dict, load_toml
 from priqn.errors import PriqnError
-from priqn.io import (
-    atomic_write_json,
-    read_json,
-    remove_stale_temp_files,
-)
+from priqn.io import atomic_write_json, read_json
 
 
 class Status(StrEnum):
@@ -85,12 +87,8 @@ class Provenance:
     """nets.json: the manifest of the run's own nets (``env.nets``); None without them."""
 
 
-SNAPSHOT_PREFIX = "at"
-"""Evaluations of a kept snapshot are ``eval-at<N>[-<control>]/`` (:meth:`RunFolder.snapshot_evaluation`)."""
-
-
 class RunFolder:
-    """One run folder: its paths, config, meta and status, metrics, checkpoints, policy."""
+    """One run folder: the paths of its files, its config, meta.json and status."""
 
     CONFIG = "config.toml"
     META = "meta.json"
@@ -169,28 +167,9 @@ class RunFolder:
 
     @property
     def eval_dir(self) -> Path:
-        """The run's own evaluation (``eval/``); controls live beside it (:meth:`evaluation_dir`)."""
+        """The run's own evaluation (``eval/``); the others live beside it
+        (:func:`priqn.run.evaluations.evaluation_dir`)."""
         return self.path / self.EVAL
-
-    @staticmethod
-    def snapshot_evaluation(budget: int) -> str:
-        """The evaluation name of the policy kept at ``budget`` decisions: ``at<budget>``
-        (its folder ``eval-at<budget>/``)."""
-        return f"{SNAPSHOT_PREFIX}{budget}"
-
-    @classmethod
-    def evaluation_folder(cls, name: str = "") -> str:
-        """The folder name of evaluation ``name``: ``eval`` for "", else ``eval-<name>``."""
-        return f"{cls.EVAL}-{name}" if name else cls.EVAL
-
-    def evaluation_dir(self, name: str = "") -> Path:
-        """``eval/`` for ``name`` "", else ``eval-<name>/`` (e.g. ``eval-near-greedy``)."""
-        return self.path / self.evaluation_folder(name)
-
-    def control_evaluations(self) -> list[str]:
-        """Names of the control evaluations (``eval-<name>/`` folders beside ``eval/``), sorted."""
-        prefix = f"{self.EVAL}-"
-        return sorted(p.name[len(prefix) :] for p in self.path.glob(prefix + "*") if p.is_dir())
 
     @property
     def eval_meta_path(self) -> Path:
@@ -199,10 +178,6 @@ class RunFolder:
     @property
     def eval_episodes_path(self) -> Path:
         return self.eval_dir / self.EVAL_EPISODES
-
-    @property
-    def eval_cells_dir(self) -> Path:
-        return self.eval_dir / self.EVAL_CELLS
 
     def is_run(self) -> bool:
         """A trained (or training) run: it has a config.toml."""
@@ -274,30 +249,7 @@ class RunFolder:
 
     def recorded_status(self) -> str | None:
         """meta.json's ``status`` as written (None without a readable meta.json)."""
-        return _status_in(self.meta_path)
-
-    def recorded_eval_status(self, name: str = "") -> str | None:
-        """eval/meta.json's ``status`` as written (None when never evaluated or unreadable);
-        ``name``: of the control evaluation ``eval-<name>/`` instead."""
-        return _status_in(self.evaluation_dir(name) / self.META)
-
-    def evaluation_complete(self, name: str = "") -> bool:
-        """Trained, and the evaluation ``name`` (``""``: ``eval/``) complete, read from the
-        recorded statuses: the one test of "this cell's score can be read" that the sweep
-        and the reports share."""
-        return (
-            self.recorded_status() == Status.COMPLETE
-            and self.recorded_eval_status(name) == Status.COMPLETE
-        )
-
-    def evaluated(self, names: Sequence[str] = ()) -> bool:
-        """:meth:`evaluation_complete` for ``eval/`` and every ``eval-<name>/`` of ``names``:
-        what a sweep counts as a complete cell."""
-        return all(self.evaluation_complete(name) for name in ("", *names))
-
-    def kept_evaluations(self) -> list[str]:
-        """The evaluation names (``at<N>``) of the snapshots meta.json records as kept."""
-        return [self.snapshot_evaluation(int(b)) for b in self.meta().get("snapshots") or {}]
+        return status_in(self.meta_path)
 
     def trained_to(self) -> int:
         """Decisions the run has trained, as its meta.json records them: the budget
@@ -334,15 +286,6 @@ class RunFolder:
             return None
         return f"pid {pid} on host {host}"
 
-    def eval_meta(self) -> dict[str, Any]:
-        """eval/meta.json."""
-        return read_json(self.eval_meta_path)
-
-    # ---------------------------------------------------------------- checkpoints and policy
-    def remove_stale_temp_files(self) -> int:
-        """Temp files a killed write left behind (only while this process is the writer)."""
-        return remove_stale_temp_files(self.path)
-
 
 def live_trainer(run_dir: str | os.PathLike) -> str | None:
     """:meth:`RunFolder.live_trainer` of ``run_dir``."""
@@ -354,7 +297,9 @@ def run_status(run_dir: str | os.PathLike) -> str:
     return RunFolder(run_dir).status()
 
 
-def _status_in(meta_path: Path) -> str | None:
+def status_in(meta_path: Path) -> str | None:
+    """The ``status`` a meta.json records (a run's or an evaluation's), as written; None
+    without a readable file."""
     try:
         meta = read_json(meta_path)
     except PriqnError:

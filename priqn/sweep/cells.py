@@ -20,6 +20,13 @@ from priqn.config import config_differences, from_dict, to_dict
 from priqn.errors import PriqnError
 from priqn.experiment import Experiment, PolicySpec, cell_dir_name, policy_difference
 from priqn.io import read_json
+from priqn.run.evaluations import (
+    eval_meta,
+    evaluated,
+    evaluation_dir,
+    recorded_eval_status,
+    snapshot_evaluation,
+)
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import read_metrics
 
@@ -62,7 +69,7 @@ class Cell:
     def evaluations(self) -> tuple[str, ...]:
         """Every evaluation the cell needs by name: ``""`` (``eval/``), each control, each
         kept snapshot (``at<N>``)."""
-        return ("", *self.controls, *map(RunFolder.snapshot_evaluation, self.snapshots))
+        return ("", *self.controls, *map(snapshot_evaluation, self.snapshots))
 
     @property
     def name(self) -> str:
@@ -168,7 +175,7 @@ def cell_state(run_dir: Path, controls: tuple[str, ...] = ()) -> Status:
     if run == Status.RUNNING and folder.status() == Status.INTERRUPTED:
         return Status.INTERRUPTED  # its trainer died (kill -9, crash): the next sweep resumes it
     if run == Status.COMPLETE:
-        return Status.COMPLETE if folder.evaluated(controls) else Status.TRAINED
+        return Status.COMPLETE if evaluated(folder, controls) else Status.TRAINED
     if run in (Status.RUNNING, Status.FAILED):
         return Status(run)
     return Status.NEW
@@ -225,7 +232,7 @@ def stale_cells(exp: Experiment) -> dict[str, str]:
         if not diff:
             from priqn.evaluation.protocol import eval_config_differences
 
-            recorded = RunFolder(c.run_dir).eval_meta().get("eval_config") or {}
+            recorded = eval_meta(RunFolder(c.run_dir)).get("eval_config") or {}
             diff = eval_config_differences(recorded, to_dict(build_eval_config(c)))
             prefix = "evaluate."
         if diff:
@@ -271,7 +278,7 @@ def evaluation_minutes(cell: Cell) -> float:
     folder = RunFolder(cell.run_dir)
     seconds = 0.0
     for name in cell.evaluations:
-        seconds += float(read_json(folder.evaluation_dir(name) / folder.META).get("wall_s") or 0.0)
+        seconds += float(read_json(evaluation_dir(folder, name) / folder.META).get("wall_s") or 0.0)
     return seconds / 60.0
 
 
@@ -340,9 +347,9 @@ def cell_progress(cell: Cell, state: Status) -> str:
     if state == Status.TRAINED:
         folder = RunFolder(cell.run_dir)
         missing = [
-            folder.evaluation_dir(name).name
+            evaluation_dir(folder, name).name
             for name in cell.evaluations
-            if folder.recorded_eval_status(name) != Status.COMPLETE
+            if recorded_eval_status(folder, name) != Status.COMPLETE
         ]
         return "to evaluate: " + ", ".join(missing)
     return ""

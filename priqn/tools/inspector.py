@@ -40,6 +40,7 @@ from priqn.checks import check_acting_eps, check_density
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes, atomic_write_text
 from priqn.run.checkpointer import load_policy
+from priqn.run.evaluations import eval_meta
 from priqn.run.folder import RunFolder
 from priqn.tools.decisions import KEPT, greedy_removals
 
@@ -103,7 +104,7 @@ def inspection_scenes(run_dir: Path, cfg: InspectConfig) -> tuple[list[Any], Any
     run = RunFolder(run_dir)
     fields: dict[str, Any] = {}
     if run.eval_meta_path.is_file():  # the scenes the run was evaluated on
-        fields = dict(run.eval_meta().get("eval_config") or {})
+        fields = dict(eval_meta(run).get("eval_config") or {})
     base = EvalConfig()
     known = {f.name for f in dataclasses.fields(EvalConfig)}
     kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in fields.items() if k in known}
