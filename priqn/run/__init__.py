@@ -3,12 +3,17 @@ it comes from. Torch-free at import (the analysis and the sweep read run folders
 
 - :mod:`~priqn.run.train_config` — what a run is: ``TrainConfig``, presets,
   ``resolve_config``, seeds, run names, ``policy_labels``;
-- :mod:`~priqn.run.folder` — ``RunFolder``: every file of a run folder (config,
-  meta/status, the one-writer lock, metrics, checkpoints, ``policy.pt``,
-  ``load_policy``), ``Status``, ``Provenance``;
+- :mod:`~priqn.run.folder` — ``RunFolder``: the paths of a run folder's files, its
+  config, meta.json, status and the one-writer lock; ``Status``, ``Provenance``;
+- :mod:`~priqn.run.session` — a training session started or resumed (``start_session``),
+  meta.json's ``sessions``;
 - :mod:`~priqn.run.checkpoint` — the format of a run's torch files (``Checkpoint``,
   ``PolicyState``);
-- :mod:`~priqn.run.metrics` — the format of ``metrics.csv``;
+- :mod:`~priqn.run.checkpointer` — those files saved and loaded in a run folder, and
+  ``load_policy`` (the network built by :mod:`priqn.agents.build`);
+- :mod:`~priqn.run.metrics` — the format of ``metrics.csv``, written and read;
+- :mod:`~priqn.run.evaluations` — the evaluations a run folder holds: names, folders,
+  recorded status;
 - :mod:`~priqn.run.episodes` — the one reader of an ended episode's ``final_info``;
 - :mod:`~priqn.run.provenance` — ``gather``: git, versions, scenario manifests;
 - :mod:`~priqn.run.timing` — ``SectionClock``, where a loop's wall time goes.
