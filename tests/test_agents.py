@@ -412,7 +412,7 @@ def test_parameter_counts_in_the_docs():
     """docs/implementation-details.md states every agent's parameter count: keep it true."""
     from pathlib import Path
 
-    from priqn.bench.train import _obs_space
+    from priqn.bench.learners import obs_space
     from priqn.run.train_config import build_network, resolve_config
 
     doc = (Path(__file__).parents[1] / "docs" / "implementation-details.md").read_text()
@@ -421,7 +421,7 @@ def test_parameter_counts_in_the_docs():
         counts = []
         for preset in ("default", "paper"):
             cfg = resolve_config(preset=preset, agent=agent)
-            space, n = _obs_space(cfg)
+            space, n = obs_space(cfg)
             counts.append(sum(p.numel() for p in build_network(cfg, space, n, 0).parameters()))
         heads = 1 if agent == "iqn" else 5
         assert f"| {shown} | {heads} | {counts[0]:,} | {counts[1]:,} |" in doc, (agent, counts)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.bench.train import _obs_space
+from priqn.bench.learners import obs_space
 
 
 def synthetic_replay(cfg: Any, space: Any, capacity: int, rng: np.random.Generator) -> Any:
@@ -104,7 +104,7 @@ def feed_rates(
     ``replay.capacity``; ``compile_`` is the learners' ``learner.compile`` (as training:
     ``auto``). ``seconds`` per case and rate, split in ``rounds`` rounds.
     """
-    from priqn.bench.train import _make_learner
+    from priqn.bench.learners import make_learner
     from priqn.run.train_config import cuda_determinism, resolve_config, select_device
 
     dev = select_device(device)
@@ -112,11 +112,11 @@ def feed_rates(
         cuda_determinism(True)  # training's kernels; before the first CUDA matrix product
     cfg = resolve_config(preset=preset)
     cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, batch_size=batch_size))
-    space, _ = _obs_space(cfg)
+    space, _ = obs_space(cfg)
     host = synthetic_replay(cfg, space, capacity or cfg.replay.capacity, np.random.default_rng(0))
     buffers = {s: host if s == "host" else in_storage(host, s, dev) for s in storages}
     learners = {
-        a: _make_learner(preset, a, batch_size, device, compile_=compile_)[0] for a in agents
+        a: make_learner(preset, a, batch_size, device, compile_=compile_)[0] for a in agents
     }
     rng = np.random.default_rng(1)
     cases = [(a, s) for a in agents for s in storages]

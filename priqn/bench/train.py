@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import io
 import os
 import tempfile
@@ -29,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
+from priqn.bench.learners import make_learner
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -100,77 +99,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _obs_space(cfg: Any) -> Any:
-    """The env's observation space for ``cfg.env`` (built without starting SUMO)."""
-    from priqn.env.intersection import IntersectionEnv
-
-    env = IntersectionEnv(cfg.env)
-    try:
-        return env.observation_space, int(env.action_space.n)
-    finally:
-        env.close()
-
-
-def _synthetic_batch(space: Any, batch: int, rng: np.random.Generator) -> dict[str, Any]:
-    def sample_obs() -> dict[str, np.ndarray]:
-        out = {}
-        for k in ("bev", "lidar", "command", "kinematics"):
-            sp = space[k]
-            if sp.dtype == np.uint8:
-                out[k] = rng.integers(0, 2, (batch, *sp.shape), dtype=np.uint8) * 255
-            else:
-                out[k] = rng.normal(size=(batch, *sp.shape)).astype(sp.dtype)
-        return out
-
-    return {
-        "obs": sample_obs(),
-        "next_obs": sample_obs(),
-        "reward": rng.normal(size=(batch, 5)).astype(np.float32),
-        "discount": np.full(batch, 0.99, dtype=np.float32),
-    }
-
-
-def _make_learner(
-    preset: str,
-    agent_name: str,
-    batch_size: int,
-    device: str,
-    bf16: bool = False,
-    compile_: str = "off",
-) -> tuple[Any, Any]:
-    from priqn.agents.learner import Learner
-    from priqn.agents.registry import make_agent
-    from priqn.run.train_config import build_network, resolve_config, select_device
-
-    cfg = resolve_config(preset=preset, agent=agent_name)
-    learner_cfg = dataclasses.replace(
-        cfg.learner,
-        batch_size=batch_size,
-        autocast_bf16=bf16,
-        compile=compile_,
-    )
-    cfg = dataclasses.replace(cfg, learner=learner_cfg)
-    space, num_actions = _obs_space(cfg)
-    dev = select_device(device)
-    net = build_network(cfg, space, num_actions, seed=0)
-    learner = Learner(
-        net,
-        make_agent(agent_name, cfg.resolved_agent, cfg.objective_names),
-        cfg.learner,
-        dev,
-        tau_seed=0,
-    )
-    rng = np.random.default_rng(0)
-    batches = []
-    for _ in range(4):
-        b = _synthetic_batch(space, batch_size, rng)
-        b["action"] = rng.integers(0, num_actions, batch_size)
-        batches.append(b)
-    for i in range(5):  # warm-up (compiled: builds the kernels, records the CUDA graphs)
-        learner.update(batches[i % 4])
-    return learner, (cfg, batches)
-
-
 class Case(NamedTuple):
     """One timed case of :func:`updates_per_second`: an agent and its switches."""
 
@@ -231,7 +159,7 @@ def updates_per_second(
     ]
     if cuda:
         cuda_determinism(True)  # before the first CUDA matrix product (cuBLAS's workspace)
-    made = {c: _make_learner(preset, c.agent, batch_size, device, c.bf16, c.compile) for c in cases}
+    made = {c: make_learner(preset, c.agent, batch_size, device, c.bf16, c.compile) for c in cases}
     best = dict.fromkeys(cases, 0.0)
     for _ in range(rounds):
         for c in cases:
