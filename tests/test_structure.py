@@ -225,3 +225,29 @@ def test_one_reader_of_episodes_csv() -> None:
     assert EPISODES_READER in reads  # the walk finds the reader itself
     others = {path: lines for path, lines in reads.items() if path != EPISODES_READER}
     assert not others, f"episodes.csv read outside {EPISODES_READER}: {others}"
+
+
+MAX_METHODS = 30
+"""Most methods (properties included) defined in one class body of ``priqn/``: a class
+with more holds more than one concept (``RunFolder`` held 56 before its split into
+``run/`` folder, session, checkpointer, evaluations and metrics)."""
+
+
+def method_counts() -> dict[str, int]:
+    """``"priqn/<path>.py:<class>" -> functions defined directly in its body``."""
+    out: dict[str, int] = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).as_posix()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.ClassDef):
+                defs = (ast.FunctionDef, ast.AsyncFunctionDef)
+                out[f"{rel}:{node.name}"] = sum(isinstance(n, defs) for n in node.body)
+    return out
+
+
+def test_no_class_is_a_god_object() -> None:
+    """No class of ``priqn/`` defines more than :data:`MAX_METHODS` methods."""
+    counts = method_counts()
+    assert counts["priqn/run/folder.py:RunFolder"] > 10  # the walk counts methods
+    big = {name: n for name, n in counts.items() if n > MAX_METHODS}
+    assert not big, f"classes with more than {MAX_METHODS} methods (split by concept): {big}"

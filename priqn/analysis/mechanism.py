@@ -22,7 +22,7 @@ import numpy as np
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.standstill import EPISODE_KEYS
 from priqn.io import atomic_write_bytes, atomic_write_text
-from priqn.run.folder import RunFolder
+from priqn.run.evaluations import evaluation_folder, snapshot_evaluation
 
 DEFAULT_EPISODES = 54
 """Episodes replayed per seed by default: the first evaluation run of the headline cells."""
@@ -69,8 +69,8 @@ class MechanismConfig:
     @property
     def evaluation(self) -> str:
         """The evaluation folder replayed: ``eval/`` or ``eval-at<N>/``."""
-        name = RunFolder.snapshot_evaluation(self.snapshot) if self.snapshot else ""
-        return f"{RunFolder.evaluation_folder(name)}/"
+        name = snapshot_evaluation(self.snapshot) if self.snapshot else ""
+        return f"{evaluation_folder(name)}/"
 
 
 # ----------------------------------------------------------------------------- counting

@@ -37,6 +37,7 @@ from priqn.experiment import (
     check_code,
     policy_difference,
 )
+from priqn.run.evaluations import evaluation_complete, evaluation_dir
 from priqn.run.folder import RunFolder
 
 ENDPOINT_FLAGS: dict[str, tuple[str, ...]] = {
@@ -119,11 +120,13 @@ def collect(exp: Experiment, design: SequentialSpec) -> pd.DataFrame:
         for position, seed in enumerate(design.seeds):
             pol, run_dir, evaluation = cell_of(exp, design, group, seed)
             folder = RunFolder(run_dir)
-            if not folder.evaluation_complete(evaluation):
+            if not evaluation_complete(folder, evaluation):
                 continue
             sha = str(folder.meta().get("git_sha", ""))
             _check_cell(exp, design, pol, seed, folder, sha)
-            per_density, n = endpoint_by_density(folder.evaluation_dir(evaluation), design.endpoint)
+            per_density, n = endpoint_by_density(
+                evaluation_dir(folder, evaluation), design.endpoint
+            )
             rows.append(
                 (
                     group,

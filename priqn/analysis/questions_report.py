@@ -32,6 +32,7 @@ from priqn.analysis.sequential import Replay, relative_path, verdict
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.io import atomic_write_text
 from priqn.run.episodes import resolve_outcomes
+from priqn.run.evaluations import evaluated, evaluation_dir, kept_evaluations, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 
 ENDPOINT_TEXT = {
@@ -63,9 +64,9 @@ def budget_frame(exp: Experiment, question: SequentialSpec) -> pd.DataFrame:
                 if where is None:
                     continue
                 folder = RunFolder(where[1])
-                if folder.recorded_eval_status(where[2]) != Status.COMPLETE:
+                if recorded_eval_status(folder, where[2]) != Status.COMPLETE:
                     continue
-                rates, n = questions.outcome_rates(folder.evaluation_dir(where[2]))
+                rates, n = questions.outcome_rates(evaluation_dir(folder, where[2]))
                 rows.append((group, budget, seed, *rates.values(), n))
     columns = ["group", "budget", "train_seed", *questions.OUTCOME_RATES, "episodes"]
     return pd.DataFrame(rows, columns=columns)
@@ -451,7 +452,7 @@ def returns_tables(exp: Experiment, scores: pd.DataFrame) -> dict[int, tables.Ta
         for row in part.itertuples(index=False):
             run = Path(row.run_dir)
             evaluation = row.evaluation if isinstance(row.evaluation, str) else ""
-            frame, _ = read_evaluation(run.name, run, RunFolder(run).evaluation_dir(evaluation))
+            frame, _ = read_evaluation(run.name, run, evaluation_dir(RunFolder(run), evaluation))
             label = str(frame["label"].iloc[0]).removesuffix(f" @{budget_text(int(budget))}")
             frames.append(frame.assign(label=label, group=row.policy))
         episodes = pd.concat(frames, ignore_index=True)
@@ -495,7 +496,7 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
     cells = [
         cell
         for cell in curves.experiment_cells(exp)
-        if (folder := RunFolder(cell[2])).evaluated(folder.kept_evaluations())
+        if evaluated(folder := RunFolder(cell[2]), kept_evaluations(folder))
     ]
     points, notes = curves.curve_points(cells)
     if points.empty:

@@ -20,6 +20,7 @@ from priqn.agents.labels import budget_text
 from priqn.analysis.load import read_episodes
 from priqn.errors import PriqnError
 from priqn.io import read_json
+from priqn.run.evaluations import evaluation_dir, snapshot_evaluation
 from priqn.run.folder import RunFolder
 
 
@@ -53,7 +54,7 @@ def load_cell(path: Path, snapshot: int = 0) -> ReplayCell:
     from priqn.sim.scenario import manifest_hash
 
     run = RunFolder(path)
-    eval_dir = run.evaluation_dir(RunFolder.snapshot_evaluation(snapshot) if snapshot else "")
+    eval_dir = evaluation_dir(run, snapshot_evaluation(snapshot) if snapshot else "")
     meta_path = eval_dir / RunFolder.META
     if snapshot and run.is_run():
         keep_at = list(run.config().checkpoint.keep_at)

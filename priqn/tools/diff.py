@@ -29,6 +29,7 @@ from typing import Any
 
 from priqn.errors import PriqnError
 from priqn.io import sha256_file
+from priqn.run.evaluations import evaluation_dir, recorded_eval_status, snapshot_evaluation
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import read_metrics
 
@@ -96,8 +97,8 @@ def kept_policy(folder: RunFolder, total_steps: int, budget: int) -> Kept | None
         return None
     path = folder.path / entry["file"]
     if path.is_file():  # the bytes themselves where they are there
-        return Kept(entry["file"], sha256_file(path), path, folder.snapshot_evaluation(budget))
-    return Kept(entry["file"], entry["sha256"], None, folder.snapshot_evaluation(budget))
+        return Kept(entry["file"], sha256_file(path), path, snapshot_evaluation(budget))
+    return Kept(entry["file"], entry["sha256"], None, snapshot_evaluation(budget))
 
 
 def _config_part(cfg_a: Any, cfg_b: Any) -> Part:
@@ -220,10 +221,10 @@ def _episodes_part(
         return Part("episodes", None, f"no policy at {upto:,} decisions to compare")
     dirs = []
     for folder, k, which in ((a, kept[0], "A"), (b, kept[1], "B")):
-        if folder.recorded_eval_status(k.evaluation) != Status.COMPLETE:
-            name = folder.evaluation_dir(k.evaluation).name
+        if recorded_eval_status(folder, k.evaluation) != Status.COMPLETE:
+            name = evaluation_dir(folder, k.evaluation).name
             return Part("episodes", None, f"{which} has no complete evaluation {name}/")
-        dirs.append(folder.evaluation_dir(k.evaluation))
+        dirs.append(evaluation_dir(folder, k.evaluation))
     from priqn.analysis.load import read_episodes
 
     rows_a, rows_b = (

@@ -49,6 +49,7 @@ from priqn.analysis.mechanism import (
 from priqn.analysis.render import write_csv
 from priqn.analysis.standstill import EPISODE_KEYS, episodes_in
 from priqn.errors import PriqnError
+from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 from priqn.tools import standstill
 from priqn.tools.cells import ReplayCell, load_cell, replay_scenes, replayed_episodes
@@ -144,7 +145,7 @@ def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) ->
     from priqn.evaluation.protocol import make_scenes
     from priqn.evaluation.targets import evaluation_env
 
-    policy = RunFolder(cell.path).load_policy(device="cpu", snapshot=cell.snapshot)
+    policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
     agent = policy.agent
     if agent.subsets is None or agent.spec.reward_rule != "per-objective":
         raise PriqnError(f"{cell.path}: a {agent.name} run; the mechanism needs a Pr-IQN run")

@@ -33,6 +33,7 @@ import numpy as np
 from priqn.analysis.render import write_csv
 from priqn.analysis.standstill import COMPARED, episodes_in, seed_row, write_report
 from priqn.errors import PriqnError
+from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 from priqn.tools.cells import replayed_episodes
 from priqn.tools.decisions import decision_key, removed_by
@@ -131,7 +132,7 @@ def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) 
     from priqn.env.intersection import action_grid
     from priqn.evaluation.targets import evaluation_env
 
-    policy = RunFolder(cell.path).load_policy(device="cpu", snapshot=cell.snapshot)
+    policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
     agent = policy.agent
     above: tuple[str, ...] = ()
     floor = None
