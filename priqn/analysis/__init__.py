@@ -38,8 +38,9 @@ Tables, figures and reports:
   reported apart from Table II;
 - :mod:`analysis.reference` — reference drivers (``priqn evaluate --reference``) as
   unranked rows;
-- :mod:`analysis.mechanism`, :mod:`analysis.standstill` — ``priqn mechanism``: replayed
-  decisions of evaluated cells, counted (torch and SUMO imported inside the command).
+- :mod:`analysis.mechanism`, :mod:`analysis.standstill` — ``priqn mechanism``'s seed
+  measures, tables and figures from its per-decision rows (the replay that makes the rows,
+  with torch and SUMO, is :mod:`priqn.tools.cells` and its two tools).
 
 The protocol and every statistical choice are documented in ``docs/evaluation.md``.
 """
