@@ -60,6 +60,9 @@ from priqn.run.train_config import (
 )
 from priqn.sim.scenario import family_net_refs
 
+ALL_ENVS = slice(None)
+"""Every env worker (the rows of an ``[E, ...]`` array); a group's rows are a slice of them."""
+
 
 def linear_epsilon(cfg: ExplorationConfig, step: int, total_steps: int) -> float:
     """ε at env decision ``step``: linear from eps_start to eps_end over
@@ -208,14 +211,17 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
 
 def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> None:
     """One training session of ``run`` with ``agent``, from its checkpoint if ``resume``."""
-    from priqn.env.vector import make_vector_env
+    from priqn.env.vector import EnvGroups, make_vector_env
 
     meta = run.meta()
     seeds: dict[str, int] = meta["seeds"]
     session = len(meta["sessions"]) - 1
     device = _torch_device(cfg)
     with contextlib.ExitStack() as stack:  # closes the logger and the env workers once
-        envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"])
+        if cfg.env_groups > 1:  # stepped in turn: _pipelined_steps
+            envs = EnvGroups(cfg.env, cfg.num_envs, cfg.env_groups, seed=seeds["env"])
+        else:
+            envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"])
         stack.callback(envs.close)
         t = Trainer(cfg, agent, envs, seeds, device)
         run.update_meta(**t.facts())
@@ -227,11 +233,13 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
         logger = stack.enter_context(TrainLogger(cfg, run, t.step, resume))
 
         t.start()
-        while t.step < cfg.total_steps:
+        if cfg.env_groups > 1:  # the same steps, the groups in turn
+            _pipelined_steps(cfg, run, t, envs, obs, evaluation, logger)
+        while t.step < cfg.total_steps and cfg.env_groups == 1:
             actions = t.act(obs)  # 1. act: the agent's acting rule, ε-greedy on top
             t.issue(envs, actions)  # 2. step: the env workers simulate it meanwhile
             landed = None if cfg.overlap_updates else t.collect(envs, obs, actions)
-            t.learn()  # 3. learn, while they simulate (serial: once the step has landed)
+            t.learn(t.step + cfg.num_envs)  # 3. learn, while they simulate (serial: after)
             obs, ended, infos = landed or t.collect(envs, obs, actions)  # 4. collect, store
             t.step += cfg.num_envs
             t.log(logger, ended, infos)  # 5. log
@@ -242,6 +250,77 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
             if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
                 t.checkpoint(run, logger, envs, obs)  # 8. checkpoint
     _finish(run, t)
+
+
+def _pipelined_steps(
+    cfg: TrainConfig,
+    run: RunFolder,
+    t: Trainer,
+    envs: Any,
+    obs: Mapping[str, np.ndarray],
+    evaluation: HoldoutEvaluation | None,
+    logger: TrainLogger,
+) -> None:
+    """The loop's steps with ``env_groups`` > 1 (:class:`~priqn.env.vector.EnvGroups`):
+    the groups step in turn, and while the others simulate the loop collects one group's
+    step, learns, logs, evaluates, keeps a snapshot, then acts for that group and sends
+    its next step.
+
+    The pipeline empties at every checkpoint (and at the budget): no group is sent a step
+    that would pass it, the steps in flight are collected, and the checkpoint is written
+    with none in flight, so a resume continues exactly. The order of everything is fixed
+    by the config, never by timing: one seed, one run.
+    """
+    pipe = _Pipeline(t, envs, obs)
+    while t.step < cfg.total_steps:
+        empty_at = min(t.next_ckpt, cfg.total_steps)
+        for g in range(cfg.env_groups):
+            pipe.send(g, empty_at)  # 1.-2. act for each group and send its step
+        while pipe.in_flight:
+            g, ended, infos = pipe.collect()  # 3. collect the group sent first, store it
+            t.learn(t.step)  # 4. learn, while the other groups simulate
+            t.log(logger, ended, infos, envs.rows[g])  # 5. log
+            if evaluation is not None and t.step >= t.next_eval:
+                t.evaluate(evaluation, logger)  # 6. evaluate greedily on the hold-out nets
+            if t.step in cfg.checkpoint.keep_at:
+                t.keep_snapshot(run)  # 7. keep the policy at a listed budget
+            pipe.send(g, empty_at)  # 1.-2. its next step
+        t.checkpoint(run, logger, envs, pipe.observations())  # 8. empty: checkpoint
+
+
+class _Pipeline:
+    """The env groups' steps in flight, in the order they were sent (:func:`_pipelined_steps`)."""
+
+    def __init__(self, t: Trainer, envs: Any, obs: Mapping[str, np.ndarray]) -> None:
+        self.t, self.envs = t, envs
+        self.obs_G = [{k: v[rows] for k, v in obs.items()} for rows in envs.rows]
+        """Per group, the observations its workers stand at (keys → ``[E / G, ...]``)."""
+        self.actions_G: list[np.ndarray] = [np.empty(0, dtype=np.int64) for _ in envs.rows]
+        """Per group, the actions of its step in flight ``[E / G]``."""
+        self.in_flight: deque[int] = deque()
+        """The groups with a step in flight, the one sent first on the left."""
+
+    def send(self, g: int, empty_at: int) -> None:
+        """Act for group ``g`` and send its step, unless the decisions sent would then
+        pass ``empty_at`` (the next checkpoint or the budget)."""
+        t, size = self.t, self.envs.size
+        if t.step + len(self.in_flight) * size < empty_at:
+            self.actions_G[g] = t.act(self.obs_G[g], self.envs.rows[g])
+            t.issue(self.envs.groups[g], self.actions_G[g])
+            self.in_flight.append(g)
+
+    def collect(self) -> tuple[int, np.ndarray, dict[str, Any]]:
+        """Collect the step sent first and store it; returns (its group, ended ``[E / G]``,
+        infos). ``step`` counts its decisions."""
+        g = self.in_flight.popleft()
+        env, rows = self.envs.groups[g], self.envs.rows[g]
+        self.obs_G[g], ended, infos = self.t.collect(env, self.obs_G[g], self.actions_G[g], rows)
+        self.t.step += self.envs.size
+        return g, ended, infos
+
+    def observations(self) -> dict[str, np.ndarray]:
+        """Every worker's observation (keys → ``[E, ...]``), in worker order."""
+        return {k: np.concatenate([o[k] for o in self.obs_G]) for k in self.obs_G[0]}
 
 
 class Trainer:
@@ -317,14 +396,15 @@ class Trainer:
         self.next_eval = _next_multiple(self.step, cfg.evaluation.interval_steps)
         self.next_ckpt = _next_multiple(self.step, cfg.checkpoint.interval_steps)
 
-    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``[E]``: the agent's acting rule, replaced by a uniform one with
-        probability ε (:func:`linear_epsilon` at ``step``)."""
-        E = self.num_envs
+    def act(self, obs: Mapping[str, np.ndarray], rows: slice = ALL_ENVS) -> np.ndarray:
+        """Actions ``[E]`` for the workers ``rows`` (``obs``: theirs): the agent's acting
+        rule, replaced by a uniform one with probability ε (:func:`linear_epsilon` at
+        ``step``)."""
+        E = len(range(self.num_envs)[rows])
         with self.clock("act"):
             self.epsilon = linear_epsilon(self.cfg.exploration, self.step, self.cfg.total_steps)
             decision = self.policy.decide(obs, self.rng_act)
-            self.subset_sizes.add(decision.subset_sizes_BS)
+            self.subset_sizes.add(decision.subset_sizes_BS, rows)
             actions = decision.actions_B
             explore = self.rng_act.random(E) < self.epsilon
             return np.where(explore, self.rng_act.integers(self.num_actions, size=E), actions)
@@ -335,26 +415,26 @@ class Trainer:
             envs.step_async(actions)
 
     def collect(
-        self, envs: Any, obs: Mapping[str, np.ndarray], actions: np.ndarray
+        self, envs: Any, obs: Mapping[str, np.ndarray], actions: np.ndarray, rows: slice = ALL_ENVS
     ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
-        """Wait for the step issued with ``actions`` and store its transitions; returns
-        (next observations, ended ``[E]`` bool, infos). SAME_STEP autoreset: an ended
-        episode's true last observation is in ``final_obs``."""
+        """Wait for the step issued with ``actions`` to the workers ``rows`` (``envs``:
+        theirs) and store its transitions; returns (next observations, ended ``[E]`` bool,
+        infos). SAME_STEP autoreset: an ended episode's true last observation is in
+        ``final_obs``."""
         with self.clock("env_wait"):
             next_obs, rewards, terminated, truncated, infos = envs.step_wait()
         with self.clock("replay_add"):
             ended = np.logical_or(terminated, truncated)
             final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(len(ended))]
-            self.replay.add(obs, actions, rewards, terminated, truncated, final_obs)
+            self.replay.add(obs, actions, rewards, terminated, truncated, final_obs, rows)
         return next_obs, ended, infos
 
-    def learn(self) -> None:
-        """The updates due once this step's decisions count: one per decisions_per_update
-        decisions after learning_starts. The batch comes from the transitions stored so
-        far (not the E in flight); a resume without a saved replay buffer refills a
-        batch's worth first. ``latest_update_stats``: the latest update's statistics."""
+    def learn(self, decisions: int) -> None:
+        """The updates due once ``decisions`` count: one per decisions_per_update decisions
+        after learning_starts. The batch comes from the transitions stored so far (not
+        those in flight); a resume without a saved replay buffer refills a batch's worth
+        first. ``latest_update_stats``: the latest update's statistics."""
         cfg = self.cfg
-        decisions = self.step + self.num_envs
         if decisions < cfg.replay.learning_starts or len(self.replay) < cfg.learner.batch_size:
             return
         due = (decisions - cfg.replay.learning_starts) // cfg.replay.decisions_per_update + 1
@@ -366,9 +446,15 @@ class Trainer:
                 stats = self.learner.update(batch)
         self.latest_update_stats = stats or self.latest_update_stats
 
-    def log(self, logger: TrainLogger, ended: np.ndarray, infos: Mapping[str, Any]) -> None:
-        """The ended episodes (metrics.csv, TensorBoard), the progress bar and, every
-        log_interval_steps, the training scalars."""
+    def log(
+        self,
+        logger: TrainLogger,
+        ended: np.ndarray,
+        infos: Mapping[str, Any],
+        rows: slice = ALL_ENVS,
+    ) -> None:
+        """The ended episodes of the workers ``rows`` (metrics.csv, TensorBoard), the
+        progress bar and, every log_interval_steps, the training scalars."""
         log_t0 = time.perf_counter()
         self.wall = self.wall_before + log_t0 - self.t0
         latest_loss = self.latest_update_stats.get("loss", math.nan)
@@ -378,7 +464,7 @@ class Trainer:
             row = metrics_row(
                 "train", episode_values(info), str(info["net"]), self.weights, self.objectives
             )
-            row.update(self.subset_sizes.pop(int(e)))
+            row.update(self.subset_sizes.pop(range(self.num_envs)[rows][e]))
             row.update(
                 step=self.step,
                 episode=self.episodes,
@@ -398,7 +484,7 @@ class Trainer:
             line = _postfix(
                 self.episodes, logger.recent, self.epsilon, self.updates_per_s, logger.objectives
             )
-        logger.progress(self.num_envs, line)
+        logger.progress(len(ended), line)
         if line is not None and self.step >= self.next_log:
             self.next_log = self.step + self.cfg.log_interval_steps
             scalars = {"epsilon": self.epsilon, "updates_per_s": self.updates_per_s}

@@ -102,14 +102,17 @@ class ReplayBuffer:
         terminated_E: np.ndarray,
         truncated_E: np.ndarray,
         final_obs: Sequence[Mapping[str, np.ndarray] | None],
+        envs: slice = slice(None),
     ) -> None:
-        """Store one vector-env step: batched ``obs`` (keys → ``[E, ...]``) and what followed.
+        """Store one vector-env step: batched ``obs`` (keys → ``[E, ...]``) and what followed,
+        for the envs ``envs`` (every env, or one group's slice of them: ``E`` rows).
 
-        ``final_obs[e]`` is the true last observation of env ``e`` when its episode ended
-        in this step (SAME_STEP autoreset puts the reset observation in the next ``obs``).
+        ``final_obs[e]`` is the true last observation of the ``e``-th of them when its
+        episode ended in this step (SAME_STEP autoreset puts the reset observation in the
+        next ``obs``).
         """
-        e_E = np.arange(self.num_envs)
-        r_E = np.array([self._claim_row(e) for e in range(self.num_envs)], dtype=np.int64)
+        e_E = np.arange(self.num_envs)[envs]
+        r_E = np.array([self._claim_row(e) for e in e_E.tolist()], dtype=np.int64)
         self.frames.write(e_E, r_E, obs)  # every env's row at once (one copy per key)
         end_E = np.logical_or(terminated_E, truncated_E)
         self.action[e_E, r_E] = actions_E
@@ -117,10 +120,10 @@ class ReplayBuffer:
         self.starts[e_E, r_E] = True
         self.ended[e_E, r_E] = end_E
         self.terminated[e_E, r_E] = terminated_E
-        for e in np.flatnonzero(end_E).tolist():
-            if final_obs[e] is None:
-                raise ValueError(f"env {e} ended without a final observation")
-            self._write_row(e, final_obs[e])
+        for i in np.flatnonzero(end_E).tolist():
+            if final_obs[i] is None:
+                raise ValueError(f"env {int(e_E[i])} ended without a final observation")
+            self._write_row(int(e_E[i]), final_obs[i])
 
     def truncate_open_episodes(self, next_obs: Mapping[str, np.ndarray]) -> None:
         """End every env's open episode here (a resume): its last transition is truncated

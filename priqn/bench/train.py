@@ -32,6 +32,7 @@ from priqn.bench.learners import make_learner
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Part 1 (the learner's update, replay feeding) and part 2 (the end-to-end loop)."""
     parser.add_argument(
         "--presets", default="default,paper", help="comma-separated training presets (default both)"
     )
@@ -48,20 +49,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto", help="auto | cpu | cuda")
     parser.add_argument(
         "--threads", type=int, default=1, help="torch CPU threads (training's default is 1)"
-    )
-    parser.add_argument(
-        "--loop-steps",
-        type=int,
-        default=3000,
-        help="env decisions of the end-to-end loop (0 skips part 2)",
-    )
-    parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
-    parser.add_argument(
-        "--loop-compile",
-        choices=("auto", "graphs", "on", "off"),
-        default="auto",
-        help="learner.compile of the end-to-end loop and the replay feed (default auto, as "
-        "training; the loop's wall time includes the compiling)",
     )
     parser.add_argument(
         "--replay-storage",
@@ -96,6 +83,43 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="on CUDA, also time every case with cuda_deterministic off, beside training's "
         "deterministic kernels (part 1)",
+    )
+    _loop_options(parser)
+
+
+def _loop_options(parser: argparse.ArgumentParser) -> None:
+    """Part 2's flags: the end-to-end training loop."""
+    parser.add_argument(
+        "--loop-steps",
+        type=int,
+        default=3000,
+        help="env decisions of the end-to-end loop (0 skips part 2)",
+    )
+    parser.add_argument("--net", default="tjunction", help="training pool of the end-to-end loop")
+    parser.add_argument(
+        "--loop-preset", default="default", help="training preset of the end-to-end loop"
+    )
+    parser.add_argument(
+        "--loop-envs",
+        type=int,
+        default=0,
+        metavar="N",
+        help="env workers of the end-to-end loop (default: the preset's num_envs)",
+    )
+    parser.add_argument(
+        "--env-groups",
+        type=int,
+        default=0,
+        metavar="G",
+        help="also run the end-to-end loop with its workers in G groups stepping in turn "
+        "(env_groups), beside the same loop with all at once",
+    )
+    parser.add_argument(
+        "--loop-compile",
+        choices=("auto", "graphs", "on", "off"),
+        default="auto",
+        help="learner.compile of the end-to-end loop and the replay feed (default auto, as "
+        "training; the loop's wall time includes the compiling)",
     )
 
 
@@ -185,40 +209,58 @@ def updates_per_second(
     return out
 
 
+class Loop(NamedTuple):
+    """What every end-to-end loop of one :func:`print_loop` shares."""
+
+    net: str
+    """Training pool (``--net``)."""
+    steps: int
+    """Env decisions of each loop."""
+    device: str
+    """Torch device (auto | cpu | cuda)."""
+    compile: str
+    """``learner.compile`` (compiling happens inside the timed loop)."""
+    preset: str = "default"
+    """Training preset."""
+    num_envs: int = 0
+    """Env workers (0: the preset's)."""
+
+
 def loop_throughput(
-    net: str,
+    loop: Loop,
     agent_name: str,
-    steps: int,
-    device: str,
     learning: bool = True,
     overlap: bool = True,
-    compile_: str = "auto",
+    env_groups: int = 1,
 ) -> dict[str, Any]:
-    """Env decisions/s and updates/s of the real training loop (default preset).
+    """Env decisions/s and updates/s of the real training loop.
 
     ``learning=False`` runs the same loop (same workers, acting rule, replay) with no
     update at all: the env-only throughput the end-to-end figure is compared with.
     ``overlap=False`` is the serial loop (update after the env step), the baseline.
-    ``compile_`` is ``learner.compile`` (compiling happens inside the timed loop).
+    ``env_groups`` > 1: the workers in groups that step in turn (the pipelined loop).
     """
     from priqn.run.folder import RunFolder
     from priqn.run.train_config import resolve_config
     from priqn.train import train
 
+    steps = loop.steps
     starts = min(500, steps // 4) if learning else steps + 1
     cfg = resolve_config(
-        preset="default",
+        preset=loop.preset,
         agent=agent_name,
-        net=net,
+        net=loop.net,
         steps=steps,
-        device=device,
+        device=loop.device,
+        num_envs=loop.num_envs or None,
         overrides=[
             f"replay.learning_starts={starts}",
             "evaluation.interval_steps=0",
             f"checkpoint.interval_steps={10 * steps}",
             "checkpoint.save_replay=false",
             f"overlap_updates={str(overlap).lower()}",
-            f"learner.compile={compile_}",
+            f"learner.compile={loop.compile}",
+            f"env_groups={env_groups}",
         ],
     )
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:
@@ -356,36 +398,49 @@ def run(args: argparse.Namespace) -> int:
 
 
 def print_loop(args: argparse.Namespace, agents: list[str]) -> None:
-    """Part 2: the end-to-end loop of every agent, with its env-only and serial twins."""
-    print(
-        f"\nend-to-end training loop (default preset, learning on: one update per "
-        f"replay.decisions_per_update decisions), {args.loop_steps} decisions, net {args.net}, "
-        f"learner.compile = {args.loop_compile}"
+    """Part 2: the end-to-end loop of every agent, with its env-only and serial twins
+    (and its pipelined twin with ``--env-groups``)."""
+    loop = Loop(
+        args.net, args.loop_steps, args.device, args.loop_compile, args.loop_preset, args.loop_envs
     )
+    groups = args.env_groups if args.env_groups > 1 else 0
+    print(
+        f"\nend-to-end training loop ({loop.preset} preset, learning on: one update per "
+        f"replay.decisions_per_update decisions), {loop.steps} decisions, net {loop.net}, "
+        f"learner.compile = {loop.compile}"
+    )
+    extra = f" {f'{groups} groups dec/s':>16}" if groups else ""
     print(
         f"{'agent':<13} {'envs':>4} {'decisions/s':>12} {'updates/s':>10} "
-        f"{'serial dec/s':>13} {'env-only dec/s':>15}"
+        f"{'serial dec/s':>13} {'env-only dec/s':>15}{extra}"
     )
     results = []
     for name in agents:
         # Same workers, same acting, no learning: the ceiling the loop is measured against;
         # the serial loop (update after the step) is the baseline of the overlap.
-        steps, dev, comp = args.loop_steps, args.device, args.loop_compile
-        env_only = loop_throughput(args.net, name, steps, dev, False, compile_=comp)
-        serial = loop_throughput(args.net, name, steps, dev, overlap=False, compile_=comp)
-        r = loop_throughput(args.net, name, steps, dev, compile_=comp)
+        env_only = loop_throughput(loop, name, learning=False)
+        serial = loop_throughput(loop, name, overlap=False)
+        r = loop_throughput(loop, name)
         r["env_only"] = env_only["decisions_per_s"]
         r["serial"] = serial["decisions_per_s"]
+        if groups:
+            r["pipelined"] = loop_throughput(loop, name, env_groups=groups)["decisions_per_s"]
         results.append(r)
+        row = f" {r['pipelined']:>16.1f}" if groups else ""
         print(
             f"{name:<13} {r['num_envs']:>4} {r['decisions_per_s']:>12.1f} "
-            f"{r['updates_per_s']:>10.1f} {r['serial']:>13.1f} {r['env_only']:>15.1f}",
+            f"{r['updates_per_s']:>10.1f} {r['serial']:>13.1f} {r['env_only']:>15.1f}{row}",
             flush=True,
         )
     for r in results:
+        piped = (
+            f"; {groups} groups / all at once: {r['pipelined'] / r['decisions_per_s']:.2f}"
+            if groups
+            else ""
+        )
         print(
             f"{r['agent']}: end-to-end / env-only: {r['decisions_per_s'] / r['env_only']:.2f}"
             f"   (serial loop: {r['serial'] / r['env_only']:.2f}; overlap / serial: "
-            f"{r['decisions_per_s'] / r['serial']:.2f})"
+            f"{r['decisions_per_s'] / r['serial']:.2f}{piped})"
         )
     print_time_table(results)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -165,11 +165,16 @@ def make_vector_env(
     """
     if not isinstance(num_envs, int) or num_envs < 1:
         raise PriqnError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
+    return _vector_env(config, worker_seeds(seed, num_envs), render_mode)
+
+
+def _vector_env(config: Any, seeds: list[int], render_mode: str | None) -> PriqnVectorEnv:
+    """One :class:`PriqnVectorEnv` whose worker ``i`` starts from ``seeds[i]``."""
     if config is None:
         from priqn.env.intersection import EnvConfig  # pure-python; no SUMO import
 
         config = EnvConfig()
-    fns = [_EnvFactory(config, s, render_mode) for s in worker_seeds(seed, num_envs)]
+    fns = [_EnvFactory(config, s, render_mode) for s in seeds]
     venv = PriqnVectorEnv(
         fns,
         context="spawn",
@@ -179,6 +184,63 @@ def make_vector_env(
     )
     venv.objectives = tuple(config.objectives)  # the reward vector's entries, in order
     return venv
+
+
+class EnvGroups:
+    """The ``num_envs`` env workers as ``groups`` vector envs of ``num_envs // groups`` each,
+    which the training loop steps in turn (``env_groups``): while one group simulates, the
+    loop collects, learns from and acts for another.
+
+    Worker ``i`` (group ``i // size``) starts from the seed it has in
+    :func:`make_vector_env` with the same ``seed`` and ``num_envs``; ``reset(seed=s)``
+    reseeds it with ``s + i``. Whole-vector calls (``reset``, ``call``, ``set_attr``,
+    ``close``) take and return every worker in that order, so a checkpoint's episodes in
+    flight and :func:`restore_episodes` do not know the grouping.
+    """
+
+    def __init__(self, config: Any, num_envs: int, groups: int, seed: int = 0) -> None:
+        if groups < 1 or num_envs % groups:
+            raise PriqnError(
+                f"env_groups: expected a divisor of num_envs ({num_envs}), got {groups}"
+            )
+        self.num_envs, self.size = int(num_envs), int(num_envs) // int(groups)
+        seeds = worker_seeds(seed, num_envs)
+        self.groups: list[PriqnVectorEnv] = []
+        try:
+            for lo in range(0, self.num_envs, self.size):
+                self.groups.append(_vector_env(config, seeds[lo : lo + self.size], None))
+        except BaseException:
+            self.close()
+            raise
+        first = self.groups[0]
+        self.single_observation_space = first.single_observation_space
+        self.single_action_space = first.single_action_space
+        self.objectives = first.objectives
+        self.rows = [slice(lo, lo + self.size) for lo in range(0, self.num_envs, self.size)]
+        """Group ``g``'s workers as a slice of every ``[num_envs, ...]`` array."""
+
+    def reset(self, seed: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Every worker's first observation (``[num_envs, ...]`` per key) and the groups' infos."""
+        parts = [
+            g.reset(seed=None if seed is None else seed + rows.start)
+            for g, rows in zip(self.groups, self.rows, strict=True)
+        ]
+        obs = {k: np.concatenate([o[k] for o, _ in parts]) for k in parts[0][0]}
+        return obs, {"groups": [info for _, info in parts]}
+
+    def call(self, name: str) -> tuple[Any, ...]:
+        """``name`` called on every worker, in worker order."""
+        return tuple(x for g in self.groups for x in g.call(name))
+
+    def set_attr(self, name: str, values: Sequence[Any]) -> None:
+        """Set ``name`` on worker ``i`` to ``values[i]``."""
+        values = list(values)
+        for g, rows in zip(self.groups, self.rows, strict=True):
+            g.set_attr(name, values[rows])
+
+    def close(self) -> None:
+        for g in self.groups:
+            g.close()
 
 
 def restore_episodes(venv: Any, records: Any) -> dict[str, np.ndarray]:

@@ -155,6 +155,13 @@ class TrainConfig:
     """Run the learner's updates while the env workers simulate (step_async → update →
     step_wait). False: the serial order act → step → store → update (a step's batch may
     then include that step's transitions); kept to measure the gain in priqn bench train."""
+    env_groups: int = 1
+    """Split the env workers into this many groups that step in turn (a divisor of
+    num_envs): while one group simulates, the loop collects another's step, learns from it
+    and acts for it, so neither the workers nor the learner wait for the other. 1 (the
+    default): every worker steps at once, as before. A new order of acting, stepping and
+    updates, so a different run of the seed (deterministic too); the pipeline empties at
+    each checkpoint, so a resume stays exact (docs/implementation-details.md §12)."""
     log_interval_steps: int = 1_000
     """Env decisions between TensorBoard scalars / metrics.csv flushes."""
     env: EnvConfig = dataclasses.field(default_factory=lambda: EnvConfig(obs_size_px=64))
@@ -181,6 +188,11 @@ class TrainConfig:
             raise ValueError("total_steps and num_envs: expected positive integers")
         if self.device not in ("auto", "cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ValueError(f"device: expected auto, cpu or cuda, got {self.device!r}")
+        if self.env_groups < 1 or self.num_envs % self.env_groups:
+            raise ValueError(
+                f"env_groups: expected a divisor of num_envs ({self.num_envs}), "
+                f"got {self.env_groups}"
+            )
         if self.replay.capacity < 2 * self.num_envs * (self.learner.n_step + 2):
             raise ValueError("replay.capacity: too small for num_envs and learner.n_step")
         keep = self.checkpoint.keep_at
