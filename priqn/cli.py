@@ -23,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("priqn.train", "train one agent into runs/<name>/"),
     "evaluate": ("priqn.evaluation.cli", "evaluate trained runs on the hold-out nets"),
     "report": (
-        "priqn.analysis.report",
+        "priqn.analysis.cli",
         "tables, rliable statistics and figures from evaluated runs",
     ),
     "sweep": ("priqn.sweep", "train + evaluate + report a whole experiment grid"),

@@ -251,3 +251,28 @@ def test_no_class_is_a_god_object() -> None:
     assert counts["priqn/run/folder.py:RunFolder"] > 10  # the walk counts methods
     big = {name: n for name, n in counts.items() if n > MAX_METHODS}
     assert not big, f"classes with more than {MAX_METHODS} methods (split by concept): {big}"
+
+
+def test_each_command_has_one_home() -> None:
+    """One home per command, one style (docs/ARCHITECTURE.md, "Why these homes"):
+    ``configure_parser`` and ``run`` in a package's ``cli.py``, or in the one module that
+    is the command (``train.py``, a tool of ``tools/``, ``bench``'s sub-commands); no other
+    module defines ``configure_parser``."""
+    from priqn.cli import COMMANDS
+
+    whole_modules = {"priqn.train", "priqn.sweep", "priqn.bench"}  # sweep: re-exports its cli
+    homes = {"priqn/sweep/cli.py"}
+    for command, (module, _) in COMMANDS.items():
+        ok = module.endswith(".cli") or module.startswith("priqn.tools.")
+        assert ok or module in whole_modules, f"priqn {command}: {module} is no command home"
+        if module != "priqn.sweep":
+            homes.add(
+                module.replace(".", "/") + ("/__init__.py" if module == "priqn.bench" else ".py")
+            )
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).as_posix()
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        if any(isinstance(n, ast.FunctionDef) and n.name == "configure_parser" for n in tree.body):
+            assert rel in homes or rel.startswith("priqn/bench/"), (
+                f"{rel} defines configure_parser but is no command's home"
+            )

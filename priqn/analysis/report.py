@@ -24,7 +24,6 @@ Same inputs and seed give byte-identical tables and report.md (no timestamps).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import shlex
 from pathlib import Path
@@ -660,40 +659,6 @@ def _meta(
     }
 
 
-def configure_parser(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "runs", nargs="?", default="runs", help="folder of evaluated runs (default runs/)"
-    )
-    parser.add_argument("--out", help="output folder (default reports/<runs folder name>/)")
-    parser.add_argument(
-        "--seed", type=int, default=0, help="np.random seed before every rliable call"
-    )
-    parser.add_argument("--reps", type=int, default=DEFAULT_REPS, help="bootstrap replications")
-    parser.add_argument(
-        "--seeds", type=int, default=None, help="refuse if a policy has fewer training seeds"
-    )
-    parser.add_argument(
-        "--experiment",
-        default=None,
-        metavar="NAME",
-        help="the runs are a sequential experiment's (default: the experiment file named like "
-        "the runs folder, if it has a [sequential] design): report its looks and verdicts",
-    )
-    parser.add_argument(
-        "--reference",
-        action="append",
-        default=[],
-        metavar="DIR",
-        help="a reference driver's folder (priqn evaluate --reference sumo|random --out DIR): "
-        "unranked rows in Table II and the outcome breakdown; repeat for several",
-    )
-    parser.add_argument(
-        "--partial",
-        action="store_true",
-        help="report the fully evaluated runs of a grid still running; name the rest",
-    )
-
-
 def design_experiment(runs: str | Path, name: str | None = None) -> Any:
     """The experiment with a ``[sequential]``, ``[[question]]`` or ``[calibration]`` design
     whose runs live in ``runs``: the one named ``name``, else the experiment file named like
@@ -747,36 +712,3 @@ def write_experiment_report(exp: Any, out: str | Path, command: str | None = Non
 
     writer = sequential_report if exp.sequential is not None else questions_report
     return writer.write_report(exp, out, command)
-
-
-def run(args: argparse.Namespace) -> int:
-    if args.reps < 1:
-        raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
-    out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
-    exp = design_experiment(args.runs, args.experiment)
-    if exp is not None:
-        if args.reference:
-            raise PriqnError("--reference: not for a sequential experiment's report")
-        command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(write_experiment_report(exp, out, command))
-        return 0
-    command = (
-        f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "
-        f"--seed {args.seed} --reps {args.reps}"
-        + (f" --seeds {args.seeds}" if args.seeds else "")
-        + (" --partial" if args.partial else "")
-        + "".join(f" --reference {shlex.quote(str(d))}" for d in args.reference)
-    )
-    print(
-        make_report(
-            args.runs,
-            out,
-            seed=args.seed,
-            reps=args.reps,
-            min_seeds=args.seeds,
-            command=command,
-            partial=args.partial,
-            references=tuple(args.reference),
-        )
-    )
-    return 0
