@@ -1,15 +1,18 @@
-"""Typed configuration: TOML files and ``--set key=value`` overrides into dataclasses.
+"""Typed configuration: TOML files, typed values and ``--set key=value`` overrides into dataclasses.
 
 Every config in priqn is a (nested) dataclass whose fields carry a docstring on the
 line below them. This module turns plain dicts (from TOML or the CLI) into those
-dataclasses, rejecting unknown keys and wrong types with one line that names the
-file and field, and back into dicts for the resolved config a run folder records.
+dataclasses and sets typed ``(dotted key, value)`` pairs on them (:func:`apply_values`;
+a ``--set`` string is parsed once on its way in), rejecting unknown keys and wrong types
+with one line that names the file and field, and turns them back into dicts for the
+resolved config a run folder records.
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import datetime
 import inspect
 import itertools
 import json
@@ -48,11 +51,22 @@ def dumps_toml(data: Mapping[str, Any]) -> str:
 
 
 def toml_value(value: Any) -> str:
-    """A scalar or list as the TOML text a ``--set KEY=VALUE`` override takes."""
+    """A value as TOML text (``toml_value(["a", 1])`` is ``["a", 1]``): what a
+    ``--set KEY=VALUE`` string carries, parsed back to an equal value. Only for text another
+    program reads: the ``overrides`` a cell's spec keeps for a child at an older commit
+    (:meth:`priqn.sweep.cells.Cell.to_spec`); in priqn itself values stay typed
+    (:func:`apply_values`)."""
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
+    if isinstance(value, str):  # a TOML basic string; DEL is the one character JSON leaves raw
+        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        items = (f"{toml_value(str(k))} = {toml_value(v)}" for k, v in value.items())
+        return "{" + ", ".join(items) + "}"
+    if isinstance(value, (datetime.date, datetime.time)):
+        return value.isoformat()
     return repr(value)
 
 
@@ -104,25 +118,54 @@ def from_dict(cls: type[T], data: Mapping[str, Any], where: str) -> T:
         raise PriqnError(f"{where}: {exc}") from exc
 
 
-def apply_overrides(cfg: T, overrides: Sequence[str], where: str = "--set") -> T:
-    """Return a copy of ``cfg`` with ``key.sub=value`` overrides (values parsed as TOML)."""
+ConfigValues = Mapping[str, Any] | Iterable[tuple[str, Any]]
+"""Typed config values: ``(dotted key, value)`` pairs in the order they apply
+(``("agent.eps", 0.2)``, ``("checkpoint.keep_at", (60000,))``), or a mapping of them."""
+
+
+def value_pairs(values: ConfigValues) -> tuple[tuple[str, Any], ...]:
+    """``values`` as ``(dotted key, value)`` pairs in order, every list a tuple (a tuple
+    written as JSON comes back as a list: the pairs of both are equal)."""
+    items = values.items() if isinstance(values, Mapping) else values
+    return tuple((key, _frozen(value)) for key, value in map(_pair, items))
+
+
+def parse_override(item: str, where: str = "--set") -> tuple[str, Any]:
+    """One ``KEY=VALUE`` string as ``(key, value)``: VALUE parsed once as TOML (a bare word
+    is a string: ``agent=pr-iqn``); no ``=`` is a one-line error naming ``item``."""
+    if "=" not in item:
+        raise PriqnError(f"{where} {item!r}: expected KEY=VALUE, e.g. learner.lr=1e-4")
+    key, raw = item.split("=", 1)
+    return key.strip(), _parse_value(raw.strip())
+
+
+def apply_values(
+    cfg: T, values: ConfigValues | Iterable[tuple[str, Any] | str], where: str = "--set"
+) -> T:
+    """A copy of ``cfg`` with ``values`` set in order, checked together by :func:`from_dict`.
+
+    Each item is a typed ``(dotted key, value)`` pair, or a ``KEY=VALUE`` string (a
+    ``--set`` override: VALUE parsed once, :func:`parse_override`; its errors name it).
+    A key that is not a field is a one-line error naming ``where`` and the valid keys at
+    that level: ``--set 'learner.lrr=1': unknown key 'learner.lrr' (valid here: ...)``.
+    """
+    if isinstance(values, str):
+        raise PriqnError(f"{where}: expected a list of values, got the string {values!r}")
     data = to_dict(cfg)
-    for item in overrides:
-        if "=" not in item:
-            raise PriqnError(f"{where} {item!r}: expected KEY=VALUE, e.g. learner.lr=1e-4")
-        key, raw = item.split("=", 1)
-        value = _parse_value(raw.strip())
-        node = data
-        parts = key.strip().split(".")
-        for part in parts[:-1]:
-            if not isinstance(node.get(part), dict):
-                raise PriqnError(f"{where} {item!r}: {key!r} is not a config field")
-            node = node[part]
-        if parts[-1] not in node:
-            valid = ", ".join(sorted(node))
-            raise PriqnError(f"{where} {item!r}: unknown key {key!r} (valid here: {valid})")
-        node[parts[-1]] = value
+    for item in values.items() if isinstance(values, Mapping) else values:
+        if isinstance(item, str):
+            key, value = parse_override(item, where)
+            _set_value(data, key, value, f"{where} {item!r}")
+        else:
+            key, value = _pair(item, where)
+            _set_value(data, key, value, where)
     return from_dict(type(cfg), data, where)
+
+
+def apply_overrides(cfg: T, overrides: Sequence[str], where: str = "--set") -> T:
+    """A copy of ``cfg`` with ``key.sub=value`` overrides, each VALUE parsed once as TOML
+    (:func:`apply_values` with strings only)."""
+    return apply_values(cfg, list(overrides), where)
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -175,6 +218,35 @@ def _parse_value(raw: str) -> Any:
         return tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         return raw  # a bare word is a string: agent=pr-iqn
+
+
+def _pair(item: Any, where: str = "config values") -> tuple[str, Any]:
+    """``item`` as ``(dotted key, value)``; anything else is a one-line error."""
+    if not (isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str)):
+        raise PriqnError(f"{where}: expected (KEY, VALUE) pairs, got {item!r}")
+    return item[0], item[1]
+
+
+def _set_value(data: dict[str, Any], key: str, value: Any, where: str) -> None:
+    """Set ``data[a][b] = value`` for the dotted ``key`` ``a.b``; an unknown key is one line."""
+    node = data
+    parts = key.split(".")
+    for part in parts[:-1]:
+        if not isinstance(node.get(part), dict):
+            raise PriqnError(f"{where}: {key!r} is not a config field")
+        node = node[part]
+    if parts[-1] not in node:
+        raise PriqnError(f"{where}: unknown key {key!r} (valid here: {', '.join(sorted(node))})")
+    node[parts[-1]] = value
+
+
+def _frozen(value: Any) -> Any:
+    """Lists (and tuples) as tuples, all the way down; tables keep their keys."""
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, Mapping):
+        return {str(k): _frozen(v) for k, v in value.items()}
+    return value
 
 
 def _drop_none(obj: Any) -> Any:

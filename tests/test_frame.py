@@ -10,7 +10,18 @@ from pathlib import Path
 
 import pytest
 
-from priqn.config import apply_overrides, describe, dumps_toml, from_dict, load_toml, to_dict
+from priqn.config import (
+    apply_overrides,
+    apply_values,
+    describe,
+    dumps_toml,
+    from_dict,
+    load_toml,
+    parse_override,
+    to_dict,
+    toml_value,
+    value_pairs,
+)
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json, atomic_write_text
 
@@ -54,6 +65,48 @@ def test_overrides():
     assert cfg.inner.lr == 0.5 and cfg.mode == "fast"
     with pytest.raises(PriqnError, match="unknown key 'inner.nope'"):
         apply_overrides(Outer(), ["inner.nope=1"])
+
+
+def test_apply_values_sets_typed_values_in_order():
+    pairs = [("inner.names", ["p", "q"]), ("seed", 4), ("inner.lr", 1), ("seed", 5)]
+    cfg = apply_values(Outer(), pairs, "grid.toml (row)")
+    assert cfg == Outer(seed=5, inner=Inner(lr=1.0, names=("p", "q")))
+    assert apply_values(Outer(), {"mode": "fast", "inner.names": ("z",)}) == Outer(
+        mode="fast", inner=Inner(names=("z",))
+    )
+    # typed values and --set strings in one pass: the later wins, the whole is checked once
+    assert apply_values(Outer(), [("seed", 1), "seed=2", "mode=a b"]) == Outer(seed=2, mode="a b")
+    assert apply_overrides(Outer(), ["inner.names=['x']"]).inner.names == ("x",)
+
+
+def test_apply_values_errors_name_the_key_and_the_valid_ones():
+    with pytest.raises(
+        PriqnError, match=r"^grid.toml \(row\): unknown key 'inner.nope' \(valid here: lr, names\)$"
+    ):
+        apply_values(Outer(), [("inner.nope", 1)], "grid.toml (row)")
+    with pytest.raises(PriqnError, match=r"^w: 'seed.x' is not a config field$"):
+        apply_values(Outer(), [("seed.x", 1)], "w")
+    with pytest.raises(PriqnError, match=r"^w.inner.lr: expected a number, got 'fast'$"):
+        apply_values(Outer(), [("inner.lr", "fast")], "w")
+    with pytest.raises(PriqnError, match=r"expected \(KEY, VALUE\) pairs, got \('seed', 1, 2\)"):
+        apply_values(Outer(), [("seed", 1, 2)], "w")
+    # a --set string is named as it was typed
+    with pytest.raises(PriqnError, match=r"^--set 'inner.nope=1': unknown key 'inner.nope'"):
+        apply_overrides(Outer(), ["seed=1", "inner.nope=1"])
+    with pytest.raises(PriqnError, match=r"^--set 'seed': expected KEY=VALUE"):
+        apply_values(Outer(), [("seed", 1), "seed"])
+
+
+def test_values_as_toml_text_parse_back_equal():
+    """toml_value (the text a child at an older commit reads) parses back to the value."""
+    tricky = [
+        0.2, 1e-05, -0.0, 1e16, 7, True, False, "hln-4", "a 'quoted' \"x\"\\ y", "é ✓ 🚗",
+        "\x7f\n\t", (60000, 120000), ["safety", "risk"], [], {"a": [1, 2.5], "b c": "d"},
+    ]  # fmt: skip
+    for value in tricky:
+        key, back = parse_override(f"k={toml_value(value)}")
+        assert key == "k" and value_pairs([(key, back)]) == value_pairs([("k", value)]), value
+    assert value_pairs({"k": [1, [2]]}) == (("k", (1, (2,))),)
 
 
 def test_describe_reads_field_docstrings():
