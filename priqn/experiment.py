@@ -30,7 +30,7 @@ from priqn.agents.config import (
     agent_spec,
     resolve_spec,
 )
-from priqn.config import from_dict, load_toml, toml_value
+from priqn.config import from_dict, load_toml, parse_override, value_pairs
 from priqn.errors import PriqnError
 from priqn.run.evaluations import snapshot_evaluation
 
@@ -428,30 +428,33 @@ class Experiment:
 
     def row_config(self, policy: PolicySpec, seed: int) -> Any:
         """The :class:`~priqn.run.train_config.TrainConfig` ``policy``'s row trains with ``seed``
-        (what ``priqn train`` builds from the preset, the flags and the overrides; the
-        sweep's cells carry the same fields)."""
-        from priqn.run.train_config import resolve_config
-
-        return resolve_config(
+        (what ``priqn train`` builds from the preset, the flags and the values; the sweep's
+        cells carry the same fields: :func:`cell_config`)."""
+        return cell_config(
             preset=self.experiment.preset,
             agent=policy.agent,
             seed=seed,
             net=self.experiment.net,
             steps=self.row_steps(policy),
-            overrides=list(self.row_overrides(policy)),
-            where=f"{self.path} ({policy.name})",
+            values=self.row_values(policy),
+            source=self.path,
+            policy=policy.name,
         )
 
-    def row_overrides(self, policy: PolicySpec) -> tuple[str, ...]:
-        """``policy``'s row's ``--set`` overrides: ``[experiment]`` traffic and set, then the
-        row's traffic, options and set."""
-        from priqn.env.traffic import traffic_overrides
+    def row_values(self, policy: PolicySpec) -> tuple[tuple[str, Any], ...]:
+        """``policy``'s row's typed TrainConfig values, ``(dotted key, value)`` pairs in the
+        order they apply: ``[experiment]`` traffic and set, then the row's traffic, options
+        (and ``keep_at``) and set (each ``set`` string parsed once)."""
+        from priqn.env.traffic import traffic_values
 
-        return (
-            *traffic_overrides(self.experiment.traffic),
-            *self.experiment.set,
-            *traffic_overrides(policy.traffic),
-            *policy_overrides(policy),
+        where = f"{self.path} [experiment].set"
+        return value_pairs(
+            [
+                *traffic_values(self.experiment.traffic),
+                *(parse_override(item, where) for item in self.experiment.set),
+                *traffic_values(policy.traffic),
+                *policy_values(policy, f"{self.path} [[policy]] {policy.name}.set"),
+            ]
         )
 
     def group(self, name: str) -> list[PolicySpec]:
@@ -837,13 +840,42 @@ def _check_overrides(items: Sequence[str], where: str) -> None:
             raise PriqnError(f'{where}: {item!r} is not KEY=VALUE, e.g. "learner.lr=1e-4"')
 
 
-def policy_overrides(policy: PolicySpec) -> list[str]:
-    """TrainConfig overrides (``KEY=VALUE``) a policy's options stand for, then its ``set``."""
-    out = []
+def policy_values(policy: PolicySpec, where: str = "set") -> list[tuple[str, Any]]:
+    """Typed TrainConfig values ``(dotted key, value)`` a policy's options stand for (and its
+    ``keep_at``), then its ``set`` strings parsed once (``where`` names them in errors)."""
+    out: list[tuple[str, Any]] = []
     for opt in _PREORDER_OPTIONS:
         value = getattr(policy, opt)
         if value is not None:
-            out.append(f"{_TRAIN_KEYS[opt]}={toml_value(value)}")
+            out.append((_TRAIN_KEYS[opt], value))
     if policy.keep_at:
-        out.append(f"checkpoint.keep_at={list(policy.keep_at)!r}")
-    return out + list(policy.set)
+        out.append(("checkpoint.keep_at", tuple(policy.keep_at)))
+    return out + [parse_override(item, where) for item in policy.set]
+
+
+def cell_config(
+    preset: str,
+    agent: str,
+    seed: int,
+    net: str,
+    steps: int | None,
+    values: Sequence[tuple[str, Any]],
+    source: str | Path,
+    policy: str,
+) -> Any:
+    """The resolved :class:`~priqn.run.train_config.TrainConfig` of one cell of a grid: the
+    one mapping of a row's settings onto :func:`~priqn.run.train_config.resolve_config`,
+    shared by :meth:`Experiment.row_config` and :func:`priqn.sweep.cells.build_train_config`
+    (``steps`` in decisions, None: the preset's; ``values`` as :meth:`Experiment.row_values`;
+    errors name the experiment file ``source`` and the row ``policy``)."""
+    from priqn.run.train_config import resolve_config
+
+    return resolve_config(
+        preset=preset,
+        agent=agent,
+        seed=seed,
+        net=net,
+        steps=steps,
+        values=values,
+        where=f"{source} ({policy})",
+    )

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from priqn.config import describe, flatten, to_dict
-from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_overrides
+from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_values
 from priqn.env.vector import restore_episodes
 from priqn.errors import PriqnError
 from priqn.objectives import subset_columns
@@ -827,7 +827,8 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             net=args.net,
             steps=args.steps,
-            overrides=[*traffic_overrides(args.traffic), *args.set],
+            values=traffic_values(args.traffic),
+            overrides=args.set,
             config_file=args.config,
             num_envs=args.num_envs,
             device=args.device,

@@ -170,12 +170,12 @@ def test_table2_expands_to_the_papers_33_cells(tmp_path: Path) -> None:
         expected = []
         if agent == "pr-iqn":
             expected = [
-                f'agent.comparator="{comparator}"',
-                f"agent.train_preorder={'true' if tp else 'false'}",
-                f"agent.eps={eps}",
-                f'agent.preorder="{preorder}"',
+                ("agent.comparator", comparator),
+                ("agent.train_preorder", tp),
+                ("agent.eps", eps),
+                ("agent.preorder", preorder),
             ]
-        assert list(row[0].overrides) == expected, name
+        assert list(row[0].values) == expected, name
 
 
 PAPER_ROW_LABELS = [
@@ -217,6 +217,48 @@ def test_cell_spec_round_trips_through_json(tmp_path: Path) -> None:
     spec = json.loads(json.dumps(cell.to_spec()))
     assert spec["name"] == "table2/pr-iqn-qd-tp-eps0.2-partial__seed2"
     assert Cell.from_spec(spec) == cell
+
+
+def test_cell_values_stay_typed_through_json(tmp_path: Path) -> None:
+    """A cell's typed values (a traffic setting, the set strings parsed once, the Pr-IQN
+    options, keep_at) survive to_spec -> JSON -> from_spec and resolve the same config; the
+    spec's ``overrides`` strings (what a child at an older commit reads) parse back to them."""
+    from priqn.config import parse_override, to_dict
+    from priqn.sweep.cells import build_train_config
+
+    path = _grid(
+        tmp_path,
+        '[experiment]\nname = "typed"\nseeds = [0]\nsteps = 9000\ntraffic = "rude"\n'
+        'set = ["env.traffic.impatience=0.25", "agent.reward_scheme=hln-4"]\n'
+        '[[policy]]\nname = "pr"\nagent = "pr-iqn"\ncomparator = "cvar"\neps = 0\n'
+        'preorder = "partial"\ntraffic = "rude-finite"\nkeep_at = [3000, 6000]\n'
+        'set = ["agent.eps=[0.1, 0.2, 0.3, 0.4, 0.5]"]\n',
+    )
+    cell = expand(load_experiment(path, runs_dir=tmp_path))[0]
+    assert cell.values == (
+        ("env.traffic.yield_to_ego_prob", 0.0),
+        ("env.traffic.impatience", 0.25),
+        ("agent.reward_scheme", "hln-4"),
+        ("env.traffic.yield_to_ego_prob", 0.0),
+        ("env.traffic.top_up", False),
+        ("agent.comparator", "cvar"),
+        ("agent.eps", 0.0),
+        ("agent.preorder", "partial"),
+        ("checkpoint.keep_at", (3000, 6000)),
+        ("agent.eps", (0.1, 0.2, 0.3, 0.4, 0.5)),
+    )
+    spec = json.loads(json.dumps(cell.to_spec()))
+    back = Cell.from_spec(spec)
+    assert back == cell and back.values == cell.values
+    assert tuple(parse_override(o) for o in spec["overrides"]) == tuple(
+        (k, list(v) if isinstance(v, tuple) else v) for k, v in cell.values
+    )
+    old = {k: v for k, v in spec.items() if k != "values"}  # a spec from an older driver
+    assert Cell.from_spec(old) == cell
+    cfg = build_train_config(back)
+    assert to_dict(cfg) == to_dict(build_train_config(cell))
+    assert cfg.checkpoint.keep_at == (3000, 6000) and cfg.agent.eps == (0.1, 0.2, 0.3, 0.4, 0.5)
+    assert cfg.env.traffic.top_up is False and cfg.env.traffic.impatience == 0.25
 
 
 def test_seed_order_runs_every_row_before_the_next_seed(tmp_path: Path) -> None:

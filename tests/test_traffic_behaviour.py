@@ -26,7 +26,7 @@ from priqn.env.traffic import (
     TRAFFIC_SETTINGS,
     Traffic,
     TrafficBehaviour,
-    traffic_overrides,
+    traffic_values,
 )
 from priqn.errors import PriqnError
 from priqn.sim import sumo
@@ -200,12 +200,12 @@ def test_behaviour_and_setting_errors_are_one_line() -> None:
     with pytest.raises(ValueError, match="impatience"):
         TrafficBehaviour(impatience=-0.1)
     with pytest.raises(PriqnError, match="unknown setting 'polite' \\(valid: sumo, rude"):
-        traffic_overrides("polite")
-    assert traffic_overrides("sumo") == ()
-    assert traffic_overrides("rude-finite-long") == (
-        "env.traffic.yield_to_ego_prob=0.0",
-        "env.traffic.top_up=false",
-        "env.max_episode_steps=200",
+        traffic_values("polite")
+    assert traffic_values("sumo") == ()
+    assert traffic_values("rude-finite-long") == (
+        ("env.traffic.yield_to_ego_prob", 0.0),
+        ("env.traffic.top_up", False),
+        ("env.max_episode_steps", 200),
     )
 
 
@@ -213,7 +213,7 @@ def test_every_named_setting_builds_a_train_config() -> None:
     from priqn.run.train_config import resolve_config
 
     for name in TRAFFIC_SETTINGS:
-        cfg = resolve_config(overrides=list(traffic_overrides(name)))
+        cfg = resolve_config(values=traffic_values(name))
         assert cfg.env.traffic == TrafficBehaviour(**{
             k.removeprefix("traffic."): v
             for k, v in TRAFFIC_SETTINGS[name].env if k.startswith("traffic.")

@@ -253,14 +253,14 @@ def loop_throughput(
         steps=steps,
         device=loop.device,
         num_envs=loop.num_envs or None,
-        overrides=[
-            f"replay.learning_starts={starts}",
-            "evaluation.interval_steps=0",
-            f"checkpoint.interval_steps={10 * steps}",
-            "checkpoint.save_replay=false",
-            f"overlap_updates={str(overlap).lower()}",
-            f"learner.compile={loop.compile}",
-            f"env_groups={env_groups}",
+        values=[
+            ("replay.learning_starts", starts),
+            ("evaluation.interval_steps", 0),
+            ("checkpoint.interval_steps", 10 * steps),
+            ("checkpoint.save_replay", False),
+            ("overlap_updates", overlap),
+            ("learner.compile", loop.compile),
+            ("env_groups", env_groups),
         ],
     )
     with tempfile.TemporaryDirectory(prefix="priqn-bench-") as tmp:

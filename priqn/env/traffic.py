@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from priqn.checks import check_density
-from priqn.config import toml_value
 from priqn.errors import PriqnError
 from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
@@ -97,9 +96,10 @@ class TrafficSetting:
     env: tuple[tuple[str, Any], ...] = ()
     """``(EnvConfig key, value)`` pairs, nested keys dotted (``traffic.top_up``)."""
 
-    def overrides(self) -> tuple[str, ...]:
-        """The setting as ``--set`` overrides of a TrainConfig (``env.<key>=<TOML value>``)."""
-        return tuple(f"env.{key}={toml_value(value)}" for key, value in self.env)
+    def values(self) -> tuple[tuple[str, Any], ...]:
+        """The setting as typed TrainConfig values: ``(env.<key>, value)`` pairs
+        (:func:`priqn.config.apply_values`)."""
+        return tuple((f"env.{key}", value) for key, value in self.env)
 
 
 _RUDE = (("traffic.yield_to_ego_prob", 0.0),)
@@ -116,16 +116,16 @@ TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
 """Named traffic settings (issue 48's calibration candidates; docs/environment.md)."""
 
 
-def traffic_overrides(name: str | None) -> tuple[str, ...]:
-    """The ``--set`` overrides of the named traffic setting (none for None); an unknown
-    name is a one-line error listing the valid ones."""
+def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
+    """The typed TrainConfig values of the named traffic setting, ``(dotted key, value)``
+    pairs (none for None); an unknown name is a one-line error listing the valid ones."""
     if name is None:
         return ()
     if name not in TRAFFIC_SETTINGS:
         raise PriqnError(
             f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
         )
-    return TRAFFIC_SETTINGS[name].overrides()
+    return TRAFFIC_SETTINGS[name].values()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """What a training run is: :class:`TrainConfig`, presets, and what follows from a config.
 
 ``resolve_config`` layers a preset TOML (``priqn/presets/train_<name>.toml``), a config
-file, the ``priqn train`` flags and ``--set`` overrides into one :class:`TrainConfig`;
+file, the ``priqn train`` flags, typed values (a traffic setting, a grid row's options) and
+``--set`` overrides into one :class:`TrainConfig`;
 ``derive_seeds`` gives every child seed; ``default_run_name`` and ``policy_labels``
 name the run. Agents, networks, learners and policies are built in one place,
 :mod:`priqn.agents.build` (``build_network`` here is its entry for ``priqn bench
@@ -28,7 +29,7 @@ from priqn.agents.config import (
 )
 from priqn.agents.frames import REPLAY_STORAGES
 from priqn.agents.scalarise import crash_margin, scheme_weights
-from priqn.config import apply_overrides, from_dict, load_toml, to_dict
+from priqn.config import ConfigValues, apply_values, from_dict, load_toml, to_dict, value_pairs
 from priqn.env.intersection import EnvConfig
 from priqn.errors import PriqnError
 from priqn.objectives import objective_names
@@ -285,8 +286,11 @@ def resolve_config(
     config_file: str | Path | None = None,
     num_envs: int | None = None,
     device: str | None = None,
+    values: ConfigValues = (),
 ) -> TrainConfig:
-    """Preset TOML, then ``config_file``, then the flags, then ``--set`` overrides."""
+    """Preset TOML, then ``config_file``, then the flags, then the typed ``values``
+    (``(dotted key, value)`` pairs in order: a traffic setting, a grid row's options), then
+    the ``--set`` ``overrides`` strings, all checked together (:func:`priqn.config.apply_values`)."""
     if preset not in PRESETS:
         raise PriqnError(f"--preset: unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
     preset_path = PRESETS_DIR / f"train_{preset}.toml"
@@ -318,7 +322,7 @@ def resolve_config(
     if agent is not None:
         data["agent"]["name"] = agent
     cfg = from_dict(TrainConfig, data, where="priqn train flags")
-    cfg = apply_overrides(cfg, list(overrides), where=where)
+    cfg = apply_values(cfg, [*value_pairs(values), *overrides], where=where)
     _validate_names(cfg)
     if cfg.env.nets:  # recorded by absolute path, so a run folder works from any cwd
         nets = tuple(str(Path(n).resolve()) for n in cfg.env.nets)

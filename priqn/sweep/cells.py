@@ -16,9 +16,22 @@ from pathlib import Path
 from typing import Any
 
 from priqn.agents.config import has_scalar_value
-from priqn.config import config_differences, from_dict, to_dict
+from priqn.config import (
+    config_differences,
+    from_dict,
+    parse_override,
+    to_dict,
+    toml_value,
+    value_pairs,
+)
 from priqn.errors import PriqnError
-from priqn.experiment import Experiment, PolicySpec, cell_dir_name, policy_difference
+from priqn.experiment import (
+    Experiment,
+    PolicySpec,
+    cell_config,
+    cell_dir_name,
+    policy_difference,
+)
 from priqn.io import read_json
 from priqn.run.evaluations import (
     eval_meta,
@@ -53,8 +66,10 @@ class Cell:
     """Training preset (``priqn train --preset``)."""
     steps: int | None
     """Training budget (``priqn train --steps``); None keeps the preset's."""
-    overrides: tuple[str, ...]
-    """TrainConfig ``KEY=VALUE`` overrides, in the order they apply."""
+    values: tuple[tuple[str, Any], ...]
+    """Typed TrainConfig values, ``(dotted key, value)`` pairs in the order they apply
+    (:meth:`priqn.experiment.Experiment.row_values`; lists as tuples:
+    :func:`priqn.config.value_pairs`)."""
     evaluate: dict[str, Any]
     """EvalConfig fields."""
     source: str
@@ -90,16 +105,25 @@ class Cell:
         return self.state() == Status.COMPLETE
 
     def to_spec(self) -> dict[str, Any]:
-        """JSON-able description handed to the cell's child process."""
-        return {**to_dict(self), "name": self.name}
+        """JSON-able description handed to the cell's child process: the fields (``values``
+        as ``[key, value]`` lists), ``name``, and the values once more as ``overrides``
+        (``KEY=<TOML value>`` strings), the one field a child at an older commit
+        (``priqn sweep --code DIR``) reads them from."""
+        legacy = [f"{key}={toml_value(value)}" for key, value in self.values]
+        return {**to_dict(self), "name": self.name, "overrides": legacy}
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> Cell:
-        """Inverse of :meth:`to_spec`."""
+        """Inverse of :meth:`to_spec`; a spec from an older driver, with ``overrides`` only,
+        has them parsed once."""
         names = {f.name for f in dataclasses.fields(cls)}
         kw = {k: v for k, v in spec.items() if k in names}
         kw["run_dir"] = Path(kw["run_dir"])
-        kw["overrides"] = tuple(kw["overrides"])
+        if "values" in kw:
+            kw["values"] = value_pairs(kw["values"])
+        else:
+            where = f"{spec.get('source', 'cell spec')} ({spec.get('policy')})"
+            kw["values"] = value_pairs(parse_override(o, where) for o in spec["overrides"])
         kw["controls"] = tuple(kw.get("controls", ()))
         kw["snapshots"] = tuple(kw.get("snapshots", ()))
         return cls(**kw)
@@ -147,7 +171,7 @@ def cell_of(exp: Experiment, pol: PolicySpec, seed: int) -> Cell:
         net=e.net,
         preset=e.preset,
         steps=exp.row_steps(pol),
-        overrides=exp.row_overrides(pol),
+        values=exp.row_values(pol),
         evaluate=dict(exp.evaluate),
         source=str(exp.path),
         controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
@@ -190,17 +214,17 @@ def is_complete(run_dir: Path, controls: tuple[str, ...] = ()) -> bool:
 
 
 def build_train_config(cell: Cell) -> Any:
-    """The cell's resolved :class:`priqn.run.train_config.TrainConfig` (preset, agent, seed, net, steps, overrides)."""
-    from priqn.run.train_config import resolve_config
-
-    return resolve_config(
+    """The cell's resolved :class:`priqn.run.train_config.TrainConfig` (preset, agent, seed,
+    net, steps, values), as :meth:`priqn.experiment.Experiment.row_config` builds its row's."""
+    return cell_config(
         preset=cell.preset,
         agent=cell.agent,
         seed=cell.seed,
         net=cell.net,
         steps=cell.steps,
-        overrides=list(cell.overrides),
-        where=f"{cell.source} ({cell.policy})",
+        values=cell.values,
+        source=cell.source,
+        policy=cell.policy,
     )
 
 
