@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from priqn.checks import check_acting_eps, check_density
-from priqn.config import apply_overrides, from_dict, load_toml, to_dict
+from priqn.config import apply_values, from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import ACTINGS, EvalConfig, eval_dir_of
 from priqn.evaluation.reference import (
@@ -200,43 +200,44 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
-    """EvalConfig from ``--config``, the shortcut flags and ``--set`` overrides."""
+    """EvalConfig from ``--config``, then the ``--set`` overrides, then the shortcut flags
+    (typed values: :func:`priqn.config.apply_values`)."""
     cfg = (
         from_dict(EvalConfig, load_toml(args.config), where=args.config)
         if args.config
         else EvalConfig()
     )
-    sets = list(args.set)
+    values: list[tuple[str, Any]] = []  # the shortcut flags, typed; after --set, so they win
     if args.episodes is not None:
-        sets.append(f"episodes_per_cell={args.episodes}")
+        values.append(("episodes_per_cell", args.episodes))
     if args.eval_runs is not None:
-        sets.append(f"eval_runs={args.eval_runs}")
+        values.append(("eval_runs", args.eval_runs))
     if args.seed is not None:
-        sets.append(f"seed={args.seed}")
+        values.append(("seed", args.seed))
     if args.workers is not None:
-        sets.append(f"num_workers={args.workers}")
+        values.append(("num_workers", args.workers))
     if args.acting is not None:
-        sets.append(f"acting={args.acting!r}")
+        values.append(("acting", args.acting))
     if args.family is not None:
-        sets.append(f"family={args.family!r}")
+        values.append(("family", args.family))
     if args.snapshot is not None:
         if args.snapshot <= 0:
             raise PriqnError(
                 f"--snapshot {args.snapshot}: expected a budget > 0 (checkpoint.keep_at)"
             )
-        sets.append(f"snapshot={args.snapshot}")
+        values.append(("snapshot", args.snapshot))
     if args.acting_eps is not None:
-        sets.append(f"acting_eps={check_acting_eps(args.acting_eps, '--acting-eps')!r}")
+        values.append(("acting_eps", check_acting_eps(args.acting_eps, "--acting-eps")))
     if args.densities:
         try:
-            values = [float(x) for x in args.densities.split(",") if x.strip()]
+            densities = [float(x) for x in args.densities.split(",") if x.strip()]
         except ValueError as exc:
             raise PriqnError(f"--densities {args.densities!r}: expected e.g. 0.5,0.75,1.0") from exc
-        if not values:
+        if not densities:
             raise PriqnError(f"--densities {args.densities!r}: expected e.g. 0.5,0.75,1.0")
-        values = [check_density(v, "--densities") for v in values]
-        sets.append(f"densities=[{', '.join(repr(v) for v in values)}]")
-    cfg = apply_overrides(cfg, sets) if sets else cfg
+        values.append(("densities", tuple(check_density(v, "--densities") for v in densities)))
+    if args.set or values:  # one check of all: a flag may mend a --set value
+        cfg = apply_values(cfg, [*args.set, *values])
     if args.nets and args.family:
         raise PriqnError("--family and --nets: pick one (--nets evaluates on those nets only)")
     if args.nets:  # paths as given (no TOML quoting on the way)
