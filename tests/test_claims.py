@@ -233,6 +233,28 @@ def test_claims_name_the_papers_rows() -> None:
         Claim("x", "", "", "equivalent", eq.comparisons, margin=0.2, effect=0.1)
 
 
+def test_the_papers_outcome_mixes_are_table_two() -> None:
+    """The paper's rows end almost every episode in success, collision or off-road (the
+    issue that asked for the operating point: 0.955 at least, 0.998-0.999 for the
+    baselines); IQN's row is the one calibrate.toml transcribed on its own; a label that is
+    no row of the paper has none."""
+    from priqn.analysis.paper import ENSEMBLE, MA_IQN, PAPER_ROWS, paper_outcomes
+    from priqn.experiment import load_experiment
+
+    for row in PAPER_ROWS:
+        mix = paper_outcomes(row.render())
+        ended = [sum(mix[o][i] for o in ("success", "collision", "off_road")) for i in range(3)]
+        assert all(0.955 <= e <= 1.0015 for e in ended), (row.render(), ended)  # 3 roundings
+        if row in (IQN, ENSEMBLE, MA_IQN):
+            assert all(e >= 0.998 for e in ended), row.render()
+    cal = load_experiment("calibrate").calibration
+    iqn = paper_outcomes(IQN.render())
+    for outcome in ("success", "collision", "off_road", "timeout"):
+        assert tuple(getattr(cal, outcome)) == iqn[outcome], outcome
+    assert paper_outcomes("Pr-IQN QD ✓ 0.2 ✗")["collision"] == (0.175, 0.314, 0.353)
+    assert paper_outcomes("IQN (a)") is None
+
+
 def test_five_seeds_of_a_clear_gain_are_reproduced_three_are_not() -> None:
     gain = pd.concat(
         [

@@ -277,6 +277,54 @@ def test_report_has_table_one_at_each_question_budget(tmp_path: Path) -> None:
     assert set(table["safety_n"]) == {8}  # 8 training seeds x 1 evaluation run
 
 
+def test_report_has_the_outcome_mix_beside_the_papers(tmp_path: Path) -> None:
+    """At 200 decisions a succeeds in 1 of 10 episodes, violates in 8 (4 collisions, 4
+    off the road: even and odd episodes) and times out in 1; b: 6 / 1 / 1 / 2. Both are
+    IQN, so each is named by its group too, and neither
+    label is a row of the paper's Table II, so no bracket and no L1."""
+    questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c")
+    text = (tmp_path / "r" / "report.md").read_text()
+    section = text[text.index("## Outcome mix beside") : text.index("## Returns per objective")]
+    at200 = section.split("### At 200 decisions")[1].split("### At 400 decisions")[0]
+    assert "| IQN a | 8 | success | 0.100 | 0.100 |  |" in at200
+    assert "|  |  | off-road | 0.400 | 0.400 |  |" in at200
+    assert "| IQN b | 8 | success | 0.600 | 0.600 |  |" in at200
+    assert "|  |  | timeout | 0.200 | 0.200 |  |" in at200
+    mix = pd.read_csv(tmp_path / "r" / "tables" / "outcome_mix_200.csv")
+    a = mix[mix["label"] == "IQN a"].set_index(["outcome", "density"])["rate"]
+    assert a[("collision", 0.5)] == pytest.approx(0.4) and a.sum() == pytest.approx(2.0)
+
+
+def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None:
+    """Two IQN seeds at the paper's three densities. Seed 0 ends every episode as the
+    paper's IQN row would at its rounding, seed 1 too but with success 0.2 higher and
+    collisions 0.2 lower at density 0.5 (it has 2,000 episodes a density, seed 0 1,000: each
+    seed's share counts once). Their mean is 0.1 off on two of the 12 numbers: L1 0.2."""
+    from priqn.analysis.paper import IQN, paper_outcomes
+
+    paper = paper_outcomes(IQN.render())
+    rows = []
+    for seed, n in ((0, 1000), (1, 2000)):
+        for i, density in enumerate((0.5, 0.75, 1.0)):
+            shares = {o: paper[o][i] for o in questions_report.MIX_OUTCOMES}
+            if seed == 1 and density == 0.5:
+                shares["success"] += 0.2
+                shares["collision"] -= 0.2
+            counts = {o: round(v * n) for o, v in shares.items()}
+            counts["timeout"] = n - sum(c for o, c in counts.items() if o != "timeout")
+            for outcome, count in counts.items():
+                rows += [
+                    {"label": "IQN", "train_seed": seed, "density": density,
+                     **{o: o == outcome for o in questions_report.MIX_OUTCOMES}}
+                ] * count  # fmt: skip
+    mix = questions_report.outcome_mix(pd.DataFrame(rows))
+    md_rows, records = questions_report._mix_rows(mix)
+    assert md_rows[0][:3] == ["IQN", "2", "success"]
+    assert md_rows[0][3] == f"{paper['success'][0] + 0.1:.3f} ({paper['success'][0]:.3f})"
+    assert md_rows[0][-1] == "0.200"
+    assert {round(r["l1_to_paper"], 9) for r in records} == {0.2}
+
+
 def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> None:
     """The Cells section: a long cell counted at both budgets is one row naming both
     evaluations; a cell whose meta.json records a resume says at which decision."""

@@ -3,7 +3,8 @@ gains its text quotes, each with where it comes from.
 
 Source: "Beyond Scalar Rewards: Distributional Reinforcement Learning with Preordered
 Objectives for Safe and Reliable Autonomous Driving" (arXiv 2603.20230v1; the text in
-``shared/seed``). Table II: success rate per row at traffic densities 0.5 / 0.75 / 1.0;
+``shared/seed``). Table II: success, collision and off-road rates per row at traffic
+densities 0.5 / 0.75 / 1.0;
 Sec. V quotes some of its differences, rounded differently in places (Pr-IQN* over IQN at
 0.5: +7.7 in the text, +7.9 in the table; over Ensemble-IQN: +11.0 and +11.2). Table I
 (objective returns) is not transcribed: its claim here is directional (Sec. V: "Pr-IQN*
@@ -77,6 +78,63 @@ PAPER_SUCCESS: dict[str, tuple[float, float, float]] = {
     )
 }
 """The paper's Table II success rates at densities 0.5 / 0.75 / 1.0, per row label."""
+
+PAPER_COLLISION: dict[str, tuple[float, float, float]] = {
+    row.render(): cr
+    for row, cr in zip(
+        PAPER_ROWS,
+        (
+            (0.248, 0.472, 0.538),
+            (0.272, 0.451, 0.485),
+            (0.403, 0.617, 0.604),
+            (0.333, 0.570, 0.616),
+            (0.448, 0.692, 0.738),
+            (0.245, 0.416, 0.507),
+            (0.217, 0.403, 0.512),
+            (0.136, 0.277, 0.335),
+            (0.175, 0.314, 0.353),
+            (0.250, 0.440, 0.453),
+            (0.161, 0.337, 0.343),
+        ),
+        strict=True,
+    )
+}
+"""The paper's Table II collision rates (CR) at densities 0.5 / 0.75 / 1.0, per row label."""
+
+PAPER_OFF_ROAD: dict[str, tuple[float, float, float]] = {
+    row.render(): off
+    for row, off in zip(
+        PAPER_ROWS,
+        (
+            (0.013, 0.014, 0.026),
+            (0.023, 0.016, 0.015),
+            (0.002, 0.008, 0.004),
+            (0.031, 0.030, 0.017),
+            (0.032, 0.032, 0.036),
+            (0.032, 0.015, 0.028),
+            (0.018, 0.016, 0.032),
+            (0.022, 0.032, 0.013),
+            (0.010, 0.005, 0.007),
+            (0.034, 0.028, 0.034),
+            (0.032, 0.027, 0.014),
+        ),
+        strict=True,
+    )
+}
+"""The paper's Table II off-road rates (OR) at densities 0.5 / 0.75 / 1.0, per row label."""
+
+
+def paper_outcomes(label: str) -> dict[str, tuple[float, ...]] | None:
+    """Row ``label``'s outcome mix in Table II, per outcome a rate at each of
+    :data:`PAPER_DENSITIES`: success, collision, off-road and the timeouts they leave
+    (1 − the three, at least 0; the paper does not report them); None for a label that
+    is not one of its rows."""
+    if label not in PAPER_SUCCESS:
+        return None
+    sr, cr, off = PAPER_SUCCESS[label], PAPER_COLLISION[label], PAPER_OFF_ROAD[label]
+    timeout = tuple(round(max(0.0, 1 - a - b - c), 3) for a, b, c in zip(sr, cr, off, strict=True))
+    return {"success": sr, "collision": cr, "off_road": off, "timeout": timeout}
+
 
 TEXT_STAR_OVER_IQN: tuple[float, float, float] = (0.077, 0.166, 0.203)
 """Sec. V: Pr-IQN* "improves success rate by (+7.7 %, +16.6 %, +20.3 %) over IQN" at

@@ -27,6 +27,7 @@ from priqn.analysis.load import (
     resumed_before,
     resumed_text,
 )
+from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Replay, relative_path, verdict
 from priqn.experiment import Experiment, SequentialSpec
@@ -205,7 +206,8 @@ def report_markdown(
     scores: pd.DataFrame | None = None,
 ) -> str:
     """``report.md`` of an experiment with questions (``descriptive``: the lines of the
-    Table I and sample-efficiency sections, :func:`_returns_lines` and :func:`_efficiency`;
+    outcome-mix, Table I and sample-efficiency sections, :func:`_mix_lines`,
+    :func:`_returns_lines` and :func:`_efficiency`;
     ``scores``: every question's counted cells,
     ``tables/scores.csv``, for the "Cells" section)."""
     e = exp.experiment
@@ -435,11 +437,11 @@ def _budget_tables(
     return frame.assign(question=question.name), changes
 
 
-def returns_tables(exp: Experiment, scores: pd.DataFrame) -> dict[int, tables.Table]:
-    """Table I (episode returns per objective, per-decision risk and lane keeping, episode
-    length; Δ% relative to IQN) per question budget, over the cells the questions count
-    (``scores``): each group at each budget is one row, named by its policy label (with
-    the group's name where two groups share a label). Unranked: descriptive."""
+def counted_episodes(exp: Experiment, scores: pd.DataFrame) -> dict[int, pd.DataFrame]:
+    """Per question budget, the hold-out episodes of the cells the questions count
+    (``scores``), each cell read once: one frame of episodes (outcomes resolved, sorted),
+    each named by its group's policy label (with the group's name where two groups share a
+    label) in ``label`` and by its training seed in ``train_seed``."""
     if scores.empty:
         return {}
     budget_of = {q.name: q.budget for q in exp.designs}
@@ -460,14 +462,102 @@ def returns_tables(exp: Experiment, scores: pd.DataFrame) -> dict[int, tables.Ta
         episodes.loc[shared, "label"] += " " + episodes.loc[shared, "group"]
         episodes = resolve_outcomes(episodes.drop(columns="group"))
         episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort")
-        out[int(budget)] = tables.table1(episodes.reset_index(drop=True), ranked=False)
+        out[int(budget)] = episodes.reset_index(drop=True)
     return out
 
 
-def _returns_lines(exp: Experiment, scores: pd.DataFrame, out: Path) -> list[str]:
+def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tables.Table]:
+    """Table I (episode returns per objective, per-decision risk and lane keeping, episode
+    length; Δ% relative to IQN) per question budget, from :func:`counted_episodes`: each
+    group at each budget is one row, named by its policy label. Unranked: descriptive."""
+    return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
+
+
+MIX_OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
+"""The outcomes of an outcome mix, in table order (one per episode)."""
+
+
+def outcome_mix(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per label, outcome and density: the share of its episodes ending in that outcome,
+    each training seed's share first, then their mean (``rate``) over its ``seeds``
+    (columns label, outcome, density, rate, seeds; labels in first-seen order)."""
+    flags = episodes[list(MIX_OUTCOMES)].astype(bool).astype(float)
+    keys = [episodes["label"], episodes["train_seed"], episodes["density"].astype(float)]
+    per_seed = flags.groupby(keys, sort=False).mean().reset_index()
+    long = per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
+    mix = long.groupby(["label", "outcome", "density"], sort=False).agg(
+        rate=("rate", "mean"), seeds=("train_seed", "nunique")
+    )
+    return mix.reset_index()
+
+
+def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]:
+    """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
+    density's rate beside the paper's (its Table II row of the same label), and the L1
+    distance of the 12 numbers to the paper's row."""
+    from priqn.analysis.paper import paper_outcomes
+
+    densities = sorted(mix["density"].unique())
+    md_rows, records = [], []
+    for label, mine in mix.groupby("label", sort=False):
+        paper = paper_outcomes(str(label))
+        rate = {(r.outcome, r.density): r.rate for r in mine.itertuples()}
+        theirs = {
+            (o, d): paper[o][PAPER_DENSITIES.index(d)]
+            for o in MIX_OUTCOMES
+            for d in densities
+            if paper is not None and d in PAPER_DENSITIES
+        }
+        full = len(theirs) == len(MIX_OUTCOMES) * len(densities) == 12
+        l1 = sum(abs(rate[k] - theirs[k]) for k in theirs) if full else math.nan
+        for i, outcome in enumerate(MIX_OUTCOMES):
+            cells = [
+                f"{rate[(outcome, d)]:.3f}"
+                + (f" ({theirs[(outcome, d)]:.3f})" if (outcome, d) in theirs else "")
+                for d in densities
+            ]
+            head = [str(label), str(int(mine["seeds"].min()))] if i == 0 else ["", ""]
+            tail = [f"{l1:.3f}" if i == 0 and full else ""]
+            md_rows.append([*head, outcome.replace("_", "-"), *cells, *tail])
+            records += [
+                {"label": label, "seeds": int(mine["seeds"].min()), "outcome": outcome,
+                 "density": d, "rate": rate[(outcome, d)],
+                 "paper": theirs.get((outcome, d), math.nan), "l1_to_paper": l1}
+                for d in densities
+            ]  # fmt: skip
+    return md_rows, records
+
+
+def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
+    """The outcome-mix section: per question budget, how each group's hold-out episodes
+    end at each density beside the paper's Table II row of the same label, with the L1
+    distance calibration uses (``tables/outcome_mix_<budget>.csv``); none while no cell
+    is counted."""
+    if not episodes_by_budget:
+        return []
+    lines = [
+        "## Outcome mix beside the paper's (descriptive)",
+        "",
+        "How the hold-out episodes end, per density: the share of each outcome, each "
+        "training seed's first, then their mean; in brackets the paper's Table II row of "
+        "the same label (2M decisions in CARLA; its timeouts are what success, collision "
+        "and off-road leave). L1: the distance of the 12 numbers to the paper's row, as "
+        "the calibration's rule measures it. Descriptive: no test decides on these.",
+        "",
+    ]
+    for budget, episodes in episodes_by_budget.items():
+        md_rows, records = _mix_rows(outcome_mix(episodes))
+        write_csv(out / "tables" / f"outcome_mix_{budget_text(budget)}.csv", pd.DataFrame(records))
+        densities = sorted(episodes["density"].astype(float).unique())
+        heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities), "L1"]
+        lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, md_rows), ""]
+    return lines
+
+
+def _returns_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
     """The Table I section: per question budget, ``tables/table1_<budget>.{md,csv}`` and
     the table itself; none while no cell is counted."""
-    by_budget = returns_tables(exp, scores)
+    by_budget = returns_tables(episodes_by_budget)
     if not by_budget:
         return []
     lines = [
@@ -565,7 +655,12 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
     if len(budgets):
         save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")
-    descriptive = [*_returns_lines(exp, all_scores, out), *_efficiency(exp, out)]
+    episodes_by_budget = counted_episodes(exp, all_scores)
+    descriptive = [
+        *_mix_lines(episodes_by_budget, out),
+        *_returns_lines(episodes_by_budget, out),
+        *_efficiency(exp, out),
+    ]
     report = out / "report.md"
     text = report_markdown(
         exp, comparisons, looks, budgets, changes, command, descriptive, all_scores
