@@ -261,27 +261,15 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
 
-def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch over kinds
+def _coerce(value: Any, tp: Any, where: str) -> Any:
+    """``value`` (parsed TOML, or already typed) checked against, and converted to, the
+    field type ``tp``; a mismatch is one line naming ``where``."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if tp is Any:
         return value
     if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        options = [a for a in args if a is not type(None)]
-        if len(options) == 1:  # Optional[X]: X's own error is the precise one
-            return _coerce(value, options[0], where)
-        errors = []
-        for arg in args:
-            if arg is type(None):
-                continue
-            try:
-                return _coerce(value, arg, where)
-            except PriqnError as exc:
-                errors.append(str(exc))
-        names = " or ".join(_type_name(a) for a in args if a is not type(None))
-        raise PriqnError(f"{where}: expected {names}, got {value!r}")
+        return _coerce_union(value, args, where)
     if origin is typing.Literal:
         if value not in args:
             raise PriqnError(
@@ -293,26 +281,56 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: C901 - one switch 
             return value
         return from_dict(tp, value, where)
     if origin in (tuple, list, Sequence) or tp in (tuple, list):
-        if not isinstance(value, (list, tuple)):
-            raise PriqnError(f"{where}: expected a list, got {value!r}")
-        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
-            items = [_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
-        elif origin is tuple and args:
-            if len(args) != len(value):
-                raise PriqnError(f"{where}: expected {len(args)} values, got {len(value)}")
-            items = [
-                _coerce(v, a, f"{where}[{i}]")
-                for i, (v, a) in enumerate(zip(value, args, strict=True))
-            ]
-        else:
-            sub = args[0] if args else Any
-            items = [_coerce(v, sub, f"{where}[{i}]") for i, v in enumerate(value)]
-        return list(items) if origin is list or tp is list else tuple(items)
+        return _coerce_sequence(value, tp, where)
     if origin is dict or tp is dict:
         if not isinstance(value, Mapping):
             raise PriqnError(f"{where}: expected a table, got {value!r}")
         vt = args[1] if len(args) == 2 else Any
         return {str(k): _coerce(v, vt, f"{where}.{k}") for k, v in value.items()}
+    return _coerce_scalar(value, tp, where)
+
+
+def _coerce_union(value: Any, args: tuple[Any, ...], where: str) -> Any:
+    """``value`` as the first of the union's types ``args`` that takes it (None where
+    the union allows it); ``Optional[X]`` reports X's own, more precise error."""
+    if value is None and type(None) in args:
+        return None
+    options = [a for a in args if a is not type(None)]
+    if len(options) == 1:  # Optional[X]: X's own error is the precise one
+        return _coerce(value, options[0], where)
+    for arg in options:
+        try:
+            return _coerce(value, arg, where)
+        except PriqnError:
+            continue
+    names = " or ".join(_type_name(a) for a in options)
+    raise PriqnError(f"{where}: expected {names}, got {value!r}")
+
+
+def _coerce_sequence(value: Any, tp: Any, where: str) -> Any:
+    """A TOML array as ``tuple[X, ...]``, a fixed ``tuple[X, Y]``, ``list[X]`` or
+    ``Sequence[X]`` (a tuple unless ``tp`` is a list), each item coerced."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if not isinstance(value, (list, tuple)):
+        raise PriqnError(f"{where}: expected a list, got {value!r}")
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        items = [_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
+    elif origin is tuple and args:
+        if len(args) != len(value):
+            raise PriqnError(f"{where}: expected {len(args)} values, got {len(value)}")
+        items = [
+            _coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
+        ]
+    else:
+        sub = args[0] if args else Any
+        items = [_coerce(v, sub, f"{where}[{i}]") for i, v in enumerate(value)]
+    return list(items) if origin is list or tp is list else tuple(items)
+
+
+def _coerce_scalar(value: Any, tp: Any, where: str) -> Any:
+    """``bool``, ``int``, ``float`` (an integer is taken), ``str`` or ``Path``: ``value``
+    checked (a bool is no number); any other type passes ``value`` through."""
     if tp is bool:
         if isinstance(value, bool):
             return value

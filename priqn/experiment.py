@@ -531,17 +531,48 @@ def load_experiment(
     """
     p = resolve_experiment_path(path)
     data = load_toml(p)
-    sections = {
-        "experiment", "policy", "evaluate", "resources", "sequential", "question", "calibration",
-    }  # fmt: skip
-    unknown = sorted(set(data) - sections)
+    _check_sections(data, p)
+    exp = _load_experiment_table(data["experiment"], p)
+    policies = _load_policies(data.get("policy", []), exp, p)
+    evaluate = data.get("evaluate", {})
+    if not isinstance(evaluate, dict):
+        raise PriqnError(f"{p} [evaluate]: expected a table of EvalConfig fields")
+    resources = _load_resources(data.get("resources", {}), p, cpus_per_cell, gpus_per_cell)
+    designs: tuple[SequentialSpec, ...] = ()
+    if "sequential" in data:
+        if "question" in data:
+            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
+        designs = (_load_sequential(data["sequential"], exp, policies, p),)
+    # Absolute, so Ray workers (whose working directory differs) write to the same place.
+    exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
+    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, designs)
+    if "question" in data:
+        out = dataclasses.replace(out, designs=_load_questions(data["question"], out))
+    if "calibration" in data:
+        out = dataclasses.replace(out, calibration=_load_calibration(data["calibration"], out))
+    return out
+
+
+_SECTIONS = frozenset(
+    ("experiment", "policy", "evaluate", "resources", "sequential", "question", "calibration")
+)
+"""The tables an experiment file may have (``[experiment]`` and ``[[policy]]`` required)."""
+
+
+def _check_sections(data: dict[str, Any], p: Path) -> None:
+    """Only known tables, and an ``[experiment]`` table among them."""
+    unknown = sorted(set(data) - _SECTIONS)
     if unknown:
         raise PriqnError(
-            f"{p}: unknown section {unknown[0]!r} (valid: {', '.join(sorted(sections))})"
+            f"{p}: unknown section {unknown[0]!r} (valid: {', '.join(sorted(_SECTIONS))})"
         )
     if "experiment" not in data:
         raise PriqnError(f"{p}: missing [experiment] table (name, seeds, net, preset, steps)")
-    exp = from_dict(ExperimentSpec, data["experiment"], where=f"{p} [experiment]")
+
+
+def _load_experiment_table(raw: Any, p: Path) -> ExperimentSpec:
+    """Parse and check the ``[experiment]`` table: its name, seeds, steps and overrides."""
+    exp = from_dict(ExperimentSpec, raw, where=f"{p} [experiment]")
     _check_name(exp.name, f"{p} [experiment].name")
     if not exp.seeds:
         raise PriqnError(
@@ -554,13 +585,14 @@ def load_experiment(
     if exp.steps is not None and exp.steps <= 0:
         raise PriqnError(f"{p} [experiment].steps: expected a positive integer, got {exp.steps}")
     _check_overrides(exp.set, f"{p} [experiment].set")
+    return exp
 
-    policies = _load_policies(data.get("policy", []), exp, p)
 
-    evaluate = data.get("evaluate", {})
-    if not isinstance(evaluate, dict):
-        raise PriqnError(f"{p} [evaluate]: expected a table of EvalConfig fields")
-    res_data = dict(data.get("resources", {}))
+def _load_resources(
+    raw: Any, p: Path, cpus_per_cell: float | None, gpus_per_cell: float | None
+) -> ResourceSpec:
+    """Parse and check the ``[resources]`` table, with the command line's overrides."""
+    res_data = dict(raw)
     for key, value in (("cpus_per_cell", cpus_per_cell), ("gpus_per_cell", gpus_per_cell)):
         if value is not None:
             res_data[key] = value
@@ -570,28 +602,23 @@ def load_experiment(
             f"{p} [resources]: cpus_per_cell must be > 0 and gpus_per_cell >= 0, "
             f"got {resources.cpus_per_cell} and {resources.gpus_per_cell}"
         )
-    designs: tuple[SequentialSpec, ...] = ()
-    if "sequential" in data:
-        if "question" in data:
-            raise PriqnError(f"{p}: [sequential] and [[question]]: use one or the other")
-        designs = (_load_sequential(data["sequential"], exp, policies, p),)
-    # Absolute, so Ray workers (whose working directory differs) write to the same place.
-    exp = dataclasses.replace(exp, runs_dir=str(Path(runs_dir or exp.runs_dir).absolute()))
-    out = Experiment(p, exp, tuple(policies), dict(evaluate), resources, designs)
-    if "question" in data:
-        out = dataclasses.replace(out, designs=_load_questions(data["question"], out))
-    if "calibration" in data:
-        if out.designs:
-            raise PriqnError(f"{p}: [calibration] and a sequential design: use one or the other")
-        cal = from_dict(CalibrationSpec, data["calibration"], where=f"{p} [calibration]")
-        wanted = tuple(float(d) for d in out.evaluate.get("densities", ()))
-        if wanted and sorted(wanted) != sorted(cal.densities):
-            raise PriqnError(
-                f"{p} [calibration].densities: {list(cal.densities)} are not the evaluated "
-                f"densities {list(wanted)}"
-            )
-        out = dataclasses.replace(out, calibration=cal)
-    return out
+    return resources
+
+
+def _load_calibration(raw: Any, exp: Experiment) -> CalibrationSpec:
+    """Parse and check the ``[calibration]`` table of ``exp`` (which has no sequential
+    design): its densities are the evaluated ones, if ``[evaluate]`` names them."""
+    p = exp.path
+    if exp.designs:
+        raise PriqnError(f"{p}: [calibration] and a sequential design: use one or the other")
+    cal = from_dict(CalibrationSpec, raw, where=f"{p} [calibration]")
+    wanted = tuple(float(d) for d in exp.evaluate.get("densities", ()))
+    if wanted and sorted(wanted) != sorted(cal.densities):
+        raise PriqnError(
+            f"{p} [calibration].densities: {list(cal.densities)} are not the evaluated "
+            f"densities {list(wanted)}"
+        )
+    return cal
 
 
 def _load_policies(raw_policies: Any, exp: ExperimentSpec, p: Path) -> list[PolicySpec]:
