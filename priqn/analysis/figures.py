@@ -308,7 +308,7 @@ def sample_efficiency_figure(
     hold-out evaluations of the final policy and of kept snapshots. ``reference`` (e.g.
     IQN): its in-training line, dotted, in every panel that does not hold it.
     """
-    from priqn.analysis.curves import PERIODIC, SNAPSHOT, seed_counts
+    from priqn.analysis.curves import seed_counts
 
     n = len(panel_rows)
     fig, axes = plt.subplots(
@@ -324,30 +324,58 @@ def sample_efficiency_figure(
     span = float(budgets.max() - budgets.min()) or float(budgets.max()) or 1.0
     for ax, (title, rows) in zip(axes[:, 0], panel_rows, strict=True):
         if reference is not None and reference not in rows:
-            ref = curve[(curve["row"] == reference) & (curve["source"] == PERIODIC)]
-            ax.plot(
-                ref["budget"],
-                ref["mean"],
-                color=colors[reference],
-                lw=1.0,
-                ls=":",
-                label=f"{reference} (for reference)",
-            )
+            _draw_reference_line(ax, curve, reference, colors[reference])
         for i, row in enumerate(rows):
             dodge = (i - (len(rows) - 1) / 2) * 0.02 * span
             label = f"{row} ({seed_counts(curve, row)})"
             _draw_efficiency_row(ax, curve[curve["row"] == row], colors[row], label, dodge)
-        ax.set_title(title, fontsize=9, loc="left")
-        ax.set_ylim(-0.03, 1.03)
-        ax.grid(True, color="0.9")
-        ax.set_ylabel("hold-out success", fontsize=8)
-        ax.tick_params(labelsize=8)
-        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
+        _frame_efficiency_panel(ax, title)
     axes[-1, 0].set_xlabel("training decisions")
     axes[-1, 0].xaxis.set_major_formatter(
         FuncFormatter(lambda x, _: f"{x / 1000:g}k" if abs(x) >= 1000 else f"{x:g}")
     )
-    sources = set(curve["source"])  # a style's legend entry only where it is drawn
+    fig.legend(
+        handles=_efficiency_style_handles(curve),
+        loc="outside upper center",
+        fontsize=7,
+        frameon=False,
+    )
+    return fig
+
+
+def _frame_efficiency_panel(ax: plt.Axes, title: str) -> None:
+    """A panel of :func:`sample_efficiency_figure` around its curves: title, the success
+    axis from 0 to 1, grid, and the rows' legend outside on the right."""
+    ax.set_title(title, fontsize=9, loc="left")
+    ax.set_ylim(-0.03, 1.03)
+    ax.grid(True, color="0.9")
+    ax.set_ylabel("hold-out success", fontsize=8)
+    ax.tick_params(labelsize=8)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
+
+
+def _draw_reference_line(ax: plt.Axes, curve: pd.DataFrame, reference: str, color: Any) -> None:
+    """The ``reference`` row's in-training line, dotted, in a panel of
+    :func:`sample_efficiency_figure` that does not hold it."""
+    from priqn.analysis.curves import PERIODIC
+
+    ref = curve[(curve["row"] == reference) & (curve["source"] == PERIODIC)]
+    ax.plot(
+        ref["budget"],
+        ref["mean"],
+        color=color,
+        lw=1.0,
+        ls=":",
+        label=f"{reference} (for reference)",
+    )
+
+
+def _efficiency_style_handles(curve: pd.DataFrame) -> list[Any]:
+    """The figure-wide legend of :func:`sample_efficiency_figure`: what the line with its
+    band and what the markers are, each only where ``curve`` draws it."""
+    from priqn.analysis.curves import PERIODIC, SNAPSHOT
+
+    sources = set(curve["source"])
     handles = []
     if PERIODIC in sources:
         text = (
@@ -363,8 +391,7 @@ def sample_efficiency_figure(
         handles.append(
             plt.Line2D([], [], color="0.3", marker="o", mec="black", mew=0.5, ls="", label=text)
         )
-    fig.legend(handles=handles, loc="outside upper center", fontsize=7, frameon=False)
-    return fig
+    return handles
 
 
 def training_curve_figure(rows: Sequence[Mapping[str, Any]], title: str) -> plt.Figure:

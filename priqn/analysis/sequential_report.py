@@ -23,8 +23,8 @@ import pandas as pd
 from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import ComparisonLook, Replay, relative_path, verdict
-from priqn.experiment import cell_dir_name
+from priqn.analysis.sequential import ComparisonLook, Look, Replay, relative_path, verdict
+from priqn.experiment import ComparisonSpec, cell_dir_name
 from priqn.run.folder import RunFolder
 
 CURVE_SEED = 0
@@ -187,33 +187,7 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         if c.paper_difference is not None:
             ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
         for look in result.looks:
-            row = next(x for x in look.comparisons if x.name == c.name)
-            needed = look.needed.get(c.family)
-            if needed is not None and row.decided_at in (None, look.k):
-                if np.isfinite(needed):
-                    ax.fill_between(
-                        [look.k - 0.3, look.k + 0.3],
-                        -100 * needed,
-                        100 * needed,
-                        color="0.88",
-                        lw=0,
-                        zorder=0,
-                    )
-                else:  # too few splits to reject anything: the whole column
-                    ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
-            # Orange once AdaStop has found a difference (its decision after this look);
-            # "equal" at the last look is no difference found: black, inside its band.
-            decided = row.decision in ("larger", "smaller")
-            ax.errorbar(
-                look.k,
-                100 * row.diff,
-                yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
-                fmt="o",
-                color="tab:orange" if decided else "black",
-                ms=4,
-                lw=1,
-                capsize=2,
-            )
+            _draw_look(ax, look, c)
         ax.set_xticks(range(1, K + 1), [f"{n}" for n in seq.interims], fontsize=8)
         ax.set_xlim(0.4, K + 0.6)
         ax.set_xlabel("seeds per row at the look", fontsize=8)
@@ -223,6 +197,48 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         ax.set_visible(False)
     for ax in axes[:, 0]:
         ax.set_ylabel("difference, points", fontsize=8)
+    _looks_legend(fig, f"{exp.experiment.name}: each comparison look by look")
+    return fig
+
+
+def _draw_look(ax: Any, look: Look, c: ComparisonSpec) -> None:
+    """Comparison ``c`` at one look of :func:`looks_figure`: the band AdaStop would not
+    decide in (while ``c`` is open, and at the look that decides it), then the estimate
+    with its Welch interval, orange once a difference is found."""
+    row = next(x for x in look.comparisons if x.name == c.name)
+    needed = look.needed.get(c.family)
+    if needed is not None and row.decided_at in (None, look.k):
+        if np.isfinite(needed):
+            ax.fill_between(
+                [look.k - 0.3, look.k + 0.3],
+                -100 * needed,
+                100 * needed,
+                color="0.88",
+                lw=0,
+                zorder=0,
+            )
+        else:  # too few splits to reject anything: the whole column
+            ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
+    # Orange once AdaStop has found a difference (its decision after this look);
+    # "equal" at the last look is no difference found: black, inside its band.
+    decided = row.decision in ("larger", "smaller")
+    ax.errorbar(
+        look.k,
+        100 * row.diff,
+        yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
+        fmt="o",
+        color="tab:orange" if decided else "black",
+        ms=4,
+        lw=1,
+        capsize=2,
+    )
+
+
+def _looks_legend(fig: Any, title: str) -> None:
+    """The title and one legend row above the panels of :func:`looks_figure`: estimate,
+    difference found, undecided band, paper's difference."""
+    from priqn.analysis.figures import plt
+
     handles = [
         plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
         plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="difference found"),
@@ -230,7 +246,7 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
     ]
     top = 1 - 0.45 / fig.get_figheight()  # room for the title and the legend's row
-    fig.suptitle(f"{exp.experiment.name}: each comparison look by look", y=0.995, fontsize=10)
+    fig.suptitle(title, y=0.995, fontsize=10)
     fig.legend(
         handles=handles,
         loc="upper center",
@@ -240,7 +256,6 @@ def looks_figure(exp: Any, result: Replay) -> Any:
         frameon=False,
     )
     fig.tight_layout(rect=(0, 0, 1, top))
-    return fig
 
 
 def sample_efficiency(exp: Any, scores: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
