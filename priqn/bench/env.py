@@ -40,7 +40,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 POLICY_ACTIONS_SPEED = (1, 2, 3)
 """Speed indices the benchmark policy draws from (3, 6, 9 m/s on the default grid)."""
@@ -84,31 +84,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     )
 
 
-# long: one benchmark in the order it prints: flag checks, per-density rounds (env, floor,
-# per-part times, sensors against the reference), then the vector-env scaling table.
 def run(args: argparse.Namespace) -> int:
-    from priqn.errors import PriqnError
-
-    try:
-        densities = [float(d) for d in str(args.densities).split(",") if d.strip()]
-    except ValueError:
-        raise PriqnError(
-            f"--densities {args.densities!r}: expected numbers like 0.5,0.75,1.0"
-        ) from None
-    from priqn.env.traffic import check_density
-
-    for d in densities:
-        check_density(d, "--densities")
-    if args.decisions < 10 or args.vector_decisions < 10:
-        raise PriqnError("--decisions and --vector-decisions: expected >= 10")
-    if args.max_workers < 0:
-        raise PriqnError("--max-workers: expected >= 0 (0 skips the vector env)")
-    if args.repeats < 1:
-        raise PriqnError("--repeats: expected >= 1")
-    from priqn.env import sensor_kernels
-
-    if args.sensors == "compiled" and not sensor_kernels.AVAILABLE:
-        raise PriqnError("--sensors compiled: numba is not installed (pip install numba)")
+    """Entry point of ``priqn bench env``: the flags checked, then the benchmark in the
+    order it prints: each density's env against its floor, the vector env's scaling,
+    HighwayEnv beside priqn (``--vs highway``); ``--json`` also writes the results."""
+    densities = _checked_densities(args)
     base = {"family": args.family, "obs_size_px": args.obs_size, "seed": args.seed}
     env_base = {
         **base,
@@ -135,45 +115,10 @@ def run(args: argparse.Namespace) -> int:
         "   env step ms = sumo + sensors + planner + risk + rest   sensors: ref ms, new/ref"
     )
     for d in densities:
-        runs = [
-            _child({**env_base, "mode": "env", "density": d, "decisions": args.decisions})
-            for _ in range(args.repeats)
-        ]
-        ratios = [r["floor"]["decisions_per_s"] / r["env"]["decisions_per_s"] for r in runs]
-        mid = runs[ratios.index(statistics.median_low(ratios))]
-        env, floor = mid["env"], mid["floor"]
-        ratio = floor["decisions_per_s"] / env["decisions_per_s"]
-        results["density"][str(d)] = {
-            "env": env,
-            "floor": floor,
-            "ratio": ratio,
-            "ratio_runs": ratios,
-            "env_runs": [r["env"]["decisions_per_s"] for r in runs],
-            "floor_runs": [r["floor"]["decisions_per_s"] for r in runs],
-        }
-        p, ep = env["parts_ms"], env["episode"]
-        print(
-            f"{d:>7.2f} {env['decisions_per_s']:>9.1f} {floor['decisions_per_s']:>11.1f} "
-            f"{ratio:>8.2f}x {env['reset_ms']:>8.1f} {ep['ms']:>10.1f} "
-            f"{ep['decisions_per_s']:>18.1f} {env['risk_us_per_step']:>12.1f}   "
-            f"{env['step_ms']:.2f} = {p['sumo_ms']:.2f} + {p['sensors_ms']:.2f} + "
-            f"{p['plan_ms']:.2f} + {p['risk_ms']:.2f} + {p['rest_ms']:.2f}   "
-            + (
-                f"{env['sensors_ref_ms']:.2f}, {p['sensors_ms'] / env['sensors_ref_ms']:.2f} "
-                f"(median of pairs {env['sensors_vs_ref']['median_ratio']:.2f})"
-                if env["sensors_ref_ms"]
-                else "(not timed)"
-            )
-            + (f"  MISMATCHES {env['sensors_mismatches']}" if env["sensors_mismatches"] else "")
-        )
-    if args.max_workers:
-        print(f"{'workers':>7} {'dec/s':>9} {'speed-up':>9}")
-    one = None
-    for n in range(1, args.max_workers + 1):
-        vec = _child({**base, "mode": "vector", "workers": n, "decisions": args.vector_decisions})
-        one = one or vec["decisions_per_s"]
-        results["vector"][str(n)] = vec
-        print(f"{n:>7d} {vec['decisions_per_s']:>9.1f} {vec['decisions_per_s'] / one:>8.2f}x")
+        spec = {**env_base, "mode": "env", "density": d, "decisions": args.decisions}
+        results["density"][str(d)] = row = _median_density(spec, args.repeats)
+        print(_density_line(d, row))
+    results["vector"] = _vector_scaling(base, args.max_workers, args.vector_decisions)
     if args.vs == "highway":
         results["highway"] = _versus_highway(results, densities, args)
     if args.json is not None:
@@ -181,6 +126,86 @@ def run(args: argparse.Namespace) -> int:
 
         atomic_write_json(args.json, results)
     return 0
+
+
+def _checked_densities(args: argparse.Namespace) -> list[float]:
+    """``--densities`` parsed, and every flag checked (one line per mistake)."""
+    from priqn.errors import PriqnError
+
+    try:
+        densities = [float(d) for d in str(args.densities).split(",") if d.strip()]
+    except ValueError:
+        raise PriqnError(
+            f"--densities {args.densities!r}: expected numbers like 0.5,0.75,1.0"
+        ) from None
+    from priqn.env.traffic import check_density
+
+    for d in densities:
+        check_density(d, "--densities")
+    if args.decisions < 10 or args.vector_decisions < 10:
+        raise PriqnError("--decisions and --vector-decisions: expected >= 10")
+    if args.max_workers < 0:
+        raise PriqnError("--max-workers: expected >= 0 (0 skips the vector env)")
+    if args.repeats < 1:
+        raise PriqnError("--repeats: expected >= 1")
+    from priqn.env import sensor_kernels
+
+    if args.sensors == "compiled" and not sensor_kernels.AVAILABLE:
+        raise PriqnError("--sensors compiled: numba is not installed (pip install numba)")
+    return densities
+
+
+def _median_density(spec: dict[str, Any], repeats: int) -> dict[str, Any]:
+    """One density measured ``repeats`` times (env and floor, each in a fresh process):
+    the run with the median (low) ``floor/env`` ratio, and every run's rates."""
+    runs = [_child(spec) for _ in range(repeats)]
+    ratios = [r["floor"]["decisions_per_s"] / r["env"]["decisions_per_s"] for r in runs]
+    mid = runs[ratios.index(statistics.median_low(ratios))]
+    env, floor = mid["env"], mid["floor"]
+    return {
+        "env": env,
+        "floor": floor,
+        "ratio": floor["decisions_per_s"] / env["decisions_per_s"],
+        "ratio_runs": ratios,
+        "env_runs": [r["env"]["decisions_per_s"] for r in runs],
+        "floor_runs": [r["floor"]["decisions_per_s"] for r in runs],
+    }
+
+
+def _density_line(d: float, row: dict[str, Any]) -> str:
+    """One density's row of the table: rates, the ratio, resets and episodes, the step's
+    parts, the sensors against their reference."""
+    env, floor, ratio = row["env"], row["floor"], row["ratio"]
+    p, ep = env["parts_ms"], env["episode"]
+    return (
+        f"{d:>7.2f} {env['decisions_per_s']:>9.1f} {floor['decisions_per_s']:>11.1f} "
+        f"{ratio:>8.2f}x {env['reset_ms']:>8.1f} {ep['ms']:>10.1f} "
+        f"{ep['decisions_per_s']:>18.1f} {env['risk_us_per_step']:>12.1f}   "
+        f"{env['step_ms']:.2f} = {p['sumo_ms']:.2f} + {p['sensors_ms']:.2f} + "
+        f"{p['plan_ms']:.2f} + {p['risk_ms']:.2f} + {p['rest_ms']:.2f}   "
+        + (
+            f"{env['sensors_ref_ms']:.2f}, {p['sensors_ms'] / env['sensors_ref_ms']:.2f} "
+            f"(median of pairs {env['sensors_vs_ref']['median_ratio']:.2f})"
+            if env["sensors_ref_ms"]
+            else "(not timed)"
+        )
+        + (f"  MISMATCHES {env['sensors_mismatches']}" if env["sensors_mismatches"] else "")
+    )
+
+
+def _vector_scaling(base: dict[str, Any], max_workers: int, decisions: int) -> dict[str, Any]:
+    """The vector env with 1 to ``max_workers`` workers (none for 0), each in a fresh
+    process: its table printed, ``workers -> measurement`` returned."""
+    out: dict[str, Any] = {}
+    if max_workers:
+        print(f"{'workers':>7} {'dec/s':>9} {'speed-up':>9}")
+    one = None
+    for n in range(1, max_workers + 1):
+        vec = _child({**base, "mode": "vector", "workers": n, "decisions": decisions})
+        one = one or vec["decisions_per_s"]
+        out[str(n)] = vec
+        print(f"{n:>7d} {vec['decisions_per_s']:>9.1f} {vec['decisions_per_s'] / one:>8.2f}x")
+    return out
 
 
 HIGHWAY_ENVS: tuple[str, ...] = ("intersection-v0", "intersection-v2")
@@ -305,11 +330,12 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
+    """The ``env`` measurement (child process): episodes on the pinned scenes until
+    ``spec["decisions"]``, each followed by its floor; ``{"env": ..., "floor": ...}``."""
     import numpy as np
 
     from priqn.env.sensors import Sensors
 
-    n_off = env.config.n_offsets
     policy = np.random.default_rng(spec["seed"] + 1)
     compiled = spec.get("sensors_compiled", True)
     if env._sensors.compiled != compiled:  # the env's own choice is numba where installed
@@ -317,35 +343,69 @@ def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
     env.reset(seed=spec["seed"])  # the first observation compiles (or loads) the loops
     parts = _time_parts(env, sensors_ref=spec.get("sensors_ref", True))
     sim_step = parts.pop("simulation_step")  # the unwrapped libsumo step, for the floor
-    episodes, step_s, reset_s, done, floor_s = [], 0.0, 0.0, 0, 0.0
-    whole = []  # (decisions, seconds incl. reset) of every episode that ended
+    episodes: list[_TimedScene] = []
+    done = 0
     for seed, options in _scenes(env, spec["seed"], spec["density"]):
-        t0 = time.perf_counter()
-        env.reset(seed=seed, options=options)
-        t_reset = time.perf_counter() - t0
-        reset_s += t_reset
-        steps, t_steps, ended = 0, 0.0, False
-        while done < spec["decisions"]:
-            a = int(policy.choice(POLICY_ACTIONS_SPEED)) * n_off + n_off // 2
-            t0 = time.perf_counter()
-            _, _, term, trunc, _ = env.step(a)
-            t_steps += time.perf_counter() - t0
-            steps += 1
-            done += 1
-            if term or trunc:
-                ended = True
-                break
-        step_s += t_steps
-        episodes.append([seed, options, steps])
-        env.reset(seed=seed, options=options)  # the floor: the same scene, SUMO alone
-        t0 = time.perf_counter()
-        for _ in range(steps * env.config.substeps):
-            sim_step()
-        floor_s += time.perf_counter() - t0
-        if ended:
-            whole.append((steps, t_reset + t_steps))
+        ep = _time_episode(env, seed, options, policy, spec["decisions"] - done, sim_step)
+        episodes.append(ep)
+        done += ep.steps
         if done >= spec["decisions"]:
             break
+    floor_s = sum(ep.floor_s for ep in episodes)
+    floor = {"decisions": done, "decisions_per_s": done / floor_s, "step_ms": 1e3 * floor_s / done}
+    return {"env": _env_result(parts, episodes, done), "floor": floor}
+
+
+class _TimedScene(NamedTuple):
+    """One scene of the ``env`` measurement: the env's episode and its floor."""
+
+    seed: int
+    options: dict[str, Any]
+    steps: int
+    """Decisions taken (up to the budget left)."""
+    reset_s: float
+    step_s: float
+    """Seconds in ``env.step``, the reference sensors' time included."""
+    floor_s: float
+    """Seconds of the same scene stepped by SUMO alone, as many decisions."""
+    ended: bool
+    """The episode terminated or was truncated (it is whole)."""
+
+
+def _time_episode(
+    env: Any, seed: int, options: dict[str, Any], policy: Any, budget: int, sim_step: Any
+) -> _TimedScene:
+    """One scene: reset and step the env with the benchmark policy until the episode ends
+    or ``budget`` decisions are taken; then the same scene reset and stepped with
+    ``sim_step`` (libsumo alone) for as many decisions."""
+    n_off = env.config.n_offsets
+    t0 = time.perf_counter()
+    env.reset(seed=seed, options=options)
+    reset_s = time.perf_counter() - t0
+    steps, step_s, ended = 0, 0.0, False
+    while steps < budget:
+        a = int(policy.choice(POLICY_ACTIONS_SPEED)) * n_off + n_off // 2
+        t0 = time.perf_counter()
+        _, _, term, trunc, _ = env.step(a)
+        step_s += time.perf_counter() - t0
+        steps += 1
+        if term or trunc:
+            ended = True
+            break
+    env.reset(seed=seed, options=options)  # the floor: the same scene, SUMO alone
+    t0 = time.perf_counter()
+    for _ in range(steps * env.config.substeps):
+        sim_step()
+    return _TimedScene(seed, options, steps, reset_s, step_s, time.perf_counter() - t0, ended)
+
+
+def _env_result(parts: dict[str, Any], episodes: list[_TimedScene], done: int) -> dict[str, Any]:
+    """The env's side of the measurement from its episodes and the step's timed
+    ``parts`` (:func:`_time_parts`): rates, resets, the step's parts per decision (the
+    rest is what no timer covers), the sensors against the reference, whole episodes."""
+    import numpy as np
+
+    step_s = sum(ep.step_s for ep in episodes)
     sim_steps = parts.pop("risk_steps")
     ref_s, mismatches = parts.pop("sensors_ref_ms"), parts.pop("sensors_mismatches")
     pairs = np.array(parts.pop("sensors_pairs")).reshape(-1, 2)  # (new, reference) seconds
@@ -353,13 +413,14 @@ def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
     risk_s = parts["risk_ms"]
     parts_ms = {k: 1e3 * v / done for k, v in parts.items()}
     parts_ms["rest_ms"] = 1e3 * step_s / done - sum(parts_ms.values())
+    whole = [(ep.steps, ep.reset_s + ep.step_s) for ep in episodes if ep.ended]
     n_whole = max(sum(d for d, _ in whole), 1)
     t_whole = sum(t for _, t in whole)
-    env_out = {
+    return {
         "decisions": done,
         "decisions_per_s": done / step_s,
         "step_ms": 1e3 * step_s / done,
-        "reset_ms": 1e3 * reset_s / len(episodes),
+        "reset_ms": 1e3 * sum(ep.reset_s for ep in episodes) / len(episodes),
         "parts_ms": parts_ms,
         "risk_us_per_step": 1e6 * risk_s / max(sim_steps, 1),
         "sensors_ref_ms": 1e3 * ref_s / done,
@@ -376,10 +437,8 @@ def _measure_env(env: Any, spec: dict[str, Any]) -> dict[str, Any]:
             "ms": 1e3 * t_whole / max(len(whole), 1),
             "decisions_per_s": n_whole / t_whole if t_whole else 0.0,
         },
-        "episodes": episodes,
+        "episodes": [[ep.seed, ep.options, ep.steps] for ep in episodes],
     }
-    floor = {"decisions": done, "decisions_per_s": done / floor_s, "step_ms": 1e3 * floor_s / done}
-    return {"env": env_out, "floor": floor}
 
 
 def _time_parts(env: Any, sensors_ref: bool = True) -> dict[str, Any]:

@@ -15,7 +15,12 @@ import argparse
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    import torch
+
+    from priqn.preorder import Preorder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -192,14 +197,44 @@ def _network_forward_time(
     )
 
 
-# long: one benchmark in the order it prints: checks, the reference and batched timings in
-# the same rounds, then the table; splitting it would scatter the rounds' shared state.
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
+    """Entry point of ``priqn bench preorder``: the flags checked, the batched subsets timed
+    and checked against the per-state reference on one random batch, the network's
+    forward pass timed beside them; 1 when the subsets differ."""
+    import torch
+
+    from priqn.preorder import Preorder
+
+    device = _checked_device(args)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    po = Preorder.resolve(args.preorder)
+    b, n, k, a = args.batch, len(po), args.quantiles, args.actions
+    quantiles_np = _random_quantiles((b, n, k, a), args.seed)
+    subsets = _time_subsets(quantiles_np, po, args, device, sync)
+    t_net, net_note = _network_forward_time(
+        b, n, k, a, args.obs_size, device, max(3, min(args.repeats, 10)), sync
+    )
+    _print_subsets(args, po, device, subsets)
+    t_batched = subsets.batched[0]
+    if t_net is None:
+        print(f"  network forward pass:           unavailable: {net_note}")
+    else:
+        print(f"  network forward pass:           {t_net * 1e3:9.3f} ms/batch  ({net_note})")
+        print(
+            f"  optimal_subsets / forward pass: {t_batched / t_net:9.3f}"
+            f"  ({100 * t_batched / t_net:.1f}% of one forward pass)"
+        )
+    if not math.isfinite(subsets.reference[0] / t_batched):
+        return 1
+    return 0 if subsets.agree else 1
+
+
+def _checked_device(args: argparse.Namespace) -> torch.device:
+    """The flags checked, torch's CPU threads set (``--threads``); the ``--device`` the
+    batched version runs on, once torch has allocated on it."""
     import torch
 
     from priqn.errors import PriqnError
-    from priqn.preorder import Preorder, optimal_subsets
 
     for name in ("batch", "quantiles", "actions", "repeats", "reference_repeats"):
         if getattr(args, name) < 1:
@@ -213,15 +248,50 @@ def run(args: argparse.Namespace) -> int:
         torch.empty(1, device=device)
     except (RuntimeError, AssertionError) as exc:
         raise PriqnError(f"--device {args.device!r}: not available here ({exc})") from None
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    return device
 
-    po = Preorder.resolve(args.preorder)
-    b, n, k, a = args.batch, len(po), args.quantiles, args.actions
-    rng = np.random.default_rng(args.seed)
-    # Per-action means and spreads that differ, so the subsets are neither all nor one.
+
+def _random_quantiles(shape: tuple[int, int, int, int], seed: int) -> Any:
+    """Random sorted quantiles ``[B, N, K, A]`` (float64): per-action means and spreads
+    that differ, so the subsets are neither all nor one action."""
+    import numpy as np
+
+    b, n, k, a = shape
+    rng = np.random.default_rng(seed)
     loc = rng.normal(0.0, 1.0, size=(b, n, 1, a))
     spread = rng.uniform(0.2, 1.5, size=(b, n, 1, a))
-    quantiles_np = loc + spread * np.sort(rng.normal(size=(b, n, k, a)), axis=2)
+    return loc + spread * np.sort(rng.normal(size=(b, n, k, a)), axis=2)
+
+
+class _SubsetTimes(NamedTuple):
+    """The batched optimal subsets against the per-state reference on one batch."""
+
+    batched: tuple[float, float]
+    """Median and minimum seconds per batch of :func:`priqn.preorder.optimal_subsets`."""
+    reference: tuple[float, float]
+    """The same of :func:`reference_optimal_subsets`."""
+    agree: bool
+    """Both give the same subsets (compared in float64)."""
+    sizes: list[float]
+    """Mean number of optimal actions per objective (``|S_r|``)."""
+
+
+def _time_subsets(
+    quantiles_np: Any,
+    po: Preorder,
+    args: argparse.Namespace,
+    device: torch.device,
+    sync: Callable[[], None],
+) -> _SubsetTimes:
+    """Time the batched subsets (float32 on ``device``, ``--repeats`` calls) and the
+    per-state reference (``--reference-repeats`` passes) on ``quantiles_np``, and check
+    that they agree."""
+    import numpy as np
+    import torch
+
+    from priqn.preorder import optimal_subsets
+
+    n = len(po)
     q64 = torch.from_numpy(quantiles_np)
     q = q64.to(device=device, dtype=torch.float32)
     eps = [args.eps] * n
@@ -229,14 +299,12 @@ def run(args: argparse.Namespace) -> int:
     def batched() -> Any:
         return optimal_subsets(q, po, comparator=args.comparator, eps=args.eps)
 
-    t_batched, t_batched_min = _timeit(batched, args.repeats, sync)
-
+    t_batched = _timeit(batched, args.repeats, sync)
     parents = [po._parents_idx[i] for i in range(n)]
     ref_args = (parents, po._topo_idx, po._leaves_idx, eps, args.comparator)
-    t_ref, t_ref_min = _timeit(
+    t_ref = _timeit(
         lambda: reference_optimal_subsets(quantiles_np, *ref_args), args.reference_repeats, sync
     )
-
     # Same subsets? Compare in float64 so rounding cannot flip a relation at ε.
     ref_sets, ref_leaf = reference_optimal_subsets(quantiles_np, *ref_args)
     out64 = optimal_subsets(q64.to(device), po, comparator=args.comparator, eps=args.eps)
@@ -244,13 +312,19 @@ def run(args: argparse.Namespace) -> int:
         np.array_equal(out64.per_objective.cpu().numpy(), ref_sets)
         and np.array_equal(out64.leaf.cpu().numpy(), ref_leaf)
     )
-    out = batched()
-    sizes = out.per_objective.float().sum(-1).mean(0).cpu().tolist()
+    sizes = batched().per_objective.float().sum(-1).mean(0).cpu().tolist()
+    return _SubsetTimes(t_batched, t_ref, agree, sizes)
 
-    t_net, net_note = _network_forward_time(
-        b, n, k, a, args.obs_size, device, max(3, min(args.repeats, 10)), sync
-    )
 
+def _print_subsets(
+    args: argparse.Namespace, po: Preorder, device: torch.device, times: _SubsetTimes
+) -> None:
+    """The table's head: the batch, the preorder, the device, the subsets' sizes, both
+    timings, the speed-up against its target, and whether the subsets agree."""
+    import torch
+
+    b, n, k, a = args.batch, len(po), args.quantiles, args.actions
+    (t_batched, t_batched_min), (t_ref, t_ref_min) = times.batched, times.reference
     threads = torch.get_num_threads()
     print(
         f"priqn bench preorder: B={b} N={n} K={k} A={a} comparator={args.comparator} eps={args.eps}"
@@ -259,7 +333,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  device:    {device} (torch {torch.__version__}, {threads} CPU threads)")
     print(
         "  mean |S_r| per objective: "
-        + ", ".join(f"{name}={v:.2f}" for name, v in zip(po.objectives, sizes, strict=True))
+        + ", ".join(f"{name}={v:.2f}" for name, v in zip(po.objectives, times.sizes, strict=True))
     )
     print(
         f"  batched optimal_subsets:        {t_batched * 1e3:9.3f} ms/batch (min {t_batched_min * 1e3:.3f})"
@@ -274,15 +348,4 @@ def run(args: argparse.Namespace) -> int:
         f" {t_ref_min / t_batched_min:.1f}x minima"
         f"  (target >= 100x){'' if t_ref / t_batched >= 100 else '  BELOW TARGET'}"
     )
-    print(f"  same subsets as the reference:  {'yes' if agree else 'NO'}")
-    if t_net is None:
-        print(f"  network forward pass:           unavailable: {net_note}")
-    else:
-        print(f"  network forward pass:           {t_net * 1e3:9.3f} ms/batch  ({net_note})")
-        print(
-            f"  optimal_subsets / forward pass: {t_batched / t_net:9.3f}"
-            f"  ({100 * t_batched / t_net:.1f}% of one forward pass)"
-        )
-    if not math.isfinite(t_ref / t_batched):
-        return 1
-    return 0 if agree else 1
+    print(f"  same subsets as the reference:  {'yes' if times.agree else 'NO'}")
