@@ -28,6 +28,15 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         + ", ".join(sorted(p.stem for p in shipped(EXPERIMENTS).glob("*.toml")))
         + ")",
     )
+    _resource_flags(parser)
+    _cell_flags(parser)
+    _run_nothing_flags(parser)
+    _code_flags(parser)
+
+
+def _resource_flags(parser: argparse.ArgumentParser) -> None:
+    """Where the cells run and how many at a time: the local pool or Ray, and the
+    overrides of the file's ``[experiment].runs_dir`` and ``[resources]``."""
     parser.add_argument(
         "--jobs",
         "-j",
@@ -52,6 +61,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gpus-per-cell", type=float, default=None, help="override [resources].gpus_per_cell"
     )
+
+
+def _cell_flags(parser: argparse.ArgumentParser) -> None:
+    """Which cells run, how often a failed one is retried, and the report after them."""
     parser.add_argument(
         "--only",
         nargs="+",
@@ -63,6 +76,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--retries", type=int, default=1, help="extra attempts for a failed cell (default 1)"
     )
     parser.add_argument("--no-report", action="store_true", help="skip the report at the end")
+
+
+def _run_nothing_flags(parser: argparse.ArgumentParser) -> None:
+    """The actions that run no cell: list the cells, commit the complete ones, forecast
+    a sequential design."""
     parser.add_argument(
         "--list", action="store_true", help="list the cells and their state; run nothing"
     )
@@ -82,6 +100,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "estimates so far or the paper's differences are true; run nothing "
         "(priqn.analysis.forecast)",
     )
+
+
+def _code_flags(parser: argparse.ArgumentParser) -> None:
+    """The code each cell's child process runs: a frozen checkout, the cell function."""
     parser.add_argument(
         "--code",
         default=None,

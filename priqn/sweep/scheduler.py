@@ -162,55 +162,80 @@ def run_sweep(
     """
     say = log or (lambda msg: print(msg, file=sys.stderr))
     cells = select(expand(exp), only, exp.path)
-    exp_dir = exp.runs_dir
-    exp_dir.mkdir(parents=True, exist_ok=True)
+    exp.runs_dir.mkdir(parents=True, exist_ok=True)
     result = SweepResult()
-    with SweepFolder(exp_dir).lock():
-        todo = []
-        for c in cells:
-            if c.is_complete():
-                result.skipped.append(c.name)
-            else:
-                todo.append(c)
-        if todo:
-            if use_ray:
-                backend: Backend = RayBackend(ray_address, exp.resources, jobs)
-            else:
-                shares = gpu_shares(exp.resources)
-                if shares is None and exp.resources.gpus_per_cell > 0:
-                    say(
-                        f"priqn sweep: warning: [resources] gpus_per_cell = "
-                        f"{exp.resources.gpus_per_cell:g} but torch sees no CUDA GPU here: "
-                        "cells run on the CPU"
-                    )
-                backend = LocalBackend(jobs or default_jobs(exp.resources), shares)
+    with SweepFolder(exp.runs_dir).lock():
+        todo = _skip_complete(cells, result)
+        if not todo:
+            say(f"priqn sweep {exp.experiment.name}: all {len(cells)} cells already complete")
+            _write_summary(exp, cells, result)
+        else:
+            backend = _backend(exp, jobs, use_ray, ray_address, say)
             say(
                 f"priqn sweep {exp.experiment.name}: {len(cells)} cells, "
                 f"{len(result.skipped)} already complete, {len(todo)} to run ({backend.describe()})"
             )
             try:
-                extra = {
-                    "cell_fn": cell_fn,
-                    **({"code_dir": str(code_dir)} if code_dir is not None else {}),
-                }
                 in_flight = _InFlight(todo, exp, result, say, progress)
-                _schedule(backend, in_flight, exp.runs_dir, retries, extra)
+                _schedule(backend, in_flight, exp.runs_dir, retries, _spec_extra(cell_fn, code_dir))
             finally:
                 backend.close()
                 _write_summary(exp, cells, result)
-        else:
-            say(f"priqn sweep {exp.experiment.name}: all {len(cells)} cells already complete")
-            _write_summary(exp, cells, result)
     if report and not result.interrupted:
-        missing = [c.name for c in expand(exp) if not c.is_complete()]
-        if missing:
-            say(
-                f"priqn sweep: report skipped: {len(missing)} cell(s) not complete "
-                f"(e.g. {missing[0]}); a report never mixes in missing runs"
-            )
-        else:
-            result.report = _run_report(exp, say)
+        result.report = _report_when_complete(exp, say)
     return result
+
+
+def _spec_extra(cell_fn: str, code_dir: Path | None) -> dict[str, Any]:
+    """What every cell's spec carries beside the cell's own: the function its child runs
+    and, with ``code_dir``, the priqn checkout the child imports."""
+    return {"cell_fn": cell_fn, **({"code_dir": str(code_dir)} if code_dir is not None else {})}
+
+
+def _skip_complete(cells: list[Cell], result: SweepResult) -> list[Cell]:
+    """The cells still to run; the complete ones go to ``result.skipped``."""
+    todo = []
+    for c in cells:
+        if c.is_complete():
+            result.skipped.append(c.name)
+        else:
+            todo.append(c)
+    return todo
+
+
+def _backend(
+    exp: Experiment,
+    jobs: int | None,
+    use_ray: bool,
+    ray_address: str | None,
+    say: Callable[[str], None],
+) -> Backend:
+    """Where the cells run: Ray tasks (``use_ray``), else a local pool of ``jobs`` child
+    processes (default :func:`default_jobs`) on this machine's GPU shares, with a warning
+    when ``gpus_per_cell > 0`` but torch sees no GPU."""
+    if use_ray:
+        return RayBackend(ray_address, exp.resources, jobs)
+    shares = gpu_shares(exp.resources)
+    if shares is None and exp.resources.gpus_per_cell > 0:
+        say(
+            f"priqn sweep: warning: [resources] gpus_per_cell = "
+            f"{exp.resources.gpus_per_cell:g} but torch sees no CUDA GPU here: "
+            "cells run on the CPU"
+        )
+    return LocalBackend(jobs or default_jobs(exp.resources), shares)
+
+
+def _report_when_complete(exp: Experiment, say: Callable[[str], None]) -> Path | None:
+    """The experiment's report when every cell of its grid is complete (not only those
+    this sweep selected); else None, saying why (a report never mixes in missing runs)."""
+    missing = [c.name for c in expand(exp) if not c.is_complete()]
+    if missing:
+        say(
+            f"priqn sweep: report skipped: {len(missing)} cell(s) not complete "
+            f"(e.g. {missing[0]}); a report never mixes in missing runs"
+        )
+        return None
+    return _run_report(exp, say)
 
 
 class _InFlight:
