@@ -157,10 +157,10 @@ def test_endpoints_are_read_at_the_budget_from_cells_and_snapshots(tmp_path: Pat
 def test_each_question_is_replayed_with_its_own_words(tmp_path: Path) -> None:
     exp = grid(tmp_path)
     safety, long = exp.designs
-    _, result = questions.replay(exp, safety)
+    _, result = questions.take_looks(exp, safety)
     assert result.decisions == {"a vs b": "larger"}
     assert sequential.verdict(safety, result, safety.comparisons[0]) == "a violates more"
-    _, result = questions.replay(exp, long)
+    _, result = questions.take_looks(exp, long)
     assert result.decisions == {"a > b": "larger"}
     assert sequential.verdict(long, result, long.comparisons[0]) == "reproduced"
     assert questions.next_cells(exp) == []

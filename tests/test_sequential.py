@@ -125,22 +125,22 @@ def scores_frame(rates: dict[str, list[float]]) -> pd.DataFrame:
 SAME = [0.8, 1.0, 0.9, 0.7, 1.0, 0.8, 0.9, 1.0]
 
 
-def replay(exp: Any, scores: pd.DataFrame) -> sequential.Replay:
+def take_looks(exp: Any, scores: pd.DataFrame) -> sequential.Replay:
     """The ``[sequential]`` design's replay on ``scores`` (every row of the grid)."""
     rows = [p.name for p in exp.policies]
-    return sequential.replay(exp.sequential, sequential.scores_by_policy(scores, rows))
+    return sequential.take_looks(exp.sequential, sequential.scores_by_policy(scores, rows))
 
 
 def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
     # Before any look: every row needs seeds 0-3.
-    empty = replay(exp, scores_frame({}))
+    empty = take_looks(exp, scores_frame({}))
     assert (empty.looks, empty.next_look) == ((), 1)
     # After look 1: good beats bad in all 4 seeds: of the 70 splits only the observed one
     # and its mirror image are as extreme (two-sided, 2/70 <= α/K = 0.05): decided. good
     # vs same is not (seeds overlap).
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
-    r = replay(exp, four)
+    r = take_looks(exp, four)
     assert [look.k for look in r.looks] == [1]
     assert r.decisions == {"good > bad": "larger", "good vs same": "continue"}
     assert r.open_rows == ("good", "same") and r.next_look == 2
@@ -152,21 +152,21 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
     assert 0.05 < r.looks[0].needed["primary"] < 0.8
     # Look 2 needs seeds 4-7 of the open rows only.
     eight = scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME})
-    r2 = replay(exp, eight)
+    r2 = take_looks(exp, eight)
     assert r2.finished and r2.decisions["good vs same"] == "equal"
     assert r2.looks[1].seeds_per_row == {"good": 8, "bad": 4, "same": 8}
     assert sequential.verdict(exp.sequential, r2, exp.sequential.comparisons[1]) == (
         "no difference found at 8 seeds"
     )
     # The replay is a pure function of the scores: the same frame, the same decisions.
-    assert replay(exp, eight) == r2
+    assert take_looks(exp, eight) == r2
 
 
 def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
-    assert sequential_report.looks_figure(exp, replay(exp, scores_frame({}))) is None
+    assert sequential_report.looks_figure(exp, take_looks(exp, scores_frame({}))) is None
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
-    r = replay(exp, four)
+    r = take_looks(exp, four)
     fig = sequential_report.looks_figure(exp, r)
     good_bad, good_same = fig.axes[:2]
     needed = 100 * r.looks[0].needed["primary"]
@@ -186,7 +186,7 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     assert [ln.get_ydata()[0] for ln in good_bad.lines[:2]] == [0, 50.0]
     # At the last look good vs same is "equal" (no difference found): not a difference,
     # so its dot stays black, inside the band drawn for that look.
-    r2 = replay(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
+    r2 = take_looks(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
     assert r2.finished and r2.decisions["good vs same"] == "equal"
     good_same = sequential_report.looks_figure(exp, r2).axes[1]
     dots = [ln for ln in good_same.lines if ln.get_marker() == "o"]
@@ -230,12 +230,12 @@ def test_undecided_comparison_with_a_paper_value_is_ruled_out_or_inconclusive(
     close = scores_frame(
         {"good": [0.5, 0.52, 0.48, 0.5, 0.51, 0.49, 0.5, 0.5], "bad": [0.5] * 8, "same": SAME}
     )
-    r = replay(exp, close)
+    r = take_looks(exp, close)
     assert r.decisions[claim.name] == "equal"
     assert sequential.verdict(exp.sequential, r, claim) == "paper's effect ruled out"
     # Wide: inconclusive.
     wide = scores_frame({"good": [0, 1, 1, 1, 0, 1, 1, 0], "bad": [0.2, 0.6] * 4, "same": SAME})
-    r = replay(exp, wide)
+    r = take_looks(exp, wide)
     assert sequential.verdict(exp.sequential, r, claim) == "inconclusive at 8 seeds"
 
 
@@ -334,7 +334,7 @@ def test_headline_design_keeps_its_family_wise_error_under_the_null(
         for i in range(sims):
             rates = {r: list(rng.normal(0.65, 0.17, 20)) for r in rows}
             scores_S = {r: np.asarray(x) for r, x in rates.items()}
-            decisions = sequential.replay(dataclasses.replace(seq, seed=i), scores_S).decisions
+            decisions = sequential.take_looks(dataclasses.replace(seq, seed=i), scores_S).decisions
             for family in any_rejection:
                 any_rejection[family] += any(
                     decisions[c.name] in ("larger", "smaller")
@@ -368,7 +368,7 @@ def test_ten_seeds_a_look_keep_their_error_under_the_null_and_spend_it_at_every_
     rng = np.random.default_rng(0)
     for i in range(sims):
         rates = {comparison.a: rng.normal(0.25, 0.13, 30), comparison.b: rng.normal(0.25, 0.13, 30)}
-        result = sequential.replay(dataclasses.replace(design, seed=i), rates)
+        result = sequential.take_looks(dataclasses.replace(design, seed=i), rates)
         if result.decisions[comparison.name] in ("larger", "smaller"):
             rejected_at[len(result.looks) - 1] += 1
     print(f"rejections by look {rejected_at} of {sims}")

@@ -11,7 +11,7 @@ clipped to the endpoint's range [0, 1], around a mean set by a **scenario**:
   rows at their committed means.
 
 AdaStop is then replayed on each completed data set exactly as the report replays it
-(:func:`priqn.analysis.sequential.replay`), with ``permutations`` draws instead of the
+(:func:`priqn.analysis.sequential.take_looks`), with ``permutations`` draws instead of the
 design's for time. Arrays: ``scores_S`` per row, seeds in look order.
 """
 
@@ -115,7 +115,7 @@ def forecast(
         for i in range(sims):
             completed = {r: _completed(have[r], means[r], sd[r], cap, rng) for r in have}
             run = dataclasses.replace(design, permutations=permutations, seed=seed + i)
-            result = sequential.replay(run, completed)
+            result = sequential.take_looks(run, completed)
             last = {c.name: c for c in result.looks[-1].comparisons}
             for c in design.comparisons:
                 word = sequential.verdict(run, result, c)

@@ -1,4 +1,4 @@
-"""A pre-registered design's cells over one grid, scored and replayed.
+"""A pre-registered design's cells over one grid, scored and its looks taken.
 
 An experiment file's designs (:attr:`priqn.experiment.Experiment.designs`) are its
 ``[[question]]`` tables (``priqn/data/experiments/explain.toml``) or its ``[sequential]``
@@ -13,7 +13,7 @@ design this module
    kept at it (``eval-at<N>/``), a cell an earlier grid trained (``reuse``, or the
    ``[sequential]`` table's ``prior_runs``), checked to train at a commit the design lists
    (and, reused by a row, to train that row's policy);
-2. replays it with :func:`priqn.analysis.sequential.replay` (:func:`replay`);
+2. takes its looks with :func:`priqn.analysis.sequential.take_looks` (:func:`take_looks`);
 3. says which cells the next looks need (:func:`cells_needed`, :func:`next_cells`).
 
 The reports are :mod:`priqn.analysis.sequential_report` (the ``[sequential]`` table) and
@@ -179,12 +179,12 @@ def _check_cell(
         )
 
 
-def replay(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, sequential.Replay]:
-    """The design's scores (:func:`collect`) and its AdaStop replay
-    (:func:`priqn.analysis.sequential.replay`)."""
+def take_looks(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, sequential.Replay]:
+    """The design's scores (:func:`collect`) and its AdaStop looks
+    (:func:`priqn.analysis.sequential.take_looks`)."""
     scores = collect(exp, design)
     by_row = sequential.scores_by_policy(scores, rows_of(exp, design))
-    return scores, sequential.replay(design, by_row)
+    return scores, sequential.take_looks(design, by_row)
 
 
 def cells_needed(
@@ -213,6 +213,6 @@ def next_cells(exp: Experiment) -> list[tuple[str, int]]:
     """:func:`cells_needed` of every design of ``exp``, in design order, each cell once."""
     out: list[tuple[str, int]] = []
     for design in exp.designs:
-        scores, result = replay(exp, design)
+        scores, result = take_looks(exp, design)
         out += [c for c in cells_needed(exp, design, scores, result) if c not in out]
     return out

@@ -29,7 +29,7 @@ from priqn.analysis.load import (
 )
 from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import Replay, relative_path, verdict
+from priqn.analysis.sequential import Looks, relative_path, verdict
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.io import atomic_write_text
 from priqn.run.episodes import resolve_outcomes
@@ -102,7 +102,7 @@ def change_frame(frame: pd.DataFrame, a: str, b: str, endpoint: str) -> pd.DataF
 
 
 def _comparison_rows(
-    exp: Experiment, question: SequentialSpec, scores: pd.DataFrame, result: Replay
+    exp: Experiment, question: SequentialSpec, scores: pd.DataFrame, result: Looks
 ) -> list[dict[str, Any]]:
     """One dict per comparison: seeds, estimate, interval, MDD, decision, verdict."""
     out = []
@@ -399,7 +399,7 @@ LOOK_COLUMNS = [
 """Columns of ``tables/looks.csv``: one row per question, look and comparison."""
 
 
-def _look_rows(question: SequentialSpec, result: Replay) -> list[dict[str, Any]]:
+def _look_rows(question: SequentialSpec, result: Looks) -> list[dict[str, Any]]:
     """One ``tables/looks.csv`` row per look and comparison of ``question``."""
     return [
         {
@@ -622,7 +622,7 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
     for q in exp.designs:
-        scores, result = questions.replay(exp, q)
+        scores, result = questions.take_looks(exp, q)
         scores_by_q[q.name] = scores
         comparison_rows += _comparison_rows(exp, q, scores, result)
         look_rows += _look_rows(q, result)

@@ -1,10 +1,10 @@
-"""AdaStop replayed look by look on a pre-registered design's per-seed scores.
+"""AdaStop taken look by look on a pre-registered design's per-seed scores.
 
 A design (:class:`priqn.experiment.SequentialSpec`: a ``[sequential]`` table or a
 ``[[question]]``) is read from the experiment file; its cells' scores are collected by
 :mod:`priqn.analysis.questions`. This module holds what is left once the scores are in:
 
-1. :func:`replay` takes the design and each row's ``scores_S`` and replays **AdaStop**
+1. :func:`take_looks` takes the design and each row's ``scores_S`` and runs **AdaStop**
    look by look: each family gets its own ``adastop.MultipleAgentsComparator`` with the
    design's n, K, B, α, β and seed, and look k is taken once every row still in an open
    comparison has its first k·n seeds — the decisions are a pure function of the
@@ -98,7 +98,7 @@ class Look:
 
 
 @dataclasses.dataclass(frozen=True)
-class Replay:
+class Looks:
     """The experiment as far as its committed cells go."""
 
     looks: tuple[Look, ...]
@@ -177,7 +177,7 @@ def _family_comparator(
     return comparator, agents
 
 
-def replay(design: SequentialSpec, scores_S: dict[str, np.ndarray]) -> Replay:
+def take_looks(design: SequentialSpec, scores_S: dict[str, np.ndarray]) -> Looks:
     """AdaStop, look by look, on the committed scores (see the module docstring).
 
     ``scores_S``: every row (or group) of the design -> its scores in look order, contiguous
@@ -218,7 +218,7 @@ def replay(design: SequentialSpec, scores_S: dict[str, np.ndarray]) -> Replay:
         looks.append(Look(k + 1, seeds_now, rows, level, needed))
     open_rows = _open_rows(design, decisions, list(scores_S))
     finished = not open_rows
-    return Replay(
+    return Looks(
         tuple(looks),
         dict(decisions),
         finished,
@@ -266,7 +266,7 @@ def _look_rows(
     return tuple(out)
 
 
-def verdict(design: SequentialSpec, result: Replay, comparison: ComparisonSpec) -> str:
+def verdict(design: SequentialSpec, result: Looks, comparison: ComparisonSpec) -> str:
     """The pre-registered verdict words of one comparison (headline.toml, "verdicts";
     explain.toml, "Questions and verdict words"): ``reproduced`` / ``contradicted`` /
     ``paper's effect ruled out`` / ``inconclusive at N seeds`` where the paper gives a
@@ -279,7 +279,7 @@ def verdict(design: SequentialSpec, result: Replay, comparison: ComparisonSpec) 
     return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
 
 
-def _verdict(result: Replay, comparison: ComparisonSpec) -> str:
+def _verdict(result: Looks, comparison: ComparisonSpec) -> str:
     """:func:`verdict` in the success endpoint's words."""
     decision = result.decisions[comparison.name]
     look = result.looks[-1] if result.looks else None

@@ -23,7 +23,7 @@ import pandas as pd
 from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import ComparisonLook, Look, Replay, relative_path, verdict
+from priqn.analysis.sequential import ComparisonLook, Look, Looks, relative_path, verdict
 from priqn.experiment import ComparisonSpec, cell_dir_name
 from priqn.run.folder import RunFolder
 
@@ -76,7 +76,7 @@ def density_frame(exp: Any, scores: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns)
 
 
-def looks_frame(result: Replay) -> pd.DataFrame:
+def looks_frame(result: Looks) -> pd.DataFrame:
     """One row per (look, comparison): ``tables/looks.csv``."""
     rows = [
         {
@@ -164,7 +164,7 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     return fig
 
 
-def looks_figure(exp: Any, result: Replay) -> Any:
+def looks_figure(exp: Any, result: Looks) -> Any:
     """The monitoring chart: one panel per comparison, its estimate at each look taken (dot,
     Welch 95 % interval) inside the band AdaStop would not decide at that look (grey, ±the
     look's ``needed``), with 0 and the paper's difference marked. A dot outside its band is
@@ -352,7 +352,7 @@ def _curves_lines(has_curves: bool) -> list[str]:
 
 
 def report_markdown(
-    exp: Any, scores: pd.DataFrame, result: Replay, command: str, has_curves: bool = False
+    exp: Any, scores: pd.DataFrame, result: Looks, command: str, has_curves: bool = False
 ) -> str:
     """``report.md`` of a sequential experiment; ``has_curves``: with its sample-efficiency
     section."""
@@ -392,7 +392,7 @@ def _design_lines(exp: Any, command: str) -> list[str]:
     ]
 
 
-def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
     """The "Verdicts" section: one row per comparison at the last look, and how to read it."""
     counts = scores.groupby("policy")["seed"].nunique()
     last = result.looks[-1] if result.looks else None
@@ -431,7 +431,7 @@ def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
     ]
 
 
-def _looks_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+def _looks_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
     """The "Looks" section: per look, the seeds, the α spent and each comparison's decision."""
     lines = ["## Looks", ""]
     if result.looks:
@@ -474,7 +474,7 @@ def _looks_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
     return lines
 
 
-def _next_lines(exp: Any, scores: pd.DataFrame, result: Replay) -> list[str]:
+def _next_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
     """The "Next" section: finished, or the cells the next look needs."""
     nxt = questions.cells_needed(exp, exp.sequential, scores, result)
     return [
@@ -524,7 +524,7 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     from priqn.io import atomic_write_json, atomic_write_text
 
     out = Path(out_dir)
-    scores, result = questions.replay(exp, exp.sequential)
+    scores, result = questions.take_looks(exp, exp.sequential)
     scores = scores[list(SCORE_COLUMNS)]
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     write_csv(out / "tables" / "scores.csv", scores)

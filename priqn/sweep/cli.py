@@ -312,7 +312,7 @@ def _design_plan(exp: Any) -> tuple[list[tuple[str, int]], str]:
     cells: list[tuple[str, int]] = []
     plans = []
     for design in exp.designs:
-        scores, plan = questions.replay(exp, design)
+        scores, plan = questions.take_looks(exp, design)
         cells += [c for c in questions.cells_needed(exp, design, scores, plan) if c not in cells]
         plans.append((design, plan))
     if exp.sequential is None:
