@@ -136,6 +136,15 @@ class EnvConfig:
     :mod:`priqn.env.handback`). Everything else (scenes, measures, rewards) is the same."""
 
     def __post_init__(self) -> None:
+        """Normalise ``nets`` and ``objectives``; check every field (a bad one is a
+        ``ValueError`` naming it, which :func:`priqn.config.from_dict` makes one line)."""
+        self._check_names()
+        self._check_observation()
+        self._check_scenes()
+        self._check_actions_and_time()
+
+    def _check_names(self) -> None:
+        """``nets`` as entries; objectives, the ego driver and the training pool by name."""
         object.__setattr__(self, "nets", _net_entries(self.nets))
         if isinstance(self.objectives, str) or not all(
             isinstance(o, str) and o for o in self.objectives
@@ -153,6 +162,9 @@ class EnvConfig:
             )
         if self.family not in FAMILIES:
             raise ValueError(f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})")
+
+    def _check_observation(self) -> None:
+        """Observation and render sizes, the BEV's range and channels."""
         if self.obs_size_px < 16:
             raise ValueError(f"obs_size_px: expected >= 16, got {self.obs_size_px}")
         if self.render_size_px and self.render_size_px < 16:
@@ -167,6 +179,9 @@ class EnvConfig:
                 raise ValueError(
                     f"bev_channels: unknown channel {c!r} (valid: {', '.join(sensors.BEV_CHANNELS)})"
                 )
+
+    def _check_scenes(self) -> None:
+        """The traffic densities and route commands episodes draw from."""
         if isinstance(self.densities, (str, bytes)) or not hasattr(self.densities, "__len__"):
             raise ValueError(
                 f"densities: expected a list of numbers in (0, 1], got {self.densities!r}"
@@ -180,6 +195,10 @@ class EnvConfig:
         for c in self.commands:
             if c not in COMMANDS:
                 raise ValueError(f"commands: unknown command {c!r} (valid: {', '.join(COMMANDS)})")
+
+    def _check_actions_and_time(self) -> None:
+        """The action grid, the simulation and decision steps, the planning horizon and
+        the episode: its length, obstacles and the ego's start speed."""
         if self.n_speeds < 1 or self.n_offsets < 1:
             raise ValueError("n_speeds, n_offsets: expected >= 1")
         if not self.max_speed_mps > 0 or self.max_offset_m < 0:

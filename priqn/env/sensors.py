@@ -155,6 +155,14 @@ class Sensors:
         if compiled and not sensor_kernels.AVAILABLE:
             raise ImportError("Sensors(compiled=True) needs numba: pip install numba")
         self.compiled = sensor_kernels.AVAILABLE if compiled is None else compiled
+        self._precompute_bev(cfg)
+        self._precompute_lidar(cfg)
+        self._precompute_lidar_canvas(cfg)
+        self._ego_mask_key: tuple[float, float] | None = None
+        self._ego_mask = np.zeros(cfg.size_px**2, dtype=bool)
+
+    def _precompute_bev(self, cfg: SensorConfig) -> None:
+        """The BEV grid's cell centres (ego frame, m) and the map channels' lookups."""
         n = cfg.size_px
         res = cfg.metres_per_px
         self._res = res
@@ -178,7 +186,10 @@ class Sensors:
         self._box_channels = [
             (ci, name) for ci, name in enumerate(cfg.bev_channels) if name not in self._luts
         ]
-        # LiDAR geometry.
+
+    def _precompute_lidar(self, cfg: SensorConfig) -> None:
+        """The LiDAR's rays and beams, and the grid cell of every ground return."""
+        n = cfg.size_px
         az = np.arange(cfg.lidar_rays) * (2 * np.pi / cfg.lidar_rays)
         self._ray_cos, self._ray_sin = np.cos(az), np.sin(az)
         el = np.radians(
@@ -203,6 +214,11 @@ class Sensors:
         # Ground returns per grid cell with nothing in the way: an observation then only
         # subtracts the blocked ones.
         self._g_count = np.bincount(self._g_cell, minlength=n * n)
+
+    def _precompute_lidar_canvas(self, cfg: SensorConfig) -> None:
+        """What the fast LiDAR counts need: ground returns on a padded canvas, the rays'
+        directions and the padded cell centres."""
+        n, res = cfg.size_px, cfg.metres_per_px
         # The fast LiDAR counts on a canvas one cell wider on every side ("padded", flat
         # index (row + 1)·(n + 2) + col + 1): whatever falls off the grid is clipped onto
         # the border, which is cut off at the end. Per (ray, beam): the padded cell of its
@@ -221,8 +237,6 @@ class Sensors:
         self._centre_axis_21 = np.array([[0], [n + 2]])
         self._centre_fwd_P = np.ascontiguousarray(self._centre_2Q[: n + 2])
         self._centre_left_P = np.ascontiguousarray(self._centre_2Q[n + 2 :])
-        self._ego_mask_key: tuple[float, float] | None = None
-        self._ego_mask = np.zeros(n * n, dtype=bool)
 
     # ------------------------------------------------------------------ public API
     @property
