@@ -101,14 +101,14 @@ def _assert_same_training(full: Path, resumed: Path, sessions: int = 2) -> None:
     assert all(s["exact"] is True for s in meta["sessions"][1:])
 
 
-@pytest.mark.parametrize("agent", ["iqn", "pr-iqn"])
-def test_sigkill_at_a_random_decision_then_resume_is_the_same_training(
-    tmp_path: Path, uninterrupted: dict[str, Path], agent: str
-) -> None:
-    run = tmp_path / agent
+def kill_after_the_first_checkpoint(runs_dir: Path, agent: str, args: list[str]) -> Path:
+    """Train ``agent`` with ``args`` (a checkpoint every 100 decisions) into
+    ``runs_dir/agent`` and SIGKILL it, and its env workers, at a random moment after its
+    first checkpoint; returns the run folder."""
+    run = runs_dir / agent
     proc = subprocess.Popen(
         [sys.executable, "-m", "priqn.cli", "train", "--agent", agent,
-         "--runs-dir", str(tmp_path), "--name", agent, *ARGS],
+         "--runs-dir", str(runs_dir), "--name", agent, *args],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=ENV, start_new_session=True,
     )  # fmt: skip
     deadline = time.time() + 240
@@ -119,6 +119,14 @@ def test_sigkill_at_a_random_decision_then_resume_is_the_same_training(
         time.sleep(random.uniform(0.0, 3.0))  # somewhere after the first checkpoint
     finally:
         _kill_group(proc)
+    return run
+
+
+@pytest.mark.parametrize("agent", ["iqn", "pr-iqn"])
+def test_sigkill_at_a_random_decision_then_resume_is_the_same_training(
+    tmp_path: Path, uninterrupted: dict[str, Path], agent: str
+) -> None:
+    run = kill_after_the_first_checkpoint(tmp_path, agent, ARGS)
     meta = json.loads((run / "meta.json").read_text())
     assert meta["status"] == "running" and 100 <= meta["steps_done"] < STEPS, meta["steps_done"]
     out = cli("--resume", str(run))

@@ -6,15 +6,11 @@ seed than ``env_groups = 1`` -- but one seed, one run, and a resume that changes
 from __future__ import annotations
 
 import json
-import random
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_exact_resume import ENV, _assert_same_training, _kill_group, _steps_done
+from test_exact_resume import _assert_same_training, kill_after_the_first_checkpoint
 from test_train import TINY, cli
 
 from priqn.agents.replay import ReplayBuffer
@@ -112,20 +108,7 @@ def pipelined(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_pipelined_run_killed_then_resumed_is_the_same_training(
     tmp_path: Path, pipelined: Path
 ) -> None:
-    run = tmp_path / "killed"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "priqn.cli", "train", "--agent", "pr-iqn",
-         "--runs-dir", str(tmp_path), "--name", "killed", *PIPELINED],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=ENV, start_new_session=True,
-    )  # fmt: skip
-    deadline = time.time() + 240
-    try:
-        while time.time() < deadline and proc.poll() is None and _steps_done(run) < 100:
-            time.sleep(0.05)
-        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
-        time.sleep(random.uniform(0.0, 3.0))  # somewhere after the first checkpoint
-    finally:
-        _kill_group(proc)
+    run = kill_after_the_first_checkpoint(tmp_path, "pr-iqn", PIPELINED)
     out = cli("--resume", str(run))
     assert out.returncode == 0, out.stderr[-2000:]
     # Two runs of the seed, one of them in two sessions: the same training.
