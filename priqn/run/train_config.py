@@ -162,7 +162,9 @@ class TrainConfig:
     and acts for it, so neither the workers nor the learner wait for the other. 1 (the
     default): every worker steps at once, as before. A new order of acting, stepping and
     updates, so a different run of the seed (deterministic too); the pipeline empties at
-    each checkpoint, so a resume stays exact (docs/implementation-details.md §12)."""
+    each checkpoint, so a resume stays exact (docs/implementation-details.md §12). With
+    groups, a group's updates run once its step is stored, while the other groups
+    simulate: ``overlap_updates`` does not apply."""
     log_interval_steps: int = 1_000
     """Env decisions between TensorBoard scalars / metrics.csv flushes."""
     env: EnvConfig = dataclasses.field(default_factory=lambda: EnvConfig(obs_size_px=64))
