@@ -322,6 +322,8 @@ RESUMED_NOTE = (
     "*Resumed at*: the cell's training was interrupted (a session ended) and went on from "
     "its last checkpoint, with fresh scenes and its replay buffer as saved "
     "(`checkpoint.save_replay`; refilled first where it was not); from there on its "
-    "training differs from an uninterrupted run's (docs/implementation-details.md §8)."
+    "training differs from an uninterrupted run's (docs/implementation-details.md §8). "
+    "A cell resumed exactly (its replay buffer and episodes in flight restored on the same "
+    "CPU model: the uninterrupted run, bit for bit) is not listed."
 )
 """What the reports' "resumed at" column means."""
