@@ -14,6 +14,7 @@ from priqn.analysis import questions, questions_report, sequential
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
+from priqn.experiment import OUTCOMES
 from priqn.io import atomic_write_json, atomic_write_text
 from priqn.sweep import load_experiment
 
@@ -306,7 +307,7 @@ def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None
     rows = []
     for seed, n in ((0, 1000), (1, 2000)):
         for i, density in enumerate((0.5, 0.75, 1.0)):
-            shares = {o: paper[o][i] for o in questions_report.MIX_OUTCOMES}
+            shares = {o: paper[o][i] for o in OUTCOMES}
             if seed == 1 and density == 0.5:
                 shares["success"] += 0.2
                 shares["collision"] -= 0.2
@@ -315,7 +316,7 @@ def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None
             for outcome, count in counts.items():
                 rows += [
                     {"label": "IQN", "train_seed": seed, "density": density,
-                     **{o: o == outcome for o in questions_report.MIX_OUTCOMES}}
+                     **{o: o == outcome for o in OUTCOMES}}
                 ] * count  # fmt: skip
     mix = questions_report.outcome_mix(pd.DataFrame(rows))
     md_rows, records = questions_report._mix_rows(mix)

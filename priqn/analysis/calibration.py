@@ -86,11 +86,18 @@ def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.
         lacking = [key for key in target if key not in have]
         if lacking:
             raise PriqnError(f"{row}: no episodes at density {lacking[0][1]} (the target has it)")
-        parts = {
-            o: sum(abs(have[(o, d)] - target[(o, d)]) for d in cal.densities) for o in OUTCOMES
-        }
+        parts = l1_by_outcome(have, target)
         out.append({"row": row, "l1": sum(parts.values()), "seeds": int(mine.seeds.min()), **parts})
     return pd.DataFrame(out, columns=["row", "l1", "seeds", *OUTCOMES])
+
+
+def l1_by_outcome(
+    have: dict[tuple[str, float], float], target: dict[tuple[str, float], float]
+) -> dict[str, float]:
+    """Per outcome of :data:`~priqn.experiment.OUTCOMES`, the L1 distance of ``have`` to
+    ``target`` over the densities ``target`` gives (both ``(outcome, density) -> rate``;
+    ``have`` has every key of ``target``). Their sum is a mix's distance."""
+    return {o: sum(abs(have[k] - t) for k, t in target.items() if k[0] == o) for o in OUTCOMES}
 
 
 def choose(dist: pd.DataFrame) -> str:

@@ -57,70 +57,63 @@ PAPER_ROWS: tuple[PolicyLabel, ...] = (
 PAPER_DENSITIES: tuple[float, float, float] = (0.5, 0.75, 1.0)
 """The traffic densities of the paper's Table II columns (the order of PAPER_SUCCESS)."""
 
-PAPER_SUCCESS: dict[str, tuple[float, float, float]] = {
-    row.render(): sr
-    for row, sr in zip(
-        PAPER_ROWS,
-        (
-            (0.737, 0.513, 0.434),
-            (0.704, 0.532, 0.498),
-            (0.594, 0.374, 0.391),
-            (0.635, 0.400, 0.365),
-            (0.518, 0.275, 0.224),
-            (0.722, 0.567, 0.463),
-            (0.763, 0.580, 0.455),
-            (0.816, 0.646, 0.612),
-            (0.816, 0.679, 0.637),
-            (0.692, 0.514, 0.503),
-            (0.797, 0.630, 0.642),
-        ),
-        strict=True,
+
+def _by_row(
+    rates: tuple[tuple[float, float, float], ...],
+) -> dict[str, tuple[float, float, float]]:
+    """Table II's rates of one column, given in :data:`PAPER_ROWS` order, by row label."""
+    return {row.render(): r for row, r in zip(PAPER_ROWS, rates, strict=True)}
+
+
+PAPER_SUCCESS: dict[str, tuple[float, float, float]] = _by_row(
+    (
+        (0.737, 0.513, 0.434),
+        (0.704, 0.532, 0.498),
+        (0.594, 0.374, 0.391),
+        (0.635, 0.400, 0.365),
+        (0.518, 0.275, 0.224),
+        (0.722, 0.567, 0.463),
+        (0.763, 0.580, 0.455),
+        (0.816, 0.646, 0.612),
+        (0.816, 0.679, 0.637),
+        (0.692, 0.514, 0.503),
+        (0.797, 0.630, 0.642),
     )
-}
+)
 """The paper's Table II success rates at densities 0.5 / 0.75 / 1.0, per row label."""
 
-PAPER_COLLISION: dict[str, tuple[float, float, float]] = {
-    row.render(): cr
-    for row, cr in zip(
-        PAPER_ROWS,
-        (
-            (0.248, 0.472, 0.538),
-            (0.272, 0.451, 0.485),
-            (0.403, 0.617, 0.604),
-            (0.333, 0.570, 0.616),
-            (0.448, 0.692, 0.738),
-            (0.245, 0.416, 0.507),
-            (0.217, 0.403, 0.512),
-            (0.136, 0.277, 0.335),
-            (0.175, 0.314, 0.353),
-            (0.250, 0.440, 0.453),
-            (0.161, 0.337, 0.343),
-        ),
-        strict=True,
+PAPER_COLLISION: dict[str, tuple[float, float, float]] = _by_row(
+    (
+        (0.248, 0.472, 0.538),
+        (0.272, 0.451, 0.485),
+        (0.403, 0.617, 0.604),
+        (0.333, 0.570, 0.616),
+        (0.448, 0.692, 0.738),
+        (0.245, 0.416, 0.507),
+        (0.217, 0.403, 0.512),
+        (0.136, 0.277, 0.335),
+        (0.175, 0.314, 0.353),
+        (0.250, 0.440, 0.453),
+        (0.161, 0.337, 0.343),
     )
-}
+)
 """The paper's Table II collision rates (CR) at densities 0.5 / 0.75 / 1.0, per row label."""
 
-PAPER_OFF_ROAD: dict[str, tuple[float, float, float]] = {
-    row.render(): off
-    for row, off in zip(
-        PAPER_ROWS,
-        (
-            (0.013, 0.014, 0.026),
-            (0.023, 0.016, 0.015),
-            (0.002, 0.008, 0.004),
-            (0.031, 0.030, 0.017),
-            (0.032, 0.032, 0.036),
-            (0.032, 0.015, 0.028),
-            (0.018, 0.016, 0.032),
-            (0.022, 0.032, 0.013),
-            (0.010, 0.005, 0.007),
-            (0.034, 0.028, 0.034),
-            (0.032, 0.027, 0.014),
-        ),
-        strict=True,
+PAPER_OFF_ROAD: dict[str, tuple[float, float, float]] = _by_row(
+    (
+        (0.013, 0.014, 0.026),
+        (0.023, 0.016, 0.015),
+        (0.002, 0.008, 0.004),
+        (0.031, 0.030, 0.017),
+        (0.032, 0.032, 0.036),
+        (0.032, 0.015, 0.028),
+        (0.018, 0.016, 0.032),
+        (0.022, 0.032, 0.013),
+        (0.010, 0.005, 0.007),
+        (0.034, 0.028, 0.034),
+        (0.032, 0.027, 0.014),
     )
-}
+)
 """The paper's Table II off-road rates (OR) at densities 0.5 / 0.75 / 1.0, per row label."""
 
 

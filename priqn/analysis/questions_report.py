@@ -30,7 +30,7 @@ from priqn.analysis.load import (
 from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Looks, relative_path, verdict
-from priqn.experiment import Experiment, SequentialSpec
+from priqn.experiment import OUTCOMES, Experiment, SequentialSpec
 from priqn.io import atomic_write_text
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluated, evaluation_dir, kept_evaluations, recorded_eval_status
@@ -473,15 +473,11 @@ def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tab
     return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
 
 
-MIX_OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
-"""The outcomes of an outcome mix, in table order (one per episode)."""
-
-
 def outcome_mix(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per label, outcome and density: the share of its episodes ending in that outcome,
     each training seed's share first, then their mean (``rate``) over its ``seeds``
     (columns label, outcome, density, rate, seeds; labels in first-seen order)."""
-    flags = episodes[list(MIX_OUTCOMES)].astype(bool).astype(float)
+    flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
     keys = [episodes["label"], episodes["train_seed"], episodes["density"].astype(float)]
     per_seed = flags.groupby(keys, sort=False).mean().reset_index()
     long = per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
@@ -495,6 +491,7 @@ def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]
     """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
     density's rate beside the paper's (its Table II row of the same label), and the L1
     distance of the 12 numbers to the paper's row."""
+    from priqn.analysis.calibration import l1_by_outcome
     from priqn.analysis.paper import paper_outcomes
 
     densities = sorted(mix["density"].unique())
@@ -504,13 +501,13 @@ def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]
         rate = {(r.outcome, r.density): r.rate for r in mine.itertuples()}
         theirs = {
             (o, d): paper[o][PAPER_DENSITIES.index(d)]
-            for o in MIX_OUTCOMES
+            for o in OUTCOMES
             for d in densities
             if paper is not None and d in PAPER_DENSITIES
         }
-        full = len(theirs) == len(MIX_OUTCOMES) * len(densities) == 12
-        l1 = sum(abs(rate[k] - theirs[k]) for k in theirs) if full else math.nan
-        for i, outcome in enumerate(MIX_OUTCOMES):
+        full = len(theirs) == len(OUTCOMES) * len(densities) == 12
+        l1 = sum(l1_by_outcome(rate, theirs).values()) if full else math.nan
+        for i, outcome in enumerate(OUTCOMES):
             cells = [
                 f"{rate[(outcome, d)]:.3f}"
                 + (f" ({theirs[(outcome, d)]:.3f})" if (outcome, d) in theirs else "")
