@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from fake_runs import IQN, write_run
@@ -99,6 +100,40 @@ def test_the_rule_picks_the_row_nearest_the_target_by_l1(tmp_path: Path) -> None
     assert calibration.choose(dist) == "near"
 
 
+def test_each_seed_alone_has_its_own_distance(tmp_path: Path) -> None:
+    """``near``'s seeds differ from the target by .25 in success and .25 in collision at
+    one density each (seed 0 at 0.5 always succeeds; seed 1 at 0.5 collides half the
+    time, as at 1.0), so each seed alone is at L1 0.5 while their mean is at 0. ``far``'s
+    seeds are equal: 2.5 each."""
+    exp = _grid(tmp_path)
+    mixes, _ = calibration.setting_mixes(exp)
+    by_row = calibration.seed_mixes(mixes, exp.calibration, ["far", "near"])
+    assert by_row["near"].shape == (2, 8)
+    per_seed = calibration.seed_distances(by_row, exp.calibration)
+    assert per_seed["near"] == pytest.approx([0.5, 0.5])
+    assert per_seed["far"] == pytest.approx([2.5, 2.5])
+    target = np.array(list(exp.calibration.target_mix().values()))
+    boot = calibration.choice_bootstrap(by_row, target, 2000, seed=0).set_index("row")
+    # near's resamples: (0, 0) or (1, 1) at L1 0.5, a mixed pair at 0: always under 2.5
+    assert boot.loc["near", "chosen"] == 1.0 and boot.loc["far", "chosen"] == 0.0
+    assert (boot.loc["near", "l1_low"], boot.loc["near", "l1_high"]) == pytest.approx((0, 0.5))
+
+
+def test_the_bootstrap_choice_flips_with_the_resampled_seeds() -> None:
+    """One key, target 0.5. Row ``a``: one seed at 0.8 (L1 0.3 in every resample). Row
+    ``b``: seeds at 0 and 1, so a resample of two is (0, 0) or (1, 1) with probability
+    1/2 (L1 0.5: ``a`` is chosen) and a mixed pair otherwise (L1 0: ``b``)."""
+    by_row = {"a": np.array([[0.8]]), "b": np.array([[0.0], [1.0]])}
+    boot = calibration.choice_bootstrap(by_row, np.array([0.5]), 10_000, seed=1)
+    chosen = boot.set_index("row")["chosen"]
+    assert chosen["a"] + chosen["b"] == pytest.approx(1.0)
+    assert chosen["b"] == pytest.approx(0.5, abs=0.02)
+    again = calibration.choice_bootstrap(by_row, np.array([0.5]), 10_000, seed=1)
+    pd.testing.assert_frame_equal(boot, again)
+    with pytest.raises(ValueError, match="resamples >= 1"):
+        calibration.choice_bootstrap(by_row, np.array([0.5]), 0, seed=1)
+
+
 def test_a_tie_goes_to_the_row_first_in_the_file() -> None:
     dist = pd.DataFrame({"row": ["b", "a", "c"], "l1": [0.3, 0.3, 0.5]})
     assert calibration.choose(dist) == "b"
@@ -110,6 +145,9 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
     path = calibration.write_report(exp, out, "priqn report results/cal --out report")
     text = path.read_text()
     assert "**chosen: near** (L1 0.000)" in text
+    assert "| near | 0: 0.50, 1: 0.50 | [0.00, 0.50] | 100.0% |" in text
+    assert meta_bootstrap(out) == {"resamples": 10_000, "seed": 2026,
+                                   "chosen": {"far": 0.0, "near": 1.0}}  # fmt: skip
     assert "| far | rude | 2 |" in text
     assert "| **paper** |" not in text and "| **target** |" in text
     meta = json.loads((out / "meta.json").read_text())
@@ -118,7 +156,12 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
     first = {p.name: p.read_bytes() for p in out.iterdir()}
     calibration.write_report(exp, out, "priqn report results/cal --out report")
     assert {p.name: p.read_bytes() for p in out.iterdir()} == first
-    assert {"calibration.png", "calibration.pdf", "mix.csv", "distances.csv"} <= set(first)
+    assert {"calibration.png", "calibration.pdf", "mix.csv", "distances.csv",
+            "seed_distances.csv", "choice_bootstrap.csv"} <= set(first)  # fmt: skip
+
+
+def meta_bootstrap(out: Path) -> dict:
+    return json.loads((out / "meta.json").read_text())["bootstrap"]
 
 
 def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:

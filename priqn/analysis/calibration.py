@@ -10,8 +10,10 @@ target's; the chosen row has the smallest distance (a tie: the row first in the 
 
 Descriptive, as the rule is: no interval decides anything here. Pure functions of the
 cells' ``eval/episodes.csv`` (:func:`cell_rates`, :func:`setting_mixes`,
-:func:`distances`, :func:`choose`), then :func:`write_report` (report.md, two CSVs, a
-figure and meta.json).
+:func:`distances`, :func:`choose`), then :func:`write_report` (report.md, four CSVs, a
+figure and meta.json). How sure the choice is, beside it: each seed's own distance
+(:func:`seed_distances`) and the rule applied again to bootstrap resamples of each row's
+seeds (:func:`choice_bootstrap`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,13 @@ from priqn.run.folder import RunFolder
 
 MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
 """Columns of :func:`setting_mixes`: one row per (cell, outcome, density)."""
+
+BOOTSTRAP_RESAMPLES = 10_000
+"""Resamples of :func:`choice_bootstrap` in the report."""
+
+BOOTSTRAP_SEED = 2026
+"""Seed of the report's :func:`choice_bootstrap` generator (``numpy.random.default_rng``);
+recorded in report.md and meta.json."""
 
 
 def cell_rates(eval_dir: str | Path) -> pd.DataFrame:
@@ -107,6 +116,56 @@ def choose(dist: pd.DataFrame) -> str:
     return str(dist.loc[dist["l1"].idxmin(), "row"])  # idxmin: the first of equal minima
 
 
+def seed_mixes(
+    mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str]
+) -> dict[str, np.ndarray]:
+    """Per row (in ``order``, those with cells): ``float [seeds x keys]``, each seed's own
+    rate at every ``(outcome, density)`` key of the target (:meth:`target_mix` order;
+    seeds ascending). A seed without one of the target's densities is a one-line error."""
+    keys = list(cal.target_mix())
+    out = {}
+    for row in order:
+        mine = mixes[mixes["row"] == row]
+        if mine.empty:
+            continue
+        table = mine.pivot_table(index="seed", columns=["outcome", "density"], values="rate")
+        lacking = [k for k in keys if k not in table.columns]
+        if lacking or table[keys].isna().any().any():
+            raise PriqnError(f"{row}: a seed has no episodes at a density the target has")
+        out[row] = table[keys].to_numpy(dtype=float)
+    return out
+
+
+def seed_distances(by_row: dict[str, np.ndarray], cal: CalibrationSpec) -> dict[str, np.ndarray]:
+    """Per row, ``float [seeds]``: each seed's own L1 distance to the target (its mix, not
+    the row's mean), from :func:`seed_mixes`."""
+    target = np.array(list(cal.target_mix().values()))
+    return {row: np.abs(m - target).sum(axis=1) for row, m in by_row.items()}
+
+
+def choice_bootstrap(
+    by_row: dict[str, np.ndarray], target: np.ndarray, resamples: int, seed: int
+) -> pd.DataFrame:
+    """The rule applied to ``resamples`` bootstrap resamples: in each, every row's seeds
+    (``by_row``: ``float [seeds x keys]``) are drawn with replacement, independently per
+    row, and averaged; the row with the smallest L1 to ``target`` (``float [keys]``) is
+    chosen (a tie: the row first in ``by_row``). Per row: ``chosen`` (share of resamples
+    choosing it), ``l1_low`` / ``l1_high`` (2.5 / 97.5 % percentiles of its L1). All
+    draws from ``numpy.random.default_rng(seed)``, row by row in ``by_row``'s order."""
+    if resamples < 1 or not by_row:
+        raise ValueError(f"expected resamples >= 1 and at least one row, got {resamples}")
+    rng = np.random.default_rng(seed)
+    l1_rows_by_resample = []
+    for mix in by_row.values():
+        picks_by_seed = rng.integers(0, len(mix), size=(resamples, len(mix)))
+        means_keys = mix[picks_by_seed].mean(axis=1)  # [resamples x keys]
+        l1_rows_by_resample.append(np.abs(means_keys - target).sum(axis=1))
+    l1 = np.stack(l1_rows_by_resample)  # [rows x resamples]
+    chosen = np.bincount(l1.argmin(axis=0), minlength=len(by_row)) / resamples
+    low, high = np.percentile(l1, [2.5, 97.5], axis=1)
+    return pd.DataFrame({"row": list(by_row), "chosen": chosen, "l1_low": low, "l1_high": high})
+
+
 def _rates(mine: pd.DataFrame) -> dict[tuple[str, float], float]:
     """``(outcome, density) -> rate`` of one row's :func:`mean_mix` lines."""
     keys = zip(mine.outcome, mine.density.astype(float), strict=True)
@@ -151,6 +210,51 @@ def _distance_table(dist: pd.DataFrame, chosen: str, final: bool) -> str:
     return markdown_table(heads, rows)
 
 
+def _sureness_lines(
+    mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str], folder: Path
+) -> tuple[list[str], dict]:
+    """The section "How sure is the choice", ``seed_distances.csv`` and
+    ``choice_bootstrap.csv`` in ``folder``, and meta.json's ``bootstrap`` record."""
+    by_row = seed_mixes(mixes, cal, order)
+    per_seed = seed_distances(by_row, cal)
+    seeds = {row: sorted(mixes[mixes["row"] == row]["seed"].unique()) for row in by_row}
+    target = np.array(list(cal.target_mix().values()))
+    boot = choice_bootstrap(by_row, target, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+    seed_frame = pd.DataFrame(
+        [(row, s, d) for row in by_row for s, d in zip(seeds[row], per_seed[row], strict=True)],
+        columns=["row", "seed", "l1"],
+    )
+    write_csv(folder / "seed_distances.csv", seed_frame, float_format="%.6f")
+    write_csv(folder / "choice_bootstrap.csv", boot, float_format="%.6f")
+    rows = [
+        [b.row, ", ".join(f"{s}: {d:.2f}" for s, d in zip(seeds[b.row], per_seed[b.row],
+                                                          strict=True)),
+         f"[{b.l1_low:.2f}, {b.l1_high:.2f}]", f"{b.chosen:.1%}"]
+        for b in boot.itertuples(index=False)
+    ]  # fmt: skip
+    heads = ["setting (row)", "L1 of each seed alone", "L1, bootstrap 95 %", "chosen in"]
+    lines = [
+        "## How sure is the choice (descriptive)",
+        "",
+        "The rule compares each row's mean over its seeds. Beside it: each seed's own "
+        "distance to the target, and the rule applied again to "
+        f"{BOOTSTRAP_RESAMPLES:,} bootstrap resamples, each drawing every row's seeds with "
+        "replacement (rows independently; `numpy.random.default_rng("
+        f"{BOOTSTRAP_SEED})`): the share of resamples that choose each row, and the "
+        "2.5–97.5 % percentiles of its distance. With few seeds a row, a resample takes "
+        "few distinct means: a rough picture of the seed spread, not a test.",
+        "",
+        markdown_table(heads, rows),
+        "",
+    ]
+    record = {
+        "resamples": BOOTSTRAP_RESAMPLES,
+        "seed": BOOTSTRAP_SEED,
+        "chosen": {b.row: round(float(b.chosen), 6) for b in boot.itertuples()},
+    }
+    return lines, record
+
+
 def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out: Path) -> None:
     """``calibration.png`` / ``.pdf`` in ``out``: stacked outcome shares per density, the
     target's bar, then each row's."""
@@ -180,8 +284,10 @@ def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out
 
 
 def write_report(exp: Experiment, out: str | Path, command: str | None = None) -> Path:
-    """report.md, ``mix.csv`` (every cell's rates), ``distances.csv``, ``calibration.png``
-    (and ``.pdf``) and ``meta.json`` (with ``command``, the one that regenerates it) into ``out``; returns report.md's path. Cells not complete yet are
+    """report.md, ``mix.csv`` (every cell's rates), ``distances.csv``,
+    ``seed_distances.csv``, ``choice_bootstrap.csv``, ``calibration.png`` (and ``.pdf``)
+    and ``meta.json`` (with ``command``, the one that regenerates it) into ``out``; returns
+    report.md's path. Cells not complete yet are
     named, and the choice is marked provisional until every cell is in."""
     cal = _spec(exp)
     mixes, missing = setting_mixes(exp)
@@ -197,6 +303,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     write_csv(folder / "mix.csv", mixes, float_format="%.6f")
     write_csv(folder / "distances.csv", dist, float_format="%.6f")
     write_figure(mean, cal, order, folder)
+    sureness, bootstrap = _sureness_lines(mixes, cal, order, folder)
     budget = exp.experiment.steps
     words = "chosen" if not missing else "provisionally nearest (cells missing)"
     md = [
@@ -225,6 +332,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "",
         _distance_table(dist, chosen, final=not missing),
         "",
+        *sureness,
     ]
     if missing:
         md += ["## Cells not counted yet", "", *(f"- {m}" for m in missing), ""]
@@ -244,6 +352,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
             "cells": int(mixes.groupby(["row", "seed"]).ngroups),
             "missing": missing,
             "distances": {r.row: round(float(r.l1), 6) for r in dist.itertuples()},
+            "bootstrap": bootstrap,
         },
     )
     return path
