@@ -125,7 +125,7 @@ def scores_frame(rates: dict[str, list[float]]) -> pd.DataFrame:
 SAME = [0.8, 1.0, 0.9, 0.7, 1.0, 0.8, 0.9, 1.0]
 
 
-def take_looks(exp: Any, scores: pd.DataFrame) -> sequential.Replay:
+def take_looks(exp: Any, scores: pd.DataFrame) -> sequential.Looks:
     """The ``[sequential]`` design's replay on ``scores`` (every row of the grid)."""
     rows = [p.name for p in exp.policies]
     return sequential.take_looks(exp.sequential, sequential.scores_by_policy(scores, rows))

@@ -16,8 +16,8 @@ Read and estimate:
 Pre-registered designs of an experiment file:
 
 - :mod:`analysis.questions` — a design's cells (a ``[sequential]`` table or each
-  ``[[question]]``) scored at its budget, replayed, and the cells its next look needs;
-- :mod:`analysis.sequential` — AdaStop replayed look by look on a design's scores, and
+  ``[[question]]``) scored at its budget, its looks taken, and the cells its next look needs;
+- :mod:`analysis.sequential` — AdaStop's looks taken in order on a design's scores, and
   the verdict words;
 - :mod:`analysis.forecast` — how likely a design is to decide (a planning simulation);
 - :mod:`analysis.calibration` — a ``[calibration]`` rule: the row whose outcome mix is

@@ -10,7 +10,7 @@ clipped to the endpoint's range [0, 1], around a mean set by a **scenario**:
   below row ``a``'s committed mean (the paper's differences are the truth), the other
   rows at their committed means.
 
-AdaStop is then replayed on each completed data set exactly as the report replays it
+AdaStop's looks are then taken on each completed data set exactly as the report takes them
 (:func:`priqn.analysis.sequential.take_looks`), with ``permutations`` draws instead of the
 design's for time. Arrays: ``scores_S`` per row, seeds in look order.
 """
@@ -31,7 +31,7 @@ SCENARIOS: tuple[str, ...] = ("observed", "paper")
 """The scenarios :func:`forecast` simulates, in order."""
 
 PERMUTATIONS: int = 2000
-"""AdaStop's B in each simulated replay. With n = 5 a look has only 252 splits, so any B
+"""AdaStop's B in each simulated design's looks. With n = 5 a look has only 252 splits, so any B
 above that gives the design's own permutation sets (docs/statistics.md)."""
 
 SCENARIO_TEXT: dict[str, str] = {

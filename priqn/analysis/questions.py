@@ -77,7 +77,7 @@ def outcome_rates(eval_dir: str | Path) -> tuple[dict[str, float], int]:
 
 
 def rows_of(exp: Experiment, design: SequentialSpec) -> list[str]:
-    """What ``design``'s replay counts as rows: for the ``[sequential]`` table every row of
+    """What ``design``'s looks count as rows: for the ``[sequential]`` table every row of
     the grid, in file order; for a question its groups, in the order its comparisons name
     them."""
     if not design.name:  # the [sequential] table
@@ -99,7 +99,7 @@ COLUMNS: tuple[str, ...] = (
     "evaluation",
 )
 """Columns of :func:`collect`: ``policy`` is the row or group, ``seed`` the position in
-the design's seed order (what the replay counts), ``train_seed`` the training seed."""
+the design's seed order (what the looks count), ``train_seed`` the training seed."""
 
 
 def collect(exp: Experiment, design: SequentialSpec) -> pd.DataFrame:
@@ -179,7 +179,7 @@ def _check_cell(
         )
 
 
-def take_looks(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, sequential.Replay]:
+def take_looks(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, sequential.Looks]:
     """The design's scores (:func:`collect`) and its AdaStop looks
     (:func:`priqn.analysis.sequential.take_looks`)."""
     scores = collect(exp, design)
@@ -188,11 +188,11 @@ def take_looks(exp: Experiment, design: SequentialSpec) -> tuple[pd.DataFrame, s
 
 
 def cells_needed(
-    exp: Experiment, design: SequentialSpec, scores: pd.DataFrame, result: sequential.Replay
+    exp: Experiment, design: SequentialSpec, scores: pd.DataFrame, result: sequential.Looks
 ) -> list[tuple[str, int]]:
     """``(row, training seed)`` cells this grid must train for ``design``'s next look (none
     when finished), in seed order: the open rows' positions up to the look not among
-    ``scores`` (its complete cells, which ``result`` was replayed from), each once; cells
+    ``scores`` (its complete cells, which ``result``'s looks were taken on), each once; cells
     an earlier grid trained (reused, prior) are never trained here."""
     if result.next_look is None:
         return []

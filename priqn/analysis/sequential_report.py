@@ -1,4 +1,4 @@
-"""The report of a ``[sequential]`` table (the one-question layout), from its replay.
+"""The report of a ``[sequential]`` table (the one-question layout), from its looks.
 
 :func:`write_report` writes, deterministically (the same committed cells give the same
 bytes): ``report.md`` (verdicts, each look, per-density success, the next cells, every
