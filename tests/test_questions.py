@@ -82,8 +82,9 @@ paper_difference = 0.1
 
 def write_evaluation(eval_dir: Path, success: int, violations: int, seed: int = 0) -> None:
     """10 IQN episodes of 10 decisions per density (0.5, 1.0) of training seed ``seed``:
-    ``success`` succeed, then ``violations`` crash (the first half) or leave the road, the
-    rest time out; the safety return is -1 in a violation, 0 otherwise."""
+    ``success`` succeed, then ``violations`` crash (even episodes) or leave the road (odd),
+    the rest time out; the safety return is -1 in a violation, 0 otherwise. Even episodes
+    turn left, odd ones right; episode e ends at route progress e / 10."""
     rows = []
     for density in (0.5, 1.0):
         for e in range(10):
@@ -110,6 +111,8 @@ def write_evaluation(eval_dir: Path, success: int, violations: int, seed: int = 
                     "off_road": bad and e % 2 == 1,
                     "timeout": e >= success + violations,
                     "return_safety": -1.0 if bad else 0.0,
+                    "command": ("left", "right")[e % 2],
+                    "route_progress": e / 10,
                 }  # fmt: skip
             )
             rows.append(row)
@@ -294,6 +297,37 @@ def test_report_has_the_outcome_mix_beside_the_papers(tmp_path: Path) -> None:
     mix = pd.read_csv(tmp_path / "r" / "tables" / "outcome_mix_200.csv")
     a = mix[mix["label"] == "IQN a"].set_index(["outcome", "density"])["rate"]
     assert a[("collision", 0.5)] == pytest.approx(0.4) and a.sum() == pytest.approx(2.0)
+
+
+def test_report_has_the_outcome_by_manoeuvre(tmp_path: Path) -> None:
+    """At 200 decisions a's even (left) episodes are 0 success, then collisions 2, 4, 6, 8;
+    its odd (right) ones leave the road (1, 3, 5, 7) or time out (9, at progress 0.9).
+    b's left: 0, 2, 4 succeed, 6 collides, 8 times out (0.8); right: 1, 3, 5 succeed, 7
+    leaves the road, 9 times out. 5 episodes a manoeuvre at each of 2 densities."""
+    questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c")
+    text = (tmp_path / "r" / "report.md").read_text()
+    section = text[text.index("## Outcome by manoeuvre") : text.index("## Returns per objective")]
+    at200 = section.split("### At 200 decisions")[1].split("### At 400 decisions")[0]
+    assert "| IQN a | left | 8 | 10 | 0.200 | 0.800 | 0.000 | 0.000 | – |" in at200
+    assert "| IQN a | right | 8 | 10 | 0.000 | 0.000 | 0.800 | 0.200 | 0.90 |" in at200
+    assert "| IQN b | left | 8 | 10 | 0.600 | 0.200 | 0.000 | 0.200 | 0.80 |" in at200
+    assert "| IQN b | right | 8 | 10 | 0.600 | 0.000 | 0.200 | 0.200 | 0.90 |" in at200
+    table = pd.read_csv(tmp_path / "r" / "tables" / "outcome_by_manoeuvre_200.csv")
+    assert list(table["command"]) == ["left", "right", "left", "right"]
+    assert table[list(OUTCOMES)].sum(axis=1).tolist() == pytest.approx([1.0] * 4)
+
+
+def test_outcome_by_manoeuvre_weighs_each_seed_once() -> None:
+    """One label, left turns only: seed 0 times out in 1 of 1 episode (progress 0.2), seed 1
+    in 0 of 3. Each seed's share first: timeouts (1 + 0) / 2 = 0.5, not 1 / 4."""
+    rows = [{"label": "x", "train_seed": 0, "command": "left", "route_progress": 0.2,
+             **{o: o == "timeout" for o in OUTCOMES}}]  # fmt: skip
+    rows += [{"label": "x", "train_seed": 1, "command": "left", "route_progress": 1.0,
+              **{o: o == "success" for o in OUTCOMES}}] * 3  # fmt: skip
+    table = questions_report.manoeuvre_table(pd.DataFrame(rows))
+    row = table.iloc[0]
+    assert (row["timeout"], row["success"], row["seeds"], row["episodes"]) == (0.5, 0.5, 2, 1)
+    assert row["timeout_progress"] == pytest.approx(0.2)
 
 
 def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None:

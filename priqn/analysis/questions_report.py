@@ -206,8 +206,9 @@ def report_markdown(
     scores: pd.DataFrame | None = None,
 ) -> str:
     """``report.md`` of an experiment with questions (``descriptive``: the lines of the
-    outcome-mix, Table I and sample-efficiency sections, :func:`_mix_lines`,
-    :func:`_returns_lines` and :func:`_efficiency`;
+    outcome-mix, outcome-by-manoeuvre, Table I and sample-efficiency sections,
+    :func:`_mix_lines`, :func:`_manoeuvre_lines`, :func:`_returns_lines` and
+    :func:`_efficiency`;
     ``scores``: every question's counted cells,
     ``tables/scores.csv``, for the "Cells" section)."""
     e = exp.experiment
@@ -473,15 +474,17 @@ def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tab
     return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
 
 
-def outcome_mix(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Per label, outcome and density: the share of its episodes ending in that outcome,
-    each training seed's share first, then their mean (``rate``) over its ``seeds``
-    (columns label, outcome, density, rate, seeds; labels in first-seen order)."""
+def outcome_mix(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
+    """Per label, outcome and value of ``by`` (``density``, or ``command``: the ego's
+    manoeuvre): the share of its episodes ending in that outcome, each training seed's
+    share first, then their mean (``rate``) over its ``seeds`` (columns label, outcome,
+    ``by``, rate, seeds; labels in first-seen order)."""
     flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
-    keys = [episodes["label"], episodes["train_seed"], episodes["density"].astype(float)]
+    values = episodes[by].astype(float) if by == "density" else episodes[by].astype(str)
+    keys = [episodes["label"], episodes["train_seed"], values]
     per_seed = flags.groupby(keys, sort=False).mean().reset_index()
-    long = per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
-    mix = long.groupby(["label", "outcome", "density"], sort=False).agg(
+    long = per_seed.melt(["label", "train_seed", by], var_name="outcome", value_name="rate")
+    mix = long.groupby(["label", "outcome", by], sort=False).agg(
         rate=("rate", "mean"), seeds=("train_seed", "nunique")
     )
     return mix.reset_index()
@@ -548,6 +551,63 @@ def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[s
         densities = sorted(episodes["density"].astype(float).unique())
         heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities), "L1"]
         lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, md_rows), ""]
+    return lines
+
+
+def manoeuvre_table(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per label and ego manoeuvre (``command``, sorted): ``seeds``, ``episodes`` (per seed,
+    the fewest), each outcome's share (:func:`outcome_mix` by command: each seed's share
+    first) and ``timeout_progress``, the median route progress of the episodes that timed
+    out, over every seed (NaN where none did)."""
+    mix = outcome_mix(episodes, by="command")
+    wide = mix.pivot_table(index=["label", "command"], columns="outcome", values="rate", sort=False)
+    seeds = mix.groupby(["label", "command"], sort=False)["seeds"].min()
+    command = episodes["command"].astype(str)
+    counts = episodes.groupby([episodes["label"], command, episodes["train_seed"]]).size()
+    timeouts = episodes[episodes["timeout"].astype(bool)]
+    progress = timeouts.groupby([timeouts["label"], timeouts["command"].astype(str)])[
+        "route_progress"
+    ].median()
+    table = wide[list(OUTCOMES)].assign(
+        seeds=seeds,
+        episodes=counts.groupby(level=[0, 1]).min(),
+        timeout_progress=progress,
+    )
+    labels = list(dict.fromkeys(episodes["label"]))
+    table = table.reset_index()
+    table["order"] = table["label"].map(labels.index)
+    table = table.sort_values(["order", "command"], kind="mergesort").drop(columns="order")
+    return table[["label", "command", "seeds", "episodes", *OUTCOMES, "timeout_progress"]]
+
+
+def _manoeuvre_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
+    """The outcome-by-manoeuvre section: per question budget, how each group's hold-out
+    episodes end for each route command of the ego (:func:`manoeuvre_table`,
+    ``tables/outcome_by_manoeuvre_<budget>.csv``); none while no cell is counted."""
+    if not episodes_by_budget:
+        return []
+    lines = [
+        "## Outcome by manoeuvre (descriptive)",
+        "",
+        "How the hold-out episodes end for each route command of the ego, over every "
+        "density: the share of each outcome, each training seed's first, then their mean. "
+        "Timeouts' progress: the median route progress (0 at the route's start, 1 at its "
+        "end) of the episodes that timed out, over all seeds. Descriptive: no test decides "
+        "on these.",
+        "",
+    ]
+    heads = ["policy", "manoeuvre", "seeds", "episodes a seed",
+             *(o.replace("_", "-") for o in OUTCOMES), "timeouts' progress"]  # fmt: skip
+    for budget, episodes in episodes_by_budget.items():
+        table = manoeuvre_table(episodes)
+        write_csv(out / "tables" / f"outcome_by_manoeuvre_{budget_text(budget)}.csv", table)
+        rows = [
+            [r.label, r.command, str(r.seeds), str(r.episodes),
+             *(f"{getattr(r, o):.3f}" for o in OUTCOMES),
+             "–" if math.isnan(r.timeout_progress) else f"{r.timeout_progress:.2f}"]
+            for r in table.itertuples(index=False)
+        ]  # fmt: skip
+        lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, rows), ""]
     return lines
 
 
@@ -655,6 +715,7 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     episodes_by_budget = counted_episodes(exp, all_scores)
     descriptive = [
         *_mix_lines(episodes_by_budget, out),
+        *_manoeuvre_lines(episodes_by_budget, out),
         *_returns_lines(episodes_by_budget, out),
         *_efficiency(exp, out),
     ]
