@@ -264,13 +264,20 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
     assert second.read_text() == text
 
 
+def report_section(tmp_path: Path, start: str, end: str) -> tuple[str, str]:
+    """The report of :func:`grid` (written to ``tmp_path / "r"``): the section from the
+    heading ``start`` to ``end``, split into its 200- and 400-decision parts."""
+    text = questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c").read_text()
+    section = text[text.index(start) : text.index(end)]
+    at200, at400 = section.split("### At 200 decisions")[1].split("### At 400 decisions")
+    return at200, at400
+
+
 def test_report_has_table_one_at_each_question_budget(tmp_path: Path) -> None:
     """Table I over the counted cells, one table per budget: a violates in 8 of 10 episodes
     at 200 (safety return -0.8 a episode), b in 2 (-0.2, +75 % relative to a, the first
     IQN); at 400 both in 1 (-0.1, +0 %). Both rows are IQN, so each is named by its group."""
-    text = questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c").read_text()
-    section = text[text.index("## Returns per objective") : text.index("## Sample efficiency")]
-    at200, at400 = section.split("### At 200 decisions")[1].split("### At 400 decisions")
+    at200, at400 = report_section(tmp_path, "## Returns per objective", "## Sample efficiency")
     row = "| IQN ({}) | – | – | – | – | {} ± 0.00 | {} |"
     assert at200.count(row.format("a", "-0.80", "+0.0%")) == 2  # densities 0.5 and 1.0
     assert at200.count(row.format("b", "-0.20", "+75.0%")) == 2
@@ -286,10 +293,7 @@ def test_report_has_the_outcome_mix_beside_the_papers(tmp_path: Path) -> None:
     off the road: even and odd episodes) and times out in 1; b: 6 / 1 / 1 / 2. Both are
     IQN, so each is named by its group too, and neither
     label is a row of the paper's Table II, so no bracket and no L1."""
-    questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c")
-    text = (tmp_path / "r" / "report.md").read_text()
-    section = text[text.index("## Outcome mix beside") : text.index("## Returns per objective")]
-    at200 = section.split("### At 200 decisions")[1].split("### At 400 decisions")[0]
+    at200, _ = report_section(tmp_path, "## Outcome mix beside", "## Outcome by manoeuvre")
     assert "| IQN a | 8 | success | 0.100 | 0.100 |  |" in at200
     assert "|  |  | off-road | 0.400 | 0.400 |  |" in at200
     assert "| IQN b | 8 | success | 0.600 | 0.600 |  |" in at200
@@ -304,14 +308,15 @@ def test_report_has_the_outcome_by_manoeuvre(tmp_path: Path) -> None:
     its odd (right) ones leave the road (1, 3, 5, 7) or time out (9, at progress 0.9).
     b's left: 0, 2, 4 succeed, 6 collides, 8 times out (0.8); right: 1, 3, 5 succeed, 7
     leaves the road, 9 times out. 5 episodes a manoeuvre at each of 2 densities."""
-    questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c")
-    text = (tmp_path / "r" / "report.md").read_text()
-    section = text[text.index("## Outcome by manoeuvre") : text.index("## Returns per objective")]
-    at200 = section.split("### At 200 decisions")[1].split("### At 400 decisions")[0]
-    assert "| IQN a | left | 8 | 10 | 0.200 | 0.800 | 0.000 | 0.000 | – |" in at200
-    assert "| IQN a | right | 8 | 10 | 0.000 | 0.000 | 0.800 | 0.200 | 0.90 |" in at200
-    assert "| IQN b | left | 8 | 10 | 0.600 | 0.200 | 0.000 | 0.200 | 0.80 |" in at200
-    assert "| IQN b | right | 8 | 10 | 0.600 | 0.000 | 0.200 | 0.200 | 0.90 |" in at200
+    at200, _ = report_section(tmp_path, "## Outcome by manoeuvre", "## Returns per objective")
+    expected = {  # (label, manoeuvre): success, collision, off-road, timeout, progress
+        ("a", "left"): "0.200 | 0.800 | 0.000 | 0.000 | –",
+        ("a", "right"): "0.000 | 0.000 | 0.800 | 0.200 | 0.90",
+        ("b", "left"): "0.600 | 0.200 | 0.000 | 0.200 | 0.80",
+        ("b", "right"): "0.600 | 0.000 | 0.200 | 0.200 | 0.90",
+    }
+    for (group, manoeuvre), shares in expected.items():
+        assert f"| IQN {group} | {manoeuvre} | 8 | 10 | {shares} |" in at200
     table = pd.read_csv(tmp_path / "r" / "tables" / "outcome_by_manoeuvre_200.csv")
     assert list(table["command"]) == ["left", "right", "left", "right"]
     assert table[list(OUTCOMES)].sum(axis=1).tolist() == pytest.approx([1.0] * 4)
