@@ -339,7 +339,8 @@ def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None
     """Two IQN seeds at the paper's three densities. Seed 0 ends every episode as the
     paper's IQN row would at its rounding, seed 1 too but with success 0.2 higher and
     collisions 0.2 lower at density 0.5 (it has 2,000 episodes a density, seed 0 1,000: each
-    seed's share counts once). Their mean is 0.1 off on two of the 12 numbers: L1 0.2."""
+    seed's share counts once). Their mean is 0.1 off on two of the 12 numbers: L1 0.2; each
+    seed alone is at L1 0 and 0.4."""
     from priqn.analysis.paper import IQN, paper_outcomes
 
     paper = paper_outcomes(IQN.render())
@@ -357,12 +358,12 @@ def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None
                     {"label": "IQN", "train_seed": seed, "density": density,
                      **{o: o == outcome for o in OUTCOMES}}
                 ] * count  # fmt: skip
-    mix = questions_report.outcome_mix(pd.DataFrame(rows))
-    md_rows, records = questions_report._mix_rows(mix)
+    md_rows, records, seed_records = questions_report._mix_rows(pd.DataFrame(rows))
     assert md_rows[0][:3] == ["IQN", "2", "success"]
     assert md_rows[0][3] == f"{paper['success'][0] + 0.1:.3f} ({paper['success'][0]:.3f})"
-    assert md_rows[0][-1] == "0.200"
+    assert md_rows[0][-2:] == ["0.200", "0.20 [0.00, 0.40]"]  # seed 0 at 0, seed 1 0.2 + 0.2
     assert {round(r["l1_to_paper"], 9) for r in records} == {0.2}
+    assert [round(r["l1_to_paper"], 9) for r in seed_records] == [0.0, 0.4]
 
 
 def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> None:

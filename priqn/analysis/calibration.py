@@ -91,7 +91,7 @@ def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.
         mine = mean[mean["row"] == row]
         if mine.empty:
             continue
-        have = _rates(mine)
+        have = rates_of(mine)
         lacking = [key for key in target if key not in have]
         if lacking:
             raise PriqnError(f"{row}: no episodes at density {lacking[0][1]} (the target has it)")
@@ -166,10 +166,11 @@ def choice_bootstrap(
     return pd.DataFrame({"row": list(by_row), "chosen": chosen, "l1_low": low, "l1_high": high})
 
 
-def _rates(mine: pd.DataFrame) -> dict[tuple[str, float], float]:
-    """``(outcome, density) -> rate`` of one row's :func:`mean_mix` lines."""
-    keys = zip(mine.outcome, mine.density.astype(float), strict=True)
-    return dict(zip(keys, mine.rate.astype(float), strict=True))
+def rates_of(lines: pd.DataFrame) -> dict[tuple[str, float], float]:
+    """``(outcome, density) -> rate`` of mix lines (columns outcome, density, rate: one
+    row's :func:`mean_mix` lines, or a question report's outcome mix)."""
+    keys = zip(lines.outcome, lines.density.astype(float), strict=True)
+    return dict(zip(keys, lines.rate.astype(float), strict=True))
 
 
 def _spec(exp: Experiment) -> CalibrationSpec:
@@ -193,7 +194,7 @@ def _mix_table(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], traff
         mine = mean[mean["row"] == row]
         if mine.empty:
             continue
-        have = _rates(mine)
+        have = rates_of(mine)
         cells = [f"{have[c]:.3f}" if c in have else "–" for c in cols]
         rows.append([row, traffic[row], str(int(mine.seeds.min())), *cells])
     return markdown_table(heads, rows)
@@ -270,7 +271,7 @@ def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out
     for ax, d in zip(axes[0], cal.densities, strict=True):
         bottom = np.zeros(len(names))
         for o in OUTCOMES:
-            values = np.array([target[(o, d)]] + [_rates(mean[mean.row == r]).get((o, d), 0.0)
+            values = np.array([target[(o, d)]] + [rates_of(mean[mean.row == r]).get((o, d), 0.0)
                                                   for r in rows])  # fmt: skip
             ax.bar(range(len(names)), values, bottom=bottom, color=colours[o], label=o)
             bottom += values

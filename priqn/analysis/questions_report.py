@@ -474,42 +474,75 @@ def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tab
     return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
 
 
-def outcome_mix(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
-    """Per label, outcome and value of ``by`` (``density``, or ``command``: the ego's
-    manoeuvre): the share of its episodes ending in that outcome, each training seed's
-    share first, then their mean (``rate``) over its ``seeds`` (columns label, outcome,
-    ``by``, rate, seeds; labels in first-seen order)."""
+def seed_shares(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
+    """Per label, training seed, value of ``by`` (``density``, or ``command``: the ego's
+    manoeuvre) and outcome: the share of that seed's episodes ending in that outcome
+    (columns label, train_seed, ``by``, outcome, rate)."""
     flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
     values = episodes[by].astype(float) if by == "density" else episodes[by].astype(str)
     keys = [episodes["label"], episodes["train_seed"], values]
     per_seed = flags.groupby(keys, sort=False).mean().reset_index()
-    long = per_seed.melt(["label", "train_seed", by], var_name="outcome", value_name="rate")
-    mix = long.groupby(["label", "outcome", by], sort=False).agg(
-        rate=("rate", "mean"), seeds=("train_seed", "nunique")
+    return per_seed.melt(["label", "train_seed", by], var_name="outcome", value_name="rate")
+
+
+def outcome_mix(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
+    """Per label, outcome and value of ``by``: each training seed's share
+    (:func:`seed_shares`) first, then their mean (``rate``) over its ``seeds`` (columns
+    label, outcome, ``by``, rate, seeds; labels in first-seen order)."""
+    mix = (
+        seed_shares(episodes, by)
+        .groupby(["label", "outcome", by], sort=False)
+        .agg(rate=("rate", "mean"), seeds=("train_seed", "nunique"))
     )
     return mix.reset_index()
 
 
-def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]:
-    """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
-    density's rate beside the paper's (its Table II row of the same label), and the L1
-    distance of the 12 numbers to the paper's row."""
-    from priqn.analysis.calibration import l1_by_outcome
+def _paper_mix(label: str, densities: list[float]) -> dict[tuple[str, float], float]:
+    """``(outcome, density) -> rate`` of the paper's Table II row of ``label`` at those of
+    ``densities`` it has (empty when it has no such row)."""
     from priqn.analysis.paper import paper_outcomes
 
+    paper = paper_outcomes(label)
+    if paper is None:
+        return {}
+    return {
+        (o, d): paper[o][PAPER_DENSITIES.index(d)]
+        for o in OUTCOMES
+        for d in densities
+        if d in PAPER_DENSITIES
+    }
+
+
+def _mix_rows(
+    episodes: pd.DataFrame,
+) -> tuple[list[list[str]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
+    density's rate (:func:`outcome_mix`) beside the paper's (its Table II row of the same
+    label), the L1 distance of the 12 numbers to the paper's row, and each training seed's
+    own L1 (its shares, not the mean; median [min, max] in the Markdown, one record per
+    seed in the third list)."""
+    from priqn.analysis.calibration import l1_by_outcome, rates_of
+
+    mix, shares = outcome_mix(episodes), seed_shares(episodes)
     densities = sorted(mix["density"].unique())
-    md_rows, records = [], []
+    md_rows, records, seed_records = [], [], []
     for label, mine in mix.groupby("label", sort=False):
-        paper = paper_outcomes(str(label))
-        rate = {(r.outcome, r.density): r.rate for r in mine.itertuples()}
-        theirs = {
-            (o, d): paper[o][PAPER_DENSITIES.index(d)]
-            for o in OUTCOMES
-            for d in densities
-            if paper is not None and d in PAPER_DENSITIES
-        }
+        rate = rates_of(mine)
+        theirs = _paper_mix(str(label), densities)
         full = len(theirs) == len(OUTCOMES) * len(densities) == 12
         l1 = sum(l1_by_outcome(rate, theirs).values()) if full else math.nan
+        seed_l1 = {
+            seed: sum(l1_by_outcome(rates_of(own), theirs).values())
+            for seed, own in shares[shares["label"] == label].groupby("train_seed", sort=True)
+        } if full else {}  # fmt: skip
+        seed_records += [{"label": label, "train_seed": k, "l1_to_paper": v}
+                         for k, v in seed_l1.items()]  # fmt: skip
+        per_seed = (
+            f"{np.median(list(seed_l1.values())):.2f} "
+            f"[{min(seed_l1.values()):.2f}, {max(seed_l1.values()):.2f}]"
+            if seed_l1
+            else ""
+        )
         for i, outcome in enumerate(OUTCOMES):
             cells = [
                 f"{rate[(outcome, d)]:.3f}"
@@ -517,7 +550,7 @@ def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]
                 for d in densities
             ]
             head = [str(label), str(int(mine["seeds"].min()))] if i == 0 else ["", ""]
-            tail = [f"{l1:.3f}" if i == 0 and full else ""]
+            tail = [f"{l1:.3f}", per_seed] if i == 0 and full else ["", ""]
             md_rows.append([*head, outcome.replace("_", "-"), *cells, *tail])
             records += [
                 {"label": label, "seeds": int(mine["seeds"].min()), "outcome": outcome,
@@ -525,7 +558,7 @@ def _mix_rows(mix: pd.DataFrame) -> tuple[list[list[str]], list[dict[str, Any]]]
                  "paper": theirs.get((outcome, d), math.nan), "l1_to_paper": l1}
                 for d in densities
             ]  # fmt: skip
-    return md_rows, records
+    return md_rows, records, seed_records
 
 
 def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
@@ -542,14 +575,20 @@ def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[s
         "training seed's first, then their mean; in brackets the paper's Table II row of "
         "the same label (2M decisions in CARLA; its timeouts are what success, collision "
         "and off-road leave). L1: the distance of the 12 numbers to the paper's row, as "
-        "the calibration's rule measures it. Descriptive: no test decides on these.",
+        "the calibration's rule measures it; of a seed alone: each training seed's own "
+        "shares' distance, median [min, max] (`tables/outcome_mix_<budget>_seeds.csv`). "
+        "Descriptive: no test decides on these.",
         "",
     ]
     for budget, episodes in episodes_by_budget.items():
-        md_rows, records = _mix_rows(outcome_mix(episodes))
-        write_csv(out / "tables" / f"outcome_mix_{budget_text(budget)}.csv", pd.DataFrame(records))
+        md_rows, records, seed_records = _mix_rows(episodes)
+        name = f"outcome_mix_{budget_text(budget)}"
+        write_csv(out / "tables" / f"{name}.csv", pd.DataFrame(records))
+        if seed_records:
+            write_csv(out / "tables" / f"{name}_seeds.csv", pd.DataFrame(seed_records))
         densities = sorted(episodes["density"].astype(float).unique())
-        heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities), "L1"]
+        heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities),
+                 "L1", "L1 of a seed alone"]  # fmt: skip
         lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, md_rows), ""]
     return lines
 
