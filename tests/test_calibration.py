@@ -119,6 +119,14 @@ def test_each_seed_alone_has_its_own_distance(tmp_path: Path) -> None:
     assert (boot.loc["near", "l1_low"], boot.loc["near", "l1_high"]) == pytest.approx((0, 0.5))
 
 
+def test_a_seed_without_a_target_density_is_named(tmp_path: Path) -> None:
+    exp = _grid(tmp_path)
+    mixes, _ = calibration.setting_mixes(exp)
+    gap = (mixes["row"] == "near") & (mixes["seed"] == 1) & (mixes["density"] == 1.0)
+    with pytest.raises(PriqnError, match=r"near__seed1: no episodes at a density the target"):
+        calibration.seed_mixes(mixes[~gap], exp.calibration, ["far", "near"])
+
+
 def test_the_bootstrap_choice_flips_with_the_resampled_seeds() -> None:
     """One key, target 0.5. Row ``a``: one seed at 0.8 (L1 0.3 in every resample). Row
     ``b``: seeds at 0 and 1, so a resample of two is (0, 0) or (1, 1) with probability

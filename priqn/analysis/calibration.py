@@ -129,10 +129,12 @@ def seed_mixes(
         if mine.empty:
             continue
         table = mine.pivot_table(index="seed", columns=["outcome", "density"], values="rate")
-        lacking = [k for k in keys if k not in table.columns]
-        if lacking or table[keys].isna().any().any():
-            raise PriqnError(f"{row}: a seed has no episodes at a density the target has")
-        out[row] = table[keys].to_numpy(dtype=float)
+        table = table.reindex(columns=pd.MultiIndex.from_tuples(keys))
+        gaps = table.isna().any(axis=1)
+        if gaps.any():
+            seed = table.index[gaps.to_numpy()][0]
+            raise PriqnError(f"{row}__seed{seed}: no episodes at a density the target has")
+        out[row] = table.to_numpy(dtype=float)
     return out
 
 
@@ -288,8 +290,8 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     """report.md, ``mix.csv`` (every cell's rates), ``distances.csv``,
     ``seed_distances.csv``, ``choice_bootstrap.csv``, ``calibration.png`` (and ``.pdf``)
     and ``meta.json`` (with ``command``, the one that regenerates it) into ``out``; returns
-    report.md's path. Cells not complete yet are
-    named, and the choice is marked provisional until every cell is in."""
+    report.md's path. Cells not complete yet are named, and the choice is marked
+    provisional until every cell is in."""
     cal = _spec(exp)
     mixes, missing = setting_mixes(exp)
     if mixes.empty:

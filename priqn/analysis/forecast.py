@@ -31,8 +31,8 @@ SCENARIOS: tuple[str, ...] = ("observed", "paper")
 """The scenarios :func:`forecast` simulates, in order."""
 
 PERMUTATIONS: int = 2000
-"""AdaStop's B in each simulated design's looks. With n = 5 a look has only 252 splits, so any B
-above that gives the design's own permutation sets (docs/statistics.md)."""
+"""AdaStop's B at each look of a simulated experiment. With n = 5 a look has only 252
+splits, so any B above that gives the design's own permutation sets (docs/statistics.md)."""
 
 SCENARIO_TEXT: dict[str, str] = {
     "observed": "if each row's mean so far is its true mean",
