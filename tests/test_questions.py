@@ -4,6 +4,7 @@ question, violation verdict words, the cells the next looks need, and the report
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -307,7 +308,8 @@ def test_report_has_the_outcome_by_manoeuvre(tmp_path: Path) -> None:
     """At 200 decisions a's even (left) episodes are 0 success, then collisions 2, 4, 6, 8;
     its odd (right) ones leave the road (1, 3, 5, 7) or time out (9, at progress 0.9).
     b's left: 0, 2, 4 succeed, 6 collides, 8 times out (0.8); right: 1, 3, 5 succeed, 7
-    leaves the road, 9 times out. 5 episodes a manoeuvre at each of 2 densities."""
+    leaves the road, 9 times out. 5 episodes a manoeuvre at each of 2 densities, the same
+    for every seed."""
     at200, _ = report_section(tmp_path, "## Outcome by manoeuvre", "## Returns per objective")
     expected = {  # (label, manoeuvre): success, collision, off-road, timeout, progress
         ("a", "left"): "0.200 | 0.800 | 0.000 | 0.000 | –",
@@ -315,24 +317,33 @@ def test_report_has_the_outcome_by_manoeuvre(tmp_path: Path) -> None:
         ("b", "left"): "0.600 | 0.200 | 0.000 | 0.200 | 0.80",
         ("b", "right"): "0.600 | 0.000 | 0.200 | 0.200 | 0.90",
     }
-    for (group, manoeuvre), shares in expected.items():
-        assert f"| IQN {group} | {manoeuvre} | 8 | 10 | {shares} |" in at200
+    for (group, manoeuvre), shares in expected.items():  # 8 seeds x 2 densities x 5
+        assert f"| IQN {group} | {manoeuvre} | 8 | 80 | {shares} |" in at200
+    assert "![outcome by manoeuvre at 200](figures/outcome_by_manoeuvre_200.png)" in at200
+    assert (tmp_path / "r" / "figures" / "outcome_by_manoeuvre_200.png").stat().st_size > 0
     table = pd.read_csv(tmp_path / "r" / "tables" / "outcome_by_manoeuvre_200.csv")
     assert list(table["command"]) == ["left", "right", "left", "right"]
     assert table[list(OUTCOMES)].sum(axis=1).tolist() == pytest.approx([1.0] * 4)
 
 
-def test_outcome_by_manoeuvre_weighs_each_seed_once() -> None:
-    """One label, left turns only: seed 0 times out in 1 of 1 episode (progress 0.2), seed 1
-    in 0 of 3. Each seed's share first: timeouts (1 + 0) / 2 = 0.5, not 1 / 4."""
-    rows = [{"label": "x", "train_seed": 0, "command": "left", "route_progress": 0.2,
-             **{o: o == "timeout" for o in OUTCOMES}}]  # fmt: skip
-    rows += [{"label": "x", "train_seed": 1, "command": "left", "route_progress": 1.0,
-              **{o: o == "success" for o in OUTCOMES}}] * 3  # fmt: skip
-    table = questions_report.manoeuvre_table(pd.DataFrame(rows))
-    row = table.iloc[0]
-    assert (row["timeout"], row["success"], row["seeds"], row["episodes"]) == (0.5, 0.5, 2, 1)
-    assert row["timeout_progress"] == pytest.approx(0.2)
+def test_outcome_by_manoeuvre_counts_seeds_and_the_timeouts_progress() -> None:
+    """One label, left turns: seed 0 times out at progress 0.2 and 0.6, seed 1 succeeds
+    twice; right turns never time out, and one episode has no command recorded."""
+
+    def episode(seed: int, command: Any, outcome: str, progress: float) -> dict:
+        return {"label": "x", "train_seed": seed, "command": command,
+                "route_progress": progress, **{o: o == outcome for o in OUTCOMES}}  # fmt: skip
+
+    rows = [episode(0, "left", "timeout", 0.2), episode(0, "left", "timeout", 0.6),
+            episode(1, "left", "success", 1.0), episode(1, "left", "success", 1.0),
+            episode(0, "right", "collision", 0.5), episode(1, None, "timeout", 0.3)]  # fmt: skip
+    table = questions_report.manoeuvre_table(pd.DataFrame(rows)).set_index("command")
+    assert list(table.index) == ["left", "right", "unknown"]
+    assert (table.loc["left", "timeout"], table.loc["left", "episodes"]) == (0.5, 4)
+    assert table.loc["left", "timeout_progress"] == pytest.approx(0.4)
+    assert math.isnan(table.loc["right", "timeout_progress"])
+    assert table.loc["unknown", "timeout_progress"] == pytest.approx(0.3)
+    assert set(table["seeds"]) == {2}
 
 
 def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None:

@@ -474,24 +474,23 @@ def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tab
     return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
 
 
-def seed_shares(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
-    """Per label, training seed, value of ``by`` (``density``, or ``command``: the ego's
-    manoeuvre) and outcome: the share of that seed's episodes ending in that outcome
-    (columns label, train_seed, ``by``, outcome, rate)."""
+def seed_shares(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per label, training seed, density and outcome: the share of that seed's episodes
+    at that density ending in that outcome (columns label, train_seed, density, outcome,
+    rate)."""
     flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
-    values = episodes[by].astype(float) if by == "density" else episodes[by].astype(str)
-    keys = [episodes["label"], episodes["train_seed"], values]
+    keys = [episodes["label"], episodes["train_seed"], episodes["density"].astype(float)]
     per_seed = flags.groupby(keys, sort=False).mean().reset_index()
-    return per_seed.melt(["label", "train_seed", by], var_name="outcome", value_name="rate")
+    return per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
 
 
-def outcome_mix(episodes: pd.DataFrame, by: str = "density") -> pd.DataFrame:
-    """Per label, outcome and value of ``by``: each training seed's share
-    (:func:`seed_shares`) first, then their mean (``rate``) over its ``seeds`` (columns
-    label, outcome, ``by``, rate, seeds; labels in first-seen order)."""
+def outcome_mix(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per label, outcome and density: each training seed's share (:func:`seed_shares`)
+    first, then their mean (``rate``) over its ``seeds`` (columns label, outcome,
+    density, rate, seeds; labels in first-seen order)."""
     mix = (
-        seed_shares(episodes, by)
-        .groupby(["label", "outcome", by], sort=False)
+        seed_shares(episodes)
+        .groupby(["label", "outcome", "density"], sort=False)
         .agg(rate=("rate", "mean"), seeds=("train_seed", "nunique"))
     )
     return mix.reset_index()
@@ -594,59 +593,64 @@ def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[s
 
 
 def manoeuvre_table(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Per label and ego manoeuvre (``command``, sorted): ``seeds``, ``episodes`` (per seed,
-    the fewest), each outcome's share (:func:`outcome_mix` by command: each seed's share
-    first) and ``timeout_progress``, the median route progress of the episodes that timed
-    out, over every seed (NaN where none did)."""
-    mix = outcome_mix(episodes, by="command")
-    wide = mix.pivot_table(index=["label", "command"], columns="outcome", values="rate", sort=False)
-    seeds = mix.groupby(["label", "command"], sort=False)["seeds"].min()
-    command = episodes["command"].astype(str)
-    counts = episodes.groupby([episodes["label"], command, episodes["train_seed"]]).size()
-    timeouts = episodes[episodes["timeout"].astype(bool)]
-    progress = timeouts.groupby([timeouts["label"], timeouts["command"].astype(str)])[
-        "route_progress"
-    ].median()
-    table = wide[list(OUTCOMES)].assign(
-        seeds=seeds,
-        episodes=counts.groupby(level=[0, 1]).min(),
-        timeout_progress=progress,
-    )
+    """How each label's episodes end per ego manoeuvre (:func:`tables.outcomes_by_command`:
+    densities and seeds pooled, every seed playing the same hold-out scenes), with its
+    ``seeds`` and ``timeout_progress``, the median route progress of the episodes that
+    timed out (NaN where none did); labels in first-seen order."""
     labels = list(dict.fromkeys(episodes["label"]))
-    table = table.reset_index()
-    table["order"] = table["label"].map(labels.index)
-    table = table.sort_values(["order", "command"], kind="mergesort").drop(columns="order")
-    return table[["label", "command", "seeds", "episodes", *OUTCOMES, "timeout_progress"]]
+    table = tables.outcomes_by_command(episodes, labels)
+    seeds = episodes.groupby("label")["train_seed"].nunique()
+    timed_out = episodes["timeout"].astype(bool)
+    keys = [episodes["label"][timed_out], tables.route_commands(episodes)[timed_out]]
+    median = episodes[timed_out].groupby(keys)["route_progress"].median().to_dict()
+    table.insert(2, "seeds", table["label"].map(seeds))
+    table["timeout_progress"] = [
+        median.get((label, command), math.nan)
+        for label, command in zip(table["label"], table["command"], strict=True)
+    ]
+    return table
 
 
 def _manoeuvre_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
     """The outcome-by-manoeuvre section: per question budget, how each group's hold-out
     episodes end for each route command of the ego (:func:`manoeuvre_table`,
-    ``tables/outcome_by_manoeuvre_<budget>.csv``); none while no cell is counted."""
+    ``tables/outcome_by_manoeuvre_<budget>.csv`` and its figure); none while no cell is
+    counted."""
+    from priqn.analysis.figures import outcomes_figure, save_figure
+
     if not episodes_by_budget:
         return []
     lines = [
         "## Outcome by manoeuvre (descriptive)",
         "",
-        "How the hold-out episodes end for each route command of the ego, over every "
-        "density: the share of each outcome, each training seed's first, then their mean. "
-        "Timeouts' progress: the median route progress (0 at the route's start, 1 at its "
-        "end) of the episodes that timed out, over all seeds. Descriptive: no test decides "
-        "on these.",
+        "How the hold-out episodes end for each route command of the ego: the share of "
+        "each outcome over every density and training seed (every seed plays the same "
+        "scenes). Timeouts' progress: the median route progress (0 at the route's start, 1 "
+        "at its end) of the episodes that timed out. Descriptive: no test decides on these.",
         "",
     ]
-    heads = ["policy", "manoeuvre", "seeds", "episodes a seed",
+    heads = ["policy", "manoeuvre", "seeds", "episodes",
              *(o.replace("_", "-") for o in OUTCOMES), "timeouts' progress"]  # fmt: skip
     for budget, episodes in episodes_by_budget.items():
+        name = f"outcome_by_manoeuvre_{budget_text(budget)}"
         table = manoeuvre_table(episodes)
-        write_csv(out / "tables" / f"outcome_by_manoeuvre_{budget_text(budget)}.csv", table)
+        write_csv(out / "tables" / f"{name}.csv", table)
+        save_figure(outcomes_figure(table, list(dict.fromkeys(table["label"]))),
+                    out / "figures", name)  # fmt: skip
         rows = [
             [r.label, r.command, str(r.seeds), str(r.episodes),
              *(f"{getattr(r, o):.3f}" for o in OUTCOMES),
              "–" if math.isnan(r.timeout_progress) else f"{r.timeout_progress:.2f}"]
             for r in table.itertuples(index=False)
         ]  # fmt: skip
-        lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, rows), ""]
+        lines += [
+            f"### At {budget_text(budget)} decisions",
+            "",
+            markdown_table(heads, rows),
+            "",
+            f"![outcome by manoeuvre at {budget_text(budget)}](figures/{name}.png)",
+            "",
+        ]
     return lines
 
 

@@ -29,6 +29,7 @@ from priqn.agents.config import SHIPPED_AGENTS
 from priqn.agents.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
 from priqn.analysis.render import csv_text
+from priqn.experiment import OUTCOMES
 from priqn.objectives import OBJECTIVES, names_in_columns
 
 AGENT_ORDER: tuple[str, ...] = tuple(SHIPPED_AGENTS)
@@ -480,10 +481,13 @@ def to_csv(table: Table) -> str:
     return csv_text(pd.DataFrame(records))
 
 
-OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
-"""How an episode ends (exactly one per episode), in the outcome table's column order."""
 COMMAND_ORDER: tuple[str, ...] = ("left", "straight", "right")
 """Column order of the route commands; others follow alphabetically."""
+
+
+def route_commands(episodes: pd.DataFrame) -> pd.Series:
+    """Each episode's route command as text (``unknown`` where none was recorded)."""
+    return episodes["command"].fillna("").astype(str).replace("", "unknown")
 
 
 def outcomes_by_command(episodes: pd.DataFrame, order: Sequence[str]) -> pd.DataFrame:
@@ -494,7 +498,7 @@ def outcomes_by_command(episodes: pd.DataFrame, order: Sequence[str]) -> pd.Data
     low — e.g. a policy that never completes a left turn because it waits until the time
     limit — which Table II's per-density means hide.
     """
-    command_E = episodes["command"].fillna("").astype(str).replace("", "unknown")
+    command_E = route_commands(episodes)
     commands = sorted(
         command_E.unique(),
         key=lambda c: (COMMAND_ORDER.index(c) if c in COMMAND_ORDER else len(COMMAND_ORDER), c),
