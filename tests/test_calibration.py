@@ -154,22 +154,18 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
     text = path.read_text()
     assert "**chosen: near** (L1 0.000)" in text
     assert "| near | 0: 0.50, 1: 0.50 | [0.00, 0.50] | 100.0% |" in text
-    assert meta_bootstrap(out) == {"resamples": 10_000, "seed": 2026,
-                                   "chosen": {"far": 0.0, "near": 1.0}}  # fmt: skip
     assert "| far | rude | 2 |" in text
     assert "| **paper** |" not in text and "| **target** |" in text
     meta = json.loads((out / "meta.json").read_text())
     assert meta["chosen"] == "near" and meta["final"] and meta["distances"]["far"] == 2.5
+    assert meta["bootstrap"] == {"resamples": 10_000, "seed": 2026,
+                                 "chosen": {"far": 0.0, "near": 1.0}}  # fmt: skip
     assert meta["command"] == "priqn report results/cal --out report"
     first = {p.name: p.read_bytes() for p in out.iterdir()}
     calibration.write_report(exp, out, "priqn report results/cal --out report")
     assert {p.name: p.read_bytes() for p in out.iterdir()} == first
     assert {"calibration.png", "calibration.pdf", "mix.csv", "distances.csv",
             "seed_distances.csv", "choice_bootstrap.csv"} <= set(first)  # fmt: skip
-
-
-def meta_bootstrap(out: Path) -> dict:
-    return json.loads((out / "meta.json").read_text())["bootstrap"]
 
 
 def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:
