@@ -109,10 +109,10 @@ def test_each_seed_alone_has_its_own_distance(tmp_path: Path) -> None:
     mixes, _ = calibration.setting_mixes(exp)
     by_row = calibration.seed_mixes(mixes, exp.calibration, ["far", "near"])
     assert by_row["near"].shape == (2, 8)
-    per_seed = calibration.seed_distances(by_row, exp.calibration)
+    target = calibration.target_vector(exp.calibration)
+    per_seed = calibration.seed_distances(by_row, target)
     assert per_seed["near"] == pytest.approx([0.5, 0.5])
     assert per_seed["far"] == pytest.approx([2.5, 2.5])
-    target = np.array(list(exp.calibration.target_mix().values()))
     boot = calibration.choice_bootstrap(by_row, target, 2000, seed=0).set_index("row")
     # near's resamples: (0, 0) or (1, 1) at L1 0.5, a mixed pair at 0: always under 2.5
     assert boot.loc["near", "chosen"] == 1.0 and boot.loc["far", "chosen"] == 0.0

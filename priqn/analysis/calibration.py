@@ -74,11 +74,12 @@ def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
     return pd.DataFrame(rows, columns=list(MIX_COLUMNS)), missing
 
 
-def mean_mix(mixes: pd.DataFrame) -> pd.DataFrame:
-    """``rate`` averaged over each row's seeds: one row per (row, outcome, density), with
-    ``seeds`` (how many)."""
-    grouped = mixes.groupby(["row", "outcome", "density"], sort=False)
-    return grouped.agg(rate=("rate", "mean"), seeds=("seed", "nunique")).reset_index()
+def mean_mix(mixes: pd.DataFrame, group: str = "row", seed: str = "seed") -> pd.DataFrame:
+    """``rate`` averaged over each ``group``'s seeds (column ``seed``): one line per
+    (``group``, outcome, density), in first-seen order, with ``seeds`` (how many). A
+    question report's outcome mix is the same mean, by label and training seed."""
+    grouped = mixes.groupby([group, "outcome", "density"], sort=False)
+    return grouped.agg(rate=("rate", "mean"), seeds=(seed, "nunique")).reset_index()
 
 
 def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.DataFrame:
@@ -116,12 +117,18 @@ def choose(dist: pd.DataFrame) -> str:
     return str(dist.loc[dist["l1"].idxmin(), "row"])  # idxmin: the first of equal minima
 
 
+def target_vector(cal: CalibrationSpec) -> np.ndarray:
+    """``float [keys]``: the target's rates in :meth:`~CalibrationSpec.target_mix` order."""
+    return np.array(list(cal.target_mix().values()))
+
+
 def seed_mixes(
     mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str]
-) -> dict[str, np.ndarray]:
-    """Per row (in ``order``, those with cells): ``float [seeds x keys]``, each seed's own
-    rate at every ``(outcome, density)`` key of the target (:meth:`target_mix` order;
-    seeds ascending). A seed without one of the target's densities is a one-line error."""
+) -> dict[str, pd.DataFrame]:
+    """Per row (in ``order``, those with cells): ``float [seeds x keys]`` indexed by seed
+    (ascending), each seed's own rate at every ``(outcome, density)`` key of the target
+    (:meth:`target_mix` order). A seed without one of the target's densities is a one-line
+    error."""
     keys = list(cal.target_mix())
     out = {}
     for row in order:
@@ -134,19 +141,26 @@ def seed_mixes(
         if gaps.any():
             seed = table.index[gaps.to_numpy()][0]
             raise PriqnError(f"{row}__seed{seed}: no episodes at a density the target has")
-        out[row] = table.to_numpy(dtype=float)
+        out[row] = table.astype(float)
     return out
 
 
-def seed_distances(by_row: dict[str, np.ndarray], cal: CalibrationSpec) -> dict[str, np.ndarray]:
-    """Per row, ``float [seeds]``: each seed's own L1 distance to the target (its mix, not
-    the row's mean), from :func:`seed_mixes`."""
-    target = np.array(list(cal.target_mix().values()))
-    return {row: np.abs(m - target).sum(axis=1) for row, m in by_row.items()}
+def _l1_to(mixes_by_key: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """L1 distance of each mix (last axis: keys) to ``target`` (``float [keys]``)."""
+    return np.abs(mixes_by_key - target).sum(axis=-1)
+
+
+def seed_distances(by_row: dict[str, pd.DataFrame], target: np.ndarray) -> dict[str, np.ndarray]:
+    """Per row, ``float [seeds]``: each seed's own L1 distance to ``target``
+    (:func:`target_vector`; its mix, not the row's mean), from :func:`seed_mixes`."""
+    return {row: _l1_to(m.to_numpy(), target) for row, m in by_row.items()}
 
 
 def choice_bootstrap(
-    by_row: dict[str, np.ndarray], target: np.ndarray, resamples: int, seed: int
+    by_row: dict[str, np.ndarray] | dict[str, pd.DataFrame],
+    target: np.ndarray,
+    resamples: int,
+    seed: int,
 ) -> pd.DataFrame:
     """The rule applied to ``resamples`` bootstrap resamples: in each, every row's seeds
     (``by_row``: ``float [seeds x keys]``) are drawn with replacement, independently per
@@ -159,9 +173,10 @@ def choice_bootstrap(
     rng = np.random.default_rng(seed)
     l1_rows_by_resample = []
     for mix in by_row.values():
-        picks_by_seed = rng.integers(0, len(mix), size=(resamples, len(mix)))
-        means_keys = mix[picks_by_seed].mean(axis=1)  # [resamples x keys]
-        l1_rows_by_resample.append(np.abs(means_keys - target).sum(axis=1))
+        seeds_keys = np.asarray(mix, dtype=float)
+        picks_by_seed = rng.integers(0, len(seeds_keys), size=(resamples, len(seeds_keys)))
+        means_keys = seeds_keys[picks_by_seed].mean(axis=1)  # [resamples x keys]
+        l1_rows_by_resample.append(_l1_to(means_keys, target))
     l1 = np.stack(l1_rows_by_resample)  # [rows x resamples]
     chosen = np.bincount(l1.argmin(axis=0), minlength=len(by_row)) / resamples
     low, high = np.percentile(l1, [2.5, 97.5], axis=1)
@@ -218,10 +233,9 @@ def _sureness_lines(
 ) -> tuple[list[str], dict]:
     """The section "How sure is the choice", ``seed_distances.csv`` and
     ``choice_bootstrap.csv`` in ``folder``, and meta.json's ``bootstrap`` record."""
-    by_row = seed_mixes(mixes, cal, order)
-    per_seed = seed_distances(by_row, cal)
-    seeds = {row: sorted(mixes[mixes["row"] == row]["seed"].unique()) for row in by_row}
-    target = np.array(list(cal.target_mix().values()))
+    by_row, target = seed_mixes(mixes, cal, order), target_vector(cal)
+    per_seed = seed_distances(by_row, target)
+    seeds = {row: list(m.index) for row, m in by_row.items()}
     boot = choice_bootstrap(by_row, target, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
     seed_frame = pd.DataFrame(
         [(row, s, d) for row in by_row for s, d in zip(seeds[row], per_seed[row], strict=True)],

@@ -484,18 +484,6 @@ def seed_shares(episodes: pd.DataFrame) -> pd.DataFrame:
     return per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
 
 
-def outcome_mix(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Per label, outcome and density: each training seed's share (:func:`seed_shares`)
-    first, then their mean (``rate``) over its ``seeds`` (columns label, outcome,
-    density, rate, seeds; labels in first-seen order)."""
-    mix = (
-        seed_shares(episodes)
-        .groupby(["label", "outcome", "density"], sort=False)
-        .agg(rate=("rate", "mean"), seeds=("train_seed", "nunique"))
-    )
-    return mix.reset_index()
-
-
 def _paper_mix(label: str, densities: list[float]) -> dict[tuple[str, float], float]:
     """``(outcome, density) -> rate`` of the paper's Table II row of ``label`` at those of
     ``densities`` it has (empty when it has no such row)."""
@@ -516,13 +504,15 @@ def _mix_rows(
     episodes: pd.DataFrame,
 ) -> tuple[list[list[str]], list[dict[str, Any]], list[dict[str, Any]]]:
     """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
-    density's rate (:func:`outcome_mix`) beside the paper's (its Table II row of the same
+    density's rate (each seed's share first, :func:`seed_shares`, then their mean:
+    :func:`~priqn.analysis.calibration.mean_mix`) beside the paper's (its Table II row of the same
     label), the L1 distance of the 12 numbers to the paper's row, and each training seed's
     own L1 (its shares, not the mean; median [min, max] in the Markdown, one record per
     seed in the third list)."""
-    from priqn.analysis.calibration import l1_by_outcome, rates_of
+    from priqn.analysis.calibration import l1_by_outcome, mean_mix, rates_of
 
-    mix, shares = outcome_mix(episodes), seed_shares(episodes)
+    shares = seed_shares(episodes)
+    mix = mean_mix(shares, group="label", seed="train_seed")
     densities = sorted(mix["density"].unique())
     md_rows, records, seed_records = [], [], []
     for label, mine in mix.groupby("label", sort=False):
