@@ -11,7 +11,7 @@ from typing import Any
 import pandas as pd
 import pytest
 
-from priqn.analysis import questions, questions_report, sequential
+from priqn.analysis import questions, questions_report, sequential, sequential_report
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
@@ -432,3 +432,23 @@ def test_budget_outcomes_figure_stacks_each_groups_outcomes_per_budget(tmp_path:
     heights = [round(p.get_height(), 6) for p in a.patches]  # success, collision, off-road, timeout
     assert heights == [0.1, 0.9, 0.4, 0.0, 0.4, 0.1, 0.1, 0.0]
     assert sum(heights[::2]) == pytest.approx(1.0) and sum(heights[1::2]) == pytest.approx(1.0)
+
+
+def test_report_tables_each_questions_looks_and_draws_them_look_by_look(tmp_path: Path) -> None:
+    exp = grid(tmp_path)
+    text = questions_report.write_report(exp, tmp_path / "r", command="c").read_text()
+    looks = pd.read_csv(tmp_path / "r" / "tables" / "looks.csv")
+    # a violates in 8 of 10 episodes, b in 2, at every seed: +60 points, no spread, so the
+    # Welch interval is the point itself, and AdaStop decides at the first look (4 seeds).
+    first = looks[looks["question"] == "safety"].iloc[0]
+    assert (first["look"], first["seeds_a"], first["decision"]) == (1, 4, "larger")
+    assert (first["difference"], first["lo"], first["hi"]) == pytest.approx((0.6, 0.6, 0.6))
+    needed = f"{100 * first['needed']:.1f}"
+    assert f"| 1 | a vs b | 4 vs 4 | +60.0 | [+60.0, +60.0] | {needed} | larger |" in text
+    assert "![each comparison look by look](figures/looks.png)" in text
+    fig = sequential_report.looks_figure(
+        [(q, questions.take_looks(exp, q)[1]) for q in exp.designs], "t"
+    )
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles == ["safety: a vs b: a violates more", "long: a > b: reproduced"]
+    assert (tmp_path / "r" / "figures" / "looks.png").stat().st_size > 0

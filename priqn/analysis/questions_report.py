@@ -30,6 +30,7 @@ from priqn.analysis.load import (
 from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import Looks, relative_path, verdict
+from priqn.analysis.sequential_report import looks_figure
 from priqn.experiment import OUTCOMES, Experiment, SequentialSpec
 from priqn.io import atomic_write_text
 from priqn.run.episodes import resolve_outcomes
@@ -306,8 +307,40 @@ def _question_lines(exp: Experiment, looks: pd.DataFrame) -> list[str]:
             f"seed {q.seed}; commits allowed: {', '.join(c[:12] for c in q.code_commits) or 'any'}.",
             f"- **Looks taken**: {len(mine['look'].unique()) if len(mine) else 0}.",
             "",
+            *_look_table(mine),
+        ]
+    if len(looks):
+        lines += [
+            "Each comparison look by look: a dot outside its look's grey band is decided "
+            "there (the band is ± the |difference| it needed).",
+            "",
+            "![each comparison look by look](figures/looks.png)",
+            "",
         ]
     return lines
+
+
+def _look_table(looks: pd.DataFrame) -> list[str]:
+    """One question's looks taken (its rows of ``tables/looks.csv``) as a table: seeds,
+    estimate, Welch interval, the |difference| the look needed and AdaStop's decision."""
+    if not len(looks):
+        return []
+    rows = [
+        [str(int(r.look)), r.comparison, f"{r.seeds_a} vs {r.seeds_b}", _pts(r.difference),
+         f"[{_pts(r.lo)}, {_pts(r.hi)}]", _needed_pts(r.needed), r.decision]
+        for r in looks.itertuples(index=False)
+    ]  # fmt: skip
+    heads = ["look", "comparison", "seeds", "difference [points]", "Welch 95 %", "needed",
+             "decision"]  # fmt: skip
+    return [*markdown_table(heads, rows).split("\n"), ""]
+
+
+def _needed_pts(needed: float) -> str:
+    """The |difference| a look needed, in points (∞: too few splits to decide; –: the
+    family was finished at an earlier look)."""
+    if math.isnan(needed):
+        return "–"
+    return "∞" if math.isinf(needed) else f"{100 * needed:.1f}"
 
 
 def _budget_lines(budgets: pd.DataFrame) -> list[str]:
@@ -393,11 +426,14 @@ LOOK_COLUMNS = [
     "seeds_a",
     "seeds_b",
     "difference",
+    "lo",
+    "hi",
     "decision",
     "alpha_spent",
     "needed",
 ]
-"""Columns of ``tables/looks.csv``: one row per question, look and comparison."""
+"""Columns of ``tables/looks.csv``: one row per question, look and comparison (``lo``,
+``hi``: the look's Welch 95 % interval, descriptive)."""
 
 
 def _look_rows(question: SequentialSpec, result: Looks) -> list[dict[str, Any]]:
@@ -410,6 +446,8 @@ def _look_rows(question: SequentialSpec, result: Looks) -> list[dict[str, Any]]:
             "seeds_a": c.n_a,
             "seeds_b": c.n_b,
             "difference": c.diff,
+            "lo": c.lo,
+            "hi": c.hi,
             "decision": c.decision,
             "alpha_spent": look.level_spent.get(c.family),
             "needed": look.needed.get(c.family, math.nan),
@@ -711,9 +749,11 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     out = Path(out_dir)
     command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
     scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
+    results: list[tuple[SequentialSpec, Looks]] = []
     for q in exp.designs:
         scores, result = questions.take_looks(exp, q)
         scores_by_q[q.name] = scores
+        results.append((q, result))
         comparison_rows += _comparison_rows(exp, q, scores, result)
         look_rows += _look_rows(q, result)
         by_budget = _budget_tables(exp, q)
@@ -743,6 +783,9 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
                         ("budgets", budgets), ("budget_changes", changes)):  # fmt: skip
         write_csv(out / "tables" / f"{name}.csv", frame)
     save_figure(figure(exp, scores_by_q), out / "figures", "questions")
+    monitoring = looks_figure(results, f"{exp.experiment.name}: each comparison look by look")
+    if monitoring is not None:
+        save_figure(monitoring, out / "figures", "looks")
     if len(budgets):
         save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")
     episodes_by_budget = counted_episodes(exp, all_scores)

@@ -14,6 +14,8 @@ their own layout, :mod:`priqn.analysis.questions_report`; the choice is
 from __future__ import annotations
 
 import dataclasses
+import textwrap
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +26,7 @@ from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.analysis.sequential import ComparisonLook, Look, Looks, relative_path, verdict
-from priqn.experiment import ComparisonSpec, cell_dir_name
+from priqn.experiment import ComparisonSpec, SequentialSpec, cell_dir_name
 from priqn.run.folder import RunFolder
 
 CURVE_SEED = 0
@@ -164,40 +166,42 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     return fig
 
 
-def looks_figure(exp: Any, result: Looks) -> Any:
-    """The monitoring chart: one panel per comparison, its estimate at each look taken (dot,
-    Welch 95 % interval) inside the band AdaStop would not decide at that look (grey, ±the
-    look's ``needed``), with 0 and the paper's difference marked. A dot outside its band is
-    a difference found (orange); AdaStop's "equal" at the last look stays black; the looks
-    still to come are empty slots. None before the first look."""
+def looks_figure(designs: Sequence[tuple[SequentialSpec, Looks]], title: str) -> Any:
+    """The monitoring chart of one or more designs (the ``[sequential]`` table, or each
+    ``[[question]]`` with its looks): one panel per comparison, its estimate at each look
+    taken (dot, Welch 95 % interval) inside the band AdaStop would not decide at that look
+    (grey, ±the look's ``needed``), with 0 and the paper's difference marked. A dot outside
+    its band is a difference found (orange); AdaStop's "equal" at the last look stays
+    black; the looks still to come are empty slots. A question's panels name it
+    (``success: ...``). None before the first look of any design."""
     from priqn.analysis.figures import plt
 
-    if not result.looks:
+    panels = [(d, r, c) for d, r in designs if r.looks for c in d.comparisons]
+    if not panels:
         return None
-    seq = exp.sequential
-    comps = seq.comparisons
-    ncols = min(2, len(comps))
-    nrows = -(-len(comps) // ncols)
+    ncols = min(2, len(panels))
+    nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(
         nrows, ncols, figsize=(3.9 * ncols, 2.5 * nrows + 0.6), sharey=True, squeeze=False
     )
-    K = len(seq.interims)
-    for ax, c in zip(axes.flat, comps, strict=False):
+    for ax, (design, result, c) in zip(axes.flat, panels, strict=False):
+        K = len(design.interims)
         ax.axhline(0, color="0.6", lw=0.8)
         if c.paper_difference is not None:
             ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
         for look in result.looks:
             _draw_look(ax, look, c)
-        ax.set_xticks(range(1, K + 1), [f"{n}" for n in seq.interims], fontsize=8)
+        ax.set_xticks(range(1, K + 1), [f"{n}" for n in design.interims], fontsize=8)
         ax.set_xlim(0.4, K + 0.6)
         ax.set_xlabel("seeds per row at the look", fontsize=8)
-        ax.set_title(f"{c.name}: {verdict(seq, result, c)}", fontsize=8)
+        name = f"{design.name}: {c.name}" if design.name else c.name
+        ax.set_title(textwrap.fill(f"{name}: {verdict(design, result, c)}", 58), fontsize=8)
         ax.tick_params(axis="y", labelsize=8)
-    for ax in axes.flat[len(comps) :]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     for ax in axes[:, 0]:
         ax.set_ylabel("difference, points", fontsize=8)
-    _looks_legend(fig, f"{exp.experiment.name}: each comparison look by look")
+    _looks_legend(fig, title)
     return fig
 
 
@@ -531,7 +535,9 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     write_csv(out / "tables" / "looks.csv", looks_frame(result))
     write_csv(out / "tables" / "density.csv", density_frame(exp, scores))
     save_figure(figure(exp, scores), out / "figures", "headline")
-    monitoring = looks_figure(exp, result)
+    monitoring = looks_figure(
+        [(exp.sequential, result)], f"{exp.experiment.name}: each comparison look by look"
+    )
     if monitoring is not None:
         save_figure(monitoring, out / "figures", "looks")
     curve, curve_notes = sample_efficiency(exp, scores)
