@@ -1233,6 +1233,37 @@ def test_bench_sweep_forecast_arithmetic() -> None:
             grid_forecast(bad, 33, 2_000_000)
 
 
+def test_bench_sweep_scaling_prints_the_forecast_with_its_worker_count(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Levels 1 / 2 / 4 on 16 cores with ``--workers share`` (16, 8, 4 workers a cell),
+    steady 100 / 2 x 150 / 4 x 125 decisions/s: 4 cells give 500 (5.00x one); the
+    forecast of one 2M run is 2,000,000 / 100 s = 5.56 h at 16 workers; the 33-run grid
+    at 4 cells is 9 waves x 2,000,000 / 125 s = 40.0 h (2 cells: 17 x 3.70 h = 63.0 h)."""
+    import argparse
+
+    from priqn.bench import sweep
+
+    def fake_levels(args, plans, gpus=None):  # noqa: ANN001, ANN202
+        per_cell = {1: 100.0, 2: 150.0, 4: 125.0}
+        return [
+            {"wall_s": 60.0, "cells": [{"decisions_per_s": r / 2, "steady_decisions_per_s": r}] * n}
+            for _, n, _, _ in plans
+            for r in [per_cell[n]]
+        ]
+
+    monkeypatch.setattr(sweep, "measure_modes", fake_levels)
+    monkeypatch.setattr(sweep, "usable_cores", lambda: 16)
+    parser = argparse.ArgumentParser()
+    sweep.configure_parser(parser)
+    args = parser.parse_args(["--cells", "1,2,4", "--workers", "share"])
+    assert sweep.run_scaling(args, [1, 2, 4]) == 0
+    out = capsys.readouterr().out
+    assert "most decisions/s: 4 cell(s) at a time (5.00x one cell)" in out
+    assert "one 2,000,000-decision run 5.56 h (num_envs=16;" in out
+    assert "33 such runs 40.0 h at 4 cell(s) at a time" in out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -643,8 +643,10 @@ def run_scaling(args: argparse.Namespace, counts: list[int]) -> int:
     rates = {n: a / n for n, a in zip(counts, steady, strict=True) if a is not None}
     if 1 in rates:
         one, n, grid = grid_forecast(rates, args.forecast_runs, args.forecast_decisions)
+        alone = " ".join(_workers(args, 1, cores)) or "the preset's num_envs"
         print(
-            f"forecast on this box: one {args.forecast_decisions:,}-decision run {one:.2f} h; "
+            f"forecast on this box: one {args.forecast_decisions:,}-decision run {one:.2f} h "
+            f"({alone}; --cells 1 --workers 4,8,16 finds the fastest count for one run); "
             f"{args.forecast_runs} such runs {grid:.1f} h at {n} cell(s) at a time (steady "
             f"training-loop rates of these {args.steps:,}-decision {args.agent} cells; no "
             "evaluation, no start-up)"
