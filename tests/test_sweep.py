@@ -1244,13 +1244,13 @@ def test_bench_sweep_scaling_prints_the_forecast_with_its_worker_count(
 
     from priqn.bench import sweep
 
+    steady = {1: 100.0, 2: 150.0, 4: 125.0}  # per cell, by cells at a time
+
     def fake_levels(args, plans, gpus=None):  # noqa: ANN001, ANN202
-        per_cell = {1: 100.0, 2: 150.0, 4: 125.0}
-        return [
-            {"wall_s": 60.0, "cells": [{"decisions_per_s": r / 2, "steady_decisions_per_s": r}] * n}
-            for _, n, _, _ in plans
-            for r in [per_cell[n]]
-        ]
+        cell = {
+            n: {"decisions_per_s": r / 2, "steady_decisions_per_s": r} for n, r in steady.items()
+        }
+        return [{"wall_s": 60.0, "cells": [cell[n]] * n} for _, n, _, _ in plans]
 
     monkeypatch.setattr(sweep, "measure_modes", fake_levels)
     monkeypatch.setattr(sweep, "usable_cores", lambda: 16)
