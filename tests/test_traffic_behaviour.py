@@ -10,6 +10,7 @@ about a second before the ego. SUMO runs in a spawned process (one simulation pe
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import multiprocessing
 import subprocess
 from collections.abc import Iterator
@@ -218,3 +219,190 @@ def test_every_named_setting_builds_a_train_config() -> None:
             k.removeprefix("traffic."): v
             for k, v in TRAFFIC_SETTINGS[name].env if k.startswith("traffic.")
         })  # fmt: skip
+
+
+# ------------------------------------------------------------- the Traffic-Manager-like setting
+# ``tm``: no NPC gives way to the ego, but each brakes for an ego in its path ahead
+# (priqn/env/path_braking.py). The ego is moved exactly as above (front bumper at ``x``,
+# east along its lane); the stage is checked before every step with the ego's box there.
+
+EGO_LENGTH_M, EGO_WIDTH_M = 5.0, 1.8
+"""SUMO's default car, which the hand-built ego is."""
+
+
+def _drive_stage(
+    net: str, setting: str, ego_xs: list[float], npc_route: str, npc_at: int, npc_pos: float,
+    reaction_s: float = 0.0,
+) -> dict:  # fmt: skip
+    """The ego's front at ``ego_xs[k]`` after step k; one NPC on ``npc_route`` inserted at
+    step ``npc_at`` at ``npc_pos`` m along its first edge, under traffic ``setting``.
+
+    Per step: the NPC's x, y, speed, the stage's hazard distance for it (None: the ego is
+    not in its path) and whether its box overlaps the ego's (our own oriented-box test).
+    """
+    import libsumo as sim
+
+    from priqn.env import geometry, reads
+    from priqn.env.path_braking import NpcPaths
+    from priqn.sim.roadmap import RoadMap
+    from priqn.sim.sumo import simulation_args
+
+    behaviour = TrafficBehaviour(**{
+        k.removeprefix("traffic."): v for k, v in TRAFFIC_SETTINGS[setting].env
+    }, path_reaction_time_s=reaction_s)  # fmt: skip
+    sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
+    try:
+        sim.route.add("ego_route", ["WC", "CE"])
+        sim.vehicle.add("ego", "ego_route", departPos=f"{ego_xs[0] + 150.0:.2f}", departSpeed="0")
+        sim.vehicle.setSpeedMode("ego", 0)
+        sim.vehicle.setLaneChangeMode("ego", 0)
+        routes = {"left": ["SC", "CW"], "right": ["SC", "CE"], "behind": ["WC", "CE"]}
+        traffic = Traffic(
+            sim, TrafficSpec(lateral_offset_m=(0.0, 0.0)), [routes[npc_route]], density=0.05,
+            rng=np.random.default_rng(0), behaviour=behaviour, ego_id="ego",
+            paths=NpcPaths(RoadMap.load(net)), step_s=0.1,
+        )  # fmt: skip
+        traffic.setup()
+        sim.simulationStep()  # inserts the ego
+        reads.subscribe_actors(sim, "ego", 65.0)
+        npc, rows = f"{NPC_PREFIX}0", []
+        prev_x = ego_xs[0]
+        for k, x in enumerate(ego_xs):
+            stage = traffic.path_braking
+            if stage is not None:
+                centre = (prev_x - EGO_LENGTH_M / 2, EGO_LANE_Y_M)
+                stage.check(reads.read_actors(sim, "ego"), centre, 0.0, EGO_LENGTH_M, EGO_WIDTH_M)
+            hazard = stage.hazard_m.get(npc) if stage is not None else None
+            sim.vehicle.moveToXY("ego", "", -1, x, EGO_LANE_Y_M, 90.0, 3)
+            if k == npc_at:
+                traffic._add_npc(0, npc_pos)
+            sim.simulationStep()
+            prev_x = x
+            if npc not in sim.vehicle.getIDList():
+                rows.append((x, None, None, None, hazard, False))
+                continue
+            front, angle = sim.vehicle.getPosition(npc), sim.vehicle.getAngle(npc)
+            length, width = sim.vehicle.getLength(npc), sim.vehicle.getWidth(npc)
+            centre, heading = geometry.center_from_sumo(np.array(front), angle, length)
+            hit = geometry.obb_overlap(
+                geometry.Boxes.make([(x - EGO_LENGTH_M / 2, EGO_LANE_Y_M)], 0.0, EGO_LENGTH_M, EGO_WIDTH_M),
+                geometry.Boxes.make([centre], heading, length, width),
+            )[0]  # fmt: skip
+            rows.append((x, front[0], front[1], sim.vehicle.getSpeed(npc), hazard, bool(hit)))
+        return {"rows": rows, "decel": sim.vehicletype.getDecel("priqn_npc"),
+                "emergency_decel": sim.vehicletype.getEmergencyDecel("priqn_npc")}  # fmt: skip
+    finally:
+        sim.close()
+
+
+def _stand(at_x: float, steps: int = 300, from_x: float = -20.0, speed: float = 8.0) -> list[float]:
+    """Front-bumper x per step: from ``from_x`` east at ``speed`` m/s to ``at_x``, then standing."""
+    xs, x = [], from_x
+    for _ in range(steps):
+        x = min(x + speed * 0.1, at_x)
+        xs.append(x)
+    return xs
+
+
+def _stage(worker: Any, *args: Any) -> dict:
+    return worker.submit(_drive_stage, *args).result(timeout=240)
+
+
+def _decels(rows: list) -> list[float]:
+    """The NPC's deceleration in each step it ran [m/s²] (positive = braking)."""
+    speeds = [r[3] for r in rows if r[3] is not None]
+    return [(a - b) / 0.1 for a, b in itertools.pairwise(speeds)]
+
+
+STANDING_X_M = 4.0
+"""The standing ego's front: its box covers x 1.5..4 m of its lane, across the left turner's
+path from the south (which crosses the ego's lane at x ~ 1.3 m)."""
+
+
+def test_tm_npc_stops_for_an_ego_standing_across_its_path(tjunction, worker) -> None:
+    # The ego drives in and stands inside the junction before the NPC, 40 m up the minor
+    # road at 11 m/s, comes within its look-ahead (2.5 m + 4.35 s x 11.2 m/s = 51 m, capped
+    # at 50): it sees the ego at 46.5 m, far beyond its stopping distance (14 m at decel).
+    out = _stage(worker, str(tjunction), "tm", _stand(STANDING_X_M), "left", 0, 40.0)
+    rows = out["rows"]
+    seen = [r for r in rows if r[4] is not None]
+    assert seen and seen[0][4] > 40.0
+    assert not any(r[5] for r in rows)  # no collision
+    assert rows[-1][3] == 0.0  # it stands, waiting
+    # ... 2 m short of the ego (the gap it aims for), having braked gently: never harder
+    # than its vType's decel (4.5 m/s²).
+    assert seen[-1][4] == pytest.approx(2.0, abs=0.5)
+    assert max(_decels(rows)) <= out["decel"] + 1e-6
+
+
+def test_rude_npc_drives_into_the_same_standing_ego(tjunction, worker) -> None:
+    # The same case without the stage: junctionModel.ignoreIDs drops the ego as a foe inside
+    # the junction too, and the NPC drives into it.
+    out = _stage(worker, str(tjunction), "rude", _stand(STANDING_X_M), "left", 0, 40.0)
+    assert any(r[5] for r in out["rows"])
+    assert all(r[4] is None for r in out["rows"])  # no stage in `rude`
+
+
+def test_tm_npc_brakes_at_its_limit_for_an_ego_that_cuts_in(tjunction, worker) -> None:
+    # The ego drives through at 8 m/s and enters the path of the NPC (inserted at step 75,
+    # 60 m up the minor road) 4.5 m ahead of it at 5.6 m/s: stopping 2 m short would need
+    # 6.3 m/s², stopping at all 3.5 m/s² over 4.5 m... the NPC brakes as hard as its
+    # emergencyDecel (9 m/s²) allows, never harder, and the two still touch.
+    xs = [-130.0 + 8.0 * 0.1 * (k + 1) for k in range(260)]
+    out = _stage(worker, str(tjunction), "tm", xs, "left", 75, 60.0)
+    rows = out["rows"]
+    first = next(r for r in rows if r[4] is not None)
+    speed, hazard = first[3], first[4]
+    assert hazard - 2.0 < speed**2 / (2 * out["decel"])  # inside its comfortable stop
+    decels = _decels(rows)
+    assert max(decels) > out["decel"] + 1.0
+    assert max(decels) <= out["emergency_decel"] + 1e-6
+    assert any(r[5] for r in rows)
+
+
+def test_tm_npc_that_arrives_first_does_not_wait_for_the_approaching_ego(tjunction, worker) -> None:
+    # As for `rude` above: the NPC reaches the junction about a second before the ego, which
+    # has priority under SUMO's rules; the TM gives the ego none. The ego is never in the
+    # NPC's path ahead before the NPC is in the ego's lane, so it does not brake for it.
+    xs = [-130.0 + EGO_SPEED_MPS * 0.1 * (k + 1) for k in range(260)]
+    out = _stage(worker, str(tjunction), "tm", xs, "left", 75, 60.0 + 20.0)
+    rows = out["rows"]
+    entered = [(k, r) for k, r in enumerate(rows) if r[2] is not None and r[2] > -3.2]
+    assert entered and entered[0][1][0] < 0.0 and entered[0][1][3] > 4.0
+    assert all(r[4] is None for r in rows[: entered[0][0]])
+
+
+def test_path_braking_defaults_leave_sumo_and_rude_without_a_stage() -> None:
+    assert TrafficBehaviour().path_braking is False
+    for name, setting in TRAFFIC_SETTINGS.items():
+        on = ("traffic.path_braking", True) in setting.env
+        assert on == (name == "tm" or name.startswith("tm-")), name
+
+
+def test_braking_speed_by_hand() -> None:
+    from priqn.env.path_braking import braking_speed_mps
+
+    # 10 m/s with 25 m of room: 10² / (2 x 25) = 2 m/s², so 9.8 m/s after 0.1 s.
+    assert braking_speed_mps(10.0, 25.0, 9.0, 0.1) == pytest.approx(9.8)
+    # 5 m of room: 10 m/s² needed, bounded by 9: 9.1 m/s. None left: the bound again.
+    assert braking_speed_mps(10.0, 5.0, 9.0, 0.1) == pytest.approx(9.1)
+    assert braking_speed_mps(10.0, -1.0, 9.0, 0.1) == pytest.approx(9.1)
+    assert braking_speed_mps(0.5, 0.0, 9.0, 0.1) == 0.0  # never below 0
+
+
+def test_look_ahead_grows_with_speed_up_to_its_cap() -> None:
+    from priqn.env.path_braking import PathBraking
+
+    stage = PathBraking(None, None, TrafficBehaviour(path_braking=True), 0.1, 4.5, 9.0, "npc.")
+    assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
+    assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 4.35 * 5.0)
+    assert stage.look_ahead_m(20.0) == pytest.approx(50.0)
+
+
+def test_path_braking_knob_errors_are_one_line() -> None:
+    with pytest.raises(ValueError, match=r"traffic.path_reaction_time_s: expected >= 0"):
+        TrafficBehaviour(path_reaction_time_s=-0.1)
+    with pytest.raises(
+        ValueError, match=r"path_look_ahead_max_m: expected >= path_look_ahead_min_m"
+    ):
+        TrafficBehaviour(path_look_ahead_min_m=10.0, path_look_ahead_max_m=5.0)

@@ -61,6 +61,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--repeats", type=int, default=3, help="env and floor measurements per density (medians)"
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of scenes and policy")
+    parser.add_argument(
+        "--traffic",
+        default="sumo",
+        help="comma-separated named traffic settings (default: sumo); with several, each "
+        "density is measured under each, and the table adds each one's env decisions/s as a "
+        "ratio to the first's (e.g. --traffic sumo,rude,tm: what path braking costs)",
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     parser.add_argument(
         "--vs",
@@ -89,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     order it prints: each density's env against its floor, the vector env's scaling,
     HighwayEnv beside priqn (``--vs highway``); ``--json`` also writes the results."""
     densities = _checked_densities(args)
+    traffics = _checked_traffic(args.traffic)
     base = {"family": args.family, "obs_size_px": args.obs_size, "seed": args.seed}
     env_base = {
         **base,
@@ -101,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
             "decisions": args.decisions,
             "repeats": args.repeats,
             "sensors": args.sensors,
+            "traffic": traffics,
         },
         "density": {},
         "vector": {},
@@ -114,10 +123,21 @@ def run(args: argparse.Namespace) -> int:
         f"{'reset ms':>8} {'episode ms':>10} {'dec/s incl. resets':>18} {'risk us/step':>12}"
         "   env step ms = sumo + sensors + planner + risk + rest   sensors: ref ms, new/ref"
     )
-    for d in densities:
-        spec = {**env_base, "mode": "env", "density": d, "decisions": args.decisions}
-        results["density"][str(d)] = row = _median_density(spec, args.repeats)
-        print(_density_line(d, row))
+    for traffic in traffics:
+        if len(traffics) > 1:
+            print(f"traffic {traffic}:")
+        for d in densities:
+            spec = {
+                **env_base, "mode": "env", "density": d, "decisions": args.decisions,
+                "traffic": traffic,
+            }  # fmt: skip
+            row = _median_density(spec, args.repeats)
+            if traffic == traffics[0]:
+                results["density"][str(d)] = row
+            results.setdefault("traffic", {}).setdefault(traffic, {})[str(d)] = row
+            print(_density_line(d, row))
+    if len(traffics) > 1:
+        results["traffic_ratio"] = _traffic_ratios(results["traffic"], traffics, densities)
     results["vector"] = _vector_scaling(base, args.max_workers, args.vector_decisions)
     if args.vs == "highway":
         results["highway"] = _versus_highway(results, densities, args)
@@ -126,6 +146,38 @@ def run(args: argparse.Namespace) -> int:
 
         atomic_write_json(args.json, results)
     return 0
+
+
+def _checked_traffic(names: str) -> list[str]:
+    """``--traffic`` as a list of named settings; an unknown one is a one-line error."""
+    from priqn.env.traffic import traffic_values
+
+    out = [n.strip() for n in str(names).split(",") if n.strip()]
+    for name in out:
+        traffic_values(name)
+    if not out:
+        from priqn.errors import PriqnError
+
+        raise PriqnError("--traffic: expected one or more setting names, e.g. sumo,tm")
+    return out
+
+
+def _traffic_ratios(
+    by_traffic: dict[str, dict[str, Any]], traffics: list[str], densities: list[float]
+) -> dict[str, dict[str, float]]:
+    """Each setting's env decisions/s over the first setting's, per density (printed)."""
+    first = traffics[0]
+    print(f"\n{'traffic':>10} " + " ".join(f"{'d=' + format(d, 'g'):>9}" for d in densities)
+          + f"   (env decisions/s over {first}'s; below 1 = slower)")  # fmt: skip
+    out: dict[str, dict[str, float]] = {}
+    for traffic in traffics:
+        out[traffic] = {
+            str(d): by_traffic[traffic][str(d)]["env"]["decisions_per_s"]
+            / by_traffic[first][str(d)]["env"]["decisions_per_s"]
+            for d in densities
+        }
+        print(f"{traffic:>10} " + " ".join(f"{out[traffic][str(d)]:>8.2f}x" for d in densities))
+    return out
 
 
 def _checked_densities(args: argparse.Namespace) -> list[float]:
@@ -317,6 +369,11 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
     from priqn.env.intersection import EnvConfig, IntersectionEnv
 
     cfg = EnvConfig(family=spec["family"], obs_size_px=spec["obs_size_px"])
+    if spec.get("traffic"):
+        from priqn.config import apply_values
+        from priqn.env.traffic import TRAFFIC_SETTINGS
+
+        cfg = apply_values(cfg, TRAFFIC_SETTINGS[spec["traffic"]].env, "--traffic")
     if mode == "vector":
         return _measure_vector(cfg, spec)
     env = IntersectionEnv(cfg)

@@ -692,8 +692,9 @@ class IntersectionEnv(gymnasium.Env):
         cfg, sim = self.config, self._session.sim
         spec = scene.traffic
         traffic = Traffic(
-            sim, spec, scene.roadmap.npc_routes, density, trng, cfg.traffic, ego_id=EGO_ID
-        )
+            sim, spec, scene.roadmap.npc_routes, density, trng, cfg.traffic, ego_id=EGO_ID,
+            paths=scene.npc_paths if cfg.traffic.path_braking else None, step_s=cfg.sim_step_s,
+        )  # fmt: skip
         traffic.setup()
         sim.vehicletype.copy("DEFAULT_VEHTYPE", EGO_TYPE)
         sim.vehicletype.setLength(EGO_TYPE, cfg.ego_length_m)
@@ -748,7 +749,14 @@ class IntersectionEnv(gymnasium.Env):
             np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m
         )
         raw, departed, arrived = [], [], []
+        stage = self._episode.traffic.path_braking
         for k in range(plan.steps):
+            if stage is not None:  # NPCs see the ego where it stands before this step
+                stage.check(
+                    raw[-1] if raw else reads.read_actors(sim, EGO_ID),
+                    (float(traj.x[k]), float(traj.y[k])), float(traj.heading_rad[k]),
+                    cfg.ego_length_m, cfg.ego_width_m,
+                )  # fmt: skip
             sim.vehicle.moveToXY(
                 EGO_ID, "", -1, float(front[k, 0]), float(front[k, 1]), float(angles[k]), 3
             )
@@ -776,7 +784,14 @@ class IntersectionEnv(gymnasium.Env):
         )
         poses: list[handback.Pose] = []
         off_road, at_goal, raw, departed, arrived = [], [], [], [], []
+        stage = ep.traffic.path_braking
         for _ in range(cfg.substeps):
+            if stage is not None:  # NPCs see the ego where it stands before this step
+                e = poses[-1] if poses else ep.ego
+                stage.check(
+                    raw[-1] if raw else reads.read_actors(sim, EGO_ID),
+                    (e.x_m, e.y_m), e.heading_rad, cfg.ego_length_m, cfg.ego_width_m,
+                )  # fmt: skip
             sim.simulationStep()
             departed.append(sim.simulation.getDepartedIDList())
             arrived.append(sim.simulation.getArrivedIDList())

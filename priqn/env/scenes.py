@@ -14,6 +14,7 @@ Nothing here talks to SUMO: lane lengths and widths come from the parsed net.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from priqn.config import from_dict
 from priqn.env import geometry, planner
+from priqn.env.path_braking import NpcPaths
 from priqn.env.traffic import ObstacleSite
 from priqn.errors import PriqnError
 from priqn.io import read_json
@@ -77,6 +79,11 @@ class Scene:
         bits = self.raster.bits.copy()
         bits.ravel()[cells] |= geometry.ROUTE
         return geometry.MapRaster(bits, self.raster.origin_xy, self.raster.resolution_m)
+
+    @functools.cached_property
+    def npc_paths(self) -> NpcPaths:
+        """The paths NPCs drive through the junction (``traffic.path_braking``), built once."""
+        return NpcPaths(self.roadmap)
 
     def prepare_routes(self) -> None:
         """Draw every ego route now (so that no reset draws one)."""

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from priqn.checks import check_density
+from priqn.env.path_braking import NpcPaths, PathBraking
 from priqn.errors import PriqnError
 from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
@@ -54,19 +55,20 @@ IGNORE_IDS_PARAM = "junctionModel.ignoreIDs"
 class TrafficBehaviour:
     """How the NPCs drive with respect to the ego (``EnvConfig.traffic``, docs/environment.md).
 
-    The defaults are SUMO's drivers as every committed result used them: each NPC gives
-    way to the ego wherever the junction gives the ego priority, the scene is topped up to
-    its density every decision, no impatience. A non-default value draws from its own
-    generator, so the defaults leave every episode bit for bit as it was.
-    """
+    The defaults are SUMO's drivers (the ``sumo`` setting): each NPC gives way to the ego
+    wherever the junction gives the ego priority, the scene is topped up to its density
+    every decision, no impatience, no path braking. A non-default value draws from its own
+    generator (path braking draws nothing), so the defaults leave every episode bit for bit
+    as it was. :data:`TRAFFIC_SETTINGS` names whole settings; ``tm`` is the
+    Traffic-Manager-like one."""
 
     yield_to_ego_prob: float = 1.0
     """Probability that an NPC gives way to the ego at the junction, drawn once per NPC at
     its insertion. An NPC that does not (``0`` = none does) has the ego in its SUMO
     ``junctionModel.ignoreIDs``: it takes its right of way, or a gap, as if the ego were not
-    there, in the approach and inside the junction. Its car-following still brakes for an
-    ego ahead of it in its own lane. CARLA's Traffic Manager drives so: the ego is not
-    registered with it, so its NPCs brake only for what is in their own path ahead."""
+    there, in the approach *and* inside the junction. Its car-following still brakes for an
+    ego ahead of it in its own lane. That is ruder than CARLA's Traffic Manager, whose NPCs
+    also brake for an ego already across their path: add ``path_braking`` for that."""
     top_up: bool = True
     """Keep the requested density by adding NPCs at the arm starts as others leave. False:
     the scene's NPCs are the ones placed at reset, so a waiting ego eventually finds the
@@ -74,6 +76,22 @@ class TrafficBehaviour:
     impatience: float = 0.0
     """SUMO's vType ``impatience`` of the NPCs in [0, 1] (0 = SUMO's default): how readily an
     NPC that has waited forces its way past vehicles with priority, the ego included."""
+    path_braking: bool = False
+    """CARLA Traffic Manager's collision stage (:mod:`priqn.env.path_braking`): every NPC
+    brakes for the ego when the ego's box overlaps its own path ahead, within a look-ahead
+    that grows with its speed, after ``path_reaction_time_s``, at no more than its vType's
+    ``emergencyDecel``. Off: SUMO's drivers alone."""
+    path_look_ahead_min_m: float = 2.5
+    """Look-ahead along the path at standstill [m] (TM ``BOUNDARY_EXTENSION_MINIMUM``)."""
+    path_look_ahead_s: float = 4.35
+    """Look-ahead added per m/s of the NPC's speed [s] (TM ``BOUNDARY_EXTENSION_RATE``)."""
+    path_look_ahead_max_m: float = 50.0
+    """Longest look-ahead [m] (TM ``BOUNDARY_EXTENSION_MAXIMUM`` of CARLA 0.9.10)."""
+    path_reaction_time_s: float = 0.0
+    """Delay from the check that first sees the ego in the path to the first braking check
+    [s]; every check acts on the next SUMO step (0.1 s), like the TM's one-tick latency."""
+    path_stop_gap_m: float = 2.0
+    """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``)."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.yield_to_ego_prob <= 1.0:
@@ -84,6 +102,15 @@ class TrafficBehaviour:
         if not 0.0 <= self.impatience <= 1.0:
             raise ValueError(
                 f"traffic.impatience: expected a value in [0, 1], got {self.impatience}"
+            )
+        for name in ("path_look_ahead_min_m", "path_look_ahead_s", "path_reaction_time_s",
+                     "path_stop_gap_m"):  # fmt: skip
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"traffic.{name}: expected >= 0, got {getattr(self, name)}")
+        if not self.path_look_ahead_max_m >= self.path_look_ahead_min_m:
+            raise ValueError(
+                f"traffic.path_look_ahead_max_m: expected >= path_look_ahead_min_m "
+                f"({self.path_look_ahead_min_m}), got {self.path_look_ahead_max_m}"
             )
 
 
@@ -103,6 +130,7 @@ class TrafficSetting:
 
 
 _RUDE = (("traffic.yield_to_ego_prob", 0.0),)
+_TM = _RUDE + (("traffic.path_braking", True),)
 _FINITE = (("traffic.top_up", False),)
 _LONG = (("max_episode_steps", 200),)
 TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
@@ -112,8 +140,16 @@ TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
     "rude-finite": TrafficSetting("rude, no top-up: the reset's NPCs only", _RUDE + _FINITE),
     "rude-finite-long": TrafficSetting("rude, no top-up, 200 decisions", _RUDE + _FINITE + _LONG),
     "sumo-finite-long": TrafficSetting("polite NPCs, no top-up, 200 decisions", _FINITE + _LONG),
+    "tm": TrafficSetting(
+        "CARLA Traffic Manager-like: no NPC gives way to the ego, but each brakes for an ego "
+        "in its path ahead",
+        _TM,
+    ),
+    "tm-finite": TrafficSetting("tm, no top-up: the reset's NPCs only", _TM + _FINITE),
+    "tm-long": TrafficSetting("tm, training episodes of 200 decisions (100 s)", _TM + _LONG),
 }
-"""Named traffic settings (issue 48's calibration candidates; docs/environment.md)."""
+"""Named traffic settings (issue 48's calibration candidates, issue 62's ``tm``;
+docs/environment.md)."""
 
 
 def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
@@ -174,7 +210,8 @@ class Traffic:
     ``routes``: NPC routes as edge-id lists (first edge = an incoming arm, whose end is
     the junction: lateral offsets fade out before it). ``rng`` draws everything random
     about the traffic (the env derives it from the episode seed). ``behaviour``: how the
-    NPCs treat the ego (``ego_id``).
+    NPCs treat the ego (``ego_id``); with ``behaviour.path_braking``, ``paths`` are the
+    net's NPC paths and ``step_s`` the SUMO step (:attr:`path_braking`).
     """
 
     def __init__(
@@ -186,6 +223,8 @@ class Traffic:
         rng: np.random.Generator,
         behaviour: TrafficBehaviour = TrafficBehaviour(),
         ego_id: str = "ego",
+        paths: NpcPaths | None = None,
+        step_s: float = 0.1,
     ) -> None:
         if not routes:
             raise PriqnError("traffic: the net has no NPC routes")
@@ -212,6 +251,13 @@ class Traffic:
         self._density_sum = 0.0
         self._density_steps = 0
         self.obstacles: list[Obstacle] = []
+        if behaviour.path_braking and paths is None:
+            raise PriqnError("traffic.path_braking: the traffic was given no NPC paths")
+        self._paths = paths
+        self._step_s = step_s
+        self.path_braking: PathBraking | None = None
+        """The collision stage braking NPCs for the ego (``behaviour.path_braking``; from
+        :meth:`setup`), else None."""
         self.active = 0
         """NPCs running in SUMO now (kept by :meth:`record_step`)."""
 
@@ -233,6 +279,16 @@ class Traffic:
             sim.vehicletype.setImpatience(NPC_TYPE, self.behaviour.impatience)
         sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
         sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
+        if self._paths is not None and self.behaviour.path_braking:
+            self.path_braking = PathBraking(
+                sim,
+                self._paths,
+                self.behaviour,
+                self._step_s,
+                decel_mps2=sim.vehicletype.getDecel(NPC_TYPE),
+                emergency_decel_mps2=sim.vehicletype.getEmergencyDecel(NPC_TYPE),
+                npc_prefix=NPC_PREFIX,
+            )
 
     def populate(self, avoid: tuple[str, float, float] | None = None) -> None:
         """Spread ``target_count`` NPCs along the first edges of random routes.

@@ -212,6 +212,10 @@ class RoadMap:
     """Every (approach arm, exit arm) pair the ego can drive, U-turns excluded."""
     npc_routes: list[tuple[str, ...]]
     """Edge-id routes for traffic: every connected (approach edge, exit edge) pair."""
+    npc_lane_chains: tuple[tuple[str, ...], ...]
+    """Lane ids of every connection of :attr:`npc_routes`: approach lane, the internal
+    lanes it crosses the junction on, exit lane (the paths NPCs drive; a Traffic-Manager-like
+    NPC looks along them for the ego, :mod:`priqn.env.path_braking`)."""
     lanes: dict[str, LaneInfo]
     """Every lane of ``lane_ids`` by id, in that order (centre lines unclipped)."""
 
@@ -284,7 +288,7 @@ class RoadMap:
 
         normal = [e for e in edges if e.getFunction() != "internal"]
         markings, kinds = _markings(normal, window)
-        ego_routes, npc_routes = _routes(normal, junction, net, path)
+        ego_routes, npc_routes, npc_lane_chains = _routes(normal, junction, net, path)
         if not ego_routes:
             raise PriqnError(
                 f"{path}: junction {junction.getID()!r} has no drivable route through it "
@@ -313,6 +317,7 @@ class RoadMap:
             marking_kinds=tuple(kinds),
             ego_routes=ego_routes,
             npc_routes=npc_routes,
+            npc_lane_chains=npc_lane_chains,
             lanes=lanes,
         )
 
@@ -690,9 +695,12 @@ def _lane_chain(net, conn, path: Path) -> list:
     return chain
 
 
-def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tuple[str, ...]]]:
-    """Ego and NPC routes through ``junction``: every connected (approach, exit) edge pair."""
-    ego, npc = [], []
+def _routes(
+    edges, junction, net, path: Path
+) -> tuple[list[EgoRoute], list[tuple[str, ...]], tuple[tuple[str, ...], ...]]:
+    """Ego and NPC routes through ``junction``: every connected (approach, exit) edge pair;
+    and the lane chain of each of their connections (:attr:`RoadMap.npc_lane_chains`)."""
+    ego, npc, chains = [], [], []
     approaches = [e for e in edges if e.getToNode() is junction]
     for edge in sorted(approaches, key=lambda e: e.getID()):
         for to_edge, conns in sorted(edge.getOutgoing().items(), key=lambda kv: kv[0].getID()):
@@ -706,6 +714,7 @@ def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tupl
             if not conns:
                 continue
             npc.append((edge.getID(), to_edge.getID()))
+            chains += _npc_chains(net, conns, path)
             in_shape = np.asarray(_car_lanes(edge)[0].getShape(), float)
             out_shape = np.asarray(_car_lanes(to_edge)[0].getShape(), float)
             turn = wrap_deg(math.degrees(_heading_at_start(out_shape) - _heading_at_end(in_shape)))
@@ -714,7 +723,19 @@ def _routes(edges, junction, net, path: Path) -> tuple[list[EgoRoute], list[tupl
             pick = max if command == "left" else min
             conn = pick(conns, key=lambda c: c.getFromLane().getIndex())
             ego.append(_ego_route(net, edge, to_edge, conn, command, turn, path))
-    return ego, npc
+    return ego, npc, tuple(chains)
+
+
+def _npc_chains(net, conns, path: Path) -> list[tuple[str, ...]]:
+    """Lane-id chains of ``conns``; one whose internal lanes cannot be followed is left out
+    (the ego's own connection raises for it in :func:`_ego_route`)."""
+    chains = []
+    for conn in conns:
+        try:
+            chains.append(tuple(ln.getID() for ln in _lane_chain(net, conn, path)))
+        except PriqnError:
+            continue
+    return chains
 
 
 def _ego_route(net, edge, to_edge, conn, command: str, turn: float, path: Path) -> EgoRoute:
