@@ -714,7 +714,7 @@ def _routes(
             if not conns:
                 continue
             npc.append((edge.getID(), to_edge.getID()))
-            chains += _npc_chains(net, conns, path)
+            chains += _npc_chains(net, conns)
             in_shape = np.asarray(_car_lanes(edge)[0].getShape(), float)
             out_shape = np.asarray(_car_lanes(to_edge)[0].getShape(), float)
             turn = wrap_deg(math.degrees(_heading_at_start(out_shape) - _heading_at_end(in_shape)))
@@ -726,15 +726,27 @@ def _routes(
     return ego, npc, tuple(chains)
 
 
-def _npc_chains(net, conns, path: Path) -> list[tuple[str, ...]]:
-    """Lane-id chains of ``conns``; one whose internal lanes cannot be followed is left out
-    (the ego's own connection raises for it in :func:`_ego_route`)."""
+def _npc_chains(net, conns) -> list[tuple[str, ...]]:
+    """Lane-id chains of ``conns``: from-lane, every internal lane, to-lane.
+
+    Unlike :func:`_lane_chain` (the ego's reference lines, kept as they are), an internal
+    lane's own ``via`` is followed too: a left turn that waits at an internal junction
+    crosses it on two internal lanes (``:J_5_0`` then ``:J_8_0``). A chain that cannot be
+    followed within the junction is left out."""
     chains = []
     for conn in conns:
-        try:
-            chains.append(tuple(ln.getID() for ln in _lane_chain(net, conn, path)))
-        except PriqnError:
-            continue
+        chain, target = [conn.getFromLane().getID()], conn.getToLane().getID()
+        via = conn.getViaLaneID()
+        for _ in range(10):
+            if not via or via == target:
+                break
+            chain.append(via)
+            out = net.getLane(via).getOutgoing()
+            if not out:
+                break
+            via = out[0].getViaLaneID() or out[0].getToLane().getID()
+        if via == target or not conn.getViaLaneID():
+            chains.append((*chain, target))
     return chains
 
 
