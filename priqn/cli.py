@@ -31,6 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "priqn.tools.mechanism",
         "replay Pr-IQN cells: safety removals and the safety head's calibration",
     ),
+    "probe": (
+        "priqn.tools.standing_probe",
+        "a scripted ego stands inside the junction: how often each traffic setting hits it",
+    ),
     "inspect": (
         "priqn.tools.inspector",
         "why a policy acted: per-objective quantiles and optimal subsets",

@@ -44,7 +44,7 @@ from priqn.run.checkpointer import (
 )
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
-from priqn.run.metrics import metric_columns, metrics_row, read_metrics, write_metrics
+from priqn.run.metrics import MetricsFile, metric_columns, metrics_row, read_metrics
 from priqn.run.session import mark_resume_exact, same_cpu_as_before, start_session
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
@@ -100,6 +100,8 @@ class TrainLogger:
         self.subset_columns = subset_columns(self.objectives)
         self.columns = metric_columns(self.objectives)
         """metrics.csv's columns for this run's objectives."""
+        self.metrics = MetricsFile(run.metrics_path, self.columns, self.rows)
+        """metrics.csv, appended to as rows come (a resume truncates it to its checkpoint)."""
         self.writer = SummaryWriter(str(run.tensorboard_dir), purge_step=step if resume else None)
         self.bar = tqdm(
             total=cfg.total_steps,
@@ -130,18 +132,18 @@ class TrainLogger:
             print(f"{self.run.name} step {step}/{self.cfg.total_steps} {line}", flush=True)
         for key, value in scalars.items():  # epsilon, updates/s, loss, target |S_r|
             self.writer.add_scalar(f"train/{key}", value, step)
-        write_metrics(self.run.metrics_path, self.rows, self.columns)
+        self.metrics.flush(self.rows)
 
     def evaluation(self, rows: list[dict[str, Any]], step: int) -> None:
         self.rows.extend(rows)
         for key in ("success", "return_weighted"):
             self.writer.add_scalar(f"eval/{key}", float(np.mean([r[key] for r in rows])), step)
-        write_metrics(self.run.metrics_path, self.rows, self.columns)
+        self.metrics.flush(self.rows)
 
     def checkpoint(self) -> None:
         from priqn.analysis.figures import write_training_curve
 
-        write_metrics(self.run.metrics_path, self.rows, self.columns)
+        self.metrics.flush(self.rows)
         self.writer.flush()
         write_training_curve(self.rows, self.run.learning_curve_path, self.run.name)
 
@@ -219,9 +221,9 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
     device = _torch_device(cfg)
     with contextlib.ExitStack() as stack:  # closes the logger and the env workers once
         if cfg.env_groups > 1:  # stepped in turn: _pipelined_steps
-            envs = EnvGroups(cfg.env, cfg.num_envs, cfg.env_groups, seed=seeds["env"])
+            envs = EnvGroups(cfg.env, cfg.num_envs, cfg.env_groups, seed=seeds["env"], preload=True)
         else:
-            envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"])
+            envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"], preload=True)
         stack.callback(envs.close)
         t = Trainer(cfg, agent, envs, seeds, device)
         run.update_meta(**t.facts())
@@ -708,7 +710,7 @@ class HoldoutEvaluation:
         root = Path(cfg.env.nets_dir) if cfg.env.nets_dir else None
         self.nets = family_net_refs(cfg.evaluation.family, root)
         env_cfg = dataclasses.replace(cfg.env, family=cfg.evaluation.family, nets=(), junction="")
-        self.envs = make_vector_env(env_cfg, 1, seed=seed)
+        self.envs = make_vector_env(env_cfg, 1, seed=seed, preload=True)
 
     def __enter__(self) -> HoldoutEvaluation:
         return self

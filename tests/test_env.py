@@ -490,3 +490,32 @@ def test_render_size_is_separate_from_the_observation_size(worker) -> None:
     bev, first, after = run_in(worker, _render_sizes)
     assert bev == (4, 32, 32)
     assert first == after == (96, 192, 3)  # BEV | LiDAR side by side at 96 px
+
+
+def _episode_after(preload: bool) -> dict:
+    """Reset (seed 5) and three steps, with or without ``preload_nets`` first (worker side)."""
+    import hashlib
+
+    from priqn.env.intersection import EnvConfig, IntersectionEnv
+
+    env = IntersectionEnv(EnvConfig(obs_size_px=32))
+    try:
+        if preload:
+            assert env.preload_nets() == len(env.net_pool)
+        obs, _ = env.reset(seed=5)
+        digest = hashlib.sha256(obs["bev"].tobytes() + obs["lidar"].tobytes())
+        rewards = []
+        for action in (7, 12, 12):
+            obs, reward, *_ = env.step(action)
+            digest.update(obs["bev"].tobytes())
+            rewards.append(reward.tolist())
+        return {"obs": digest.hexdigest(), "rewards": rewards,
+                "rng": env.np_random.bit_generator.state}  # fmt: skip
+    finally:
+        env.close()
+
+
+def test_preloading_the_nets_changes_no_episode(worker) -> None:
+    # Training and evaluation preload every worker's nets (and the sensors' compiled
+    # loops) before the first reset: the same observations, rewards and generator after.
+    assert run_in(worker, _episode_after, True) == run_in(worker, _episode_after, False)

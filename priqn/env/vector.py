@@ -154,7 +154,11 @@ def worker_seeds(seed: int, num_envs: int) -> list[int]:
 
 
 def make_vector_env(
-    config: Any = None, num_envs: int = 2, seed: int = 0, render_mode: str | None = None
+    config: Any = None,
+    num_envs: int = 2,
+    seed: int = 0,
+    render_mode: str | None = None,
+    preload: bool = False,
 ) -> PriqnVectorEnv:
     """``num_envs`` :class:`~priqn.env.intersection.IntersectionEnv` in spawned worker processes.
 
@@ -162,10 +166,20 @@ def make_vector_env(
     ``reset()`` without a seed to use the per-worker seeds derived from ``seed``
     (:func:`worker_seeds`); ``reset(seed=s)`` reseeds worker i with ``s + i`` as gymnasium
     does. Rewards come out ``float32 [num_envs, N]`` (N = ``len(config.objectives)``).
+    ``preload``: every worker parses its nets and loads the sensors' compiled loops now
+    (``preload_nets``, no random draw), not at its first resets, where the vector step would
+    wait for the slowest worker's.
     """
     if not isinstance(num_envs, int) or num_envs < 1:
         raise PriqnError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
-    return _vector_env(config, worker_seeds(seed, num_envs), render_mode)
+    venv = _vector_env(config, worker_seeds(seed, num_envs), render_mode)
+    if preload:
+        try:
+            venv.call("preload_nets")
+        except BaseException:
+            venv.close()
+            raise
+    return venv
 
 
 def _vector_env(config: Any, seeds: list[int], render_mode: str | None) -> PriqnVectorEnv:
@@ -198,7 +212,9 @@ class EnvGroups:
     flight and :func:`restore_episodes` do not know the grouping.
     """
 
-    def __init__(self, config: Any, num_envs: int, groups: int, seed: int = 0) -> None:
+    def __init__(
+        self, config: Any, num_envs: int, groups: int, seed: int = 0, preload: bool = False
+    ) -> None:
         if groups < 1 or num_envs % groups:
             raise PriqnError(
                 f"env_groups: expected a divisor of num_envs ({num_envs}), got {groups}"
@@ -218,6 +234,12 @@ class EnvGroups:
         self.objectives = first.objectives
         self.rows = [slice(lo, lo + self.size) for lo in range(0, self.num_envs, self.size)]
         """Group ``g``'s workers as a slice of every ``[num_envs, ...]`` array."""
+        if preload:  # as make_vector_env's preload
+            try:
+                self.call("preload_nets")
+            except BaseException:
+                self.close()
+                raise
 
     def reset(self, seed: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """Every worker's first observation (``[num_envs, ...]`` per key) and the groups' infos."""

@@ -80,7 +80,7 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
 
     def make_env(num_envs: int) -> Any:
         # The vector env's own seed only seeds autoresets, whose scenes are discarded.
-        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
+        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed, preload=True)
 
     import torch
 

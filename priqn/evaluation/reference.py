@@ -133,7 +133,7 @@ def evaluate_reference(
         )
 
     def make_env(num_envs: int) -> Any:
-        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed)
+        return make_vector_env(env_cfg, num_envs=num_envs, seed=cfg.seed, preload=True)
 
     from priqn.run.provenance import git_sha, versions
 

@@ -85,20 +85,67 @@ def write_metrics(
 ) -> None:
     """metrics.csv at ``path`` with ``columns`` (atomically): :func:`metric_columns` of the
     run's objectives, :data:`METRIC_COLUMNS` by default."""
+    atomic_write_text(path, _csv_rows(rows, columns, header=True))
+
+
+def _csv_rows(rows: Sequence[Mapping[str, Any]], columns: Sequence[str], header: bool) -> str:
+    """``rows`` as metrics.csv text (the header first if ``header``), as the csv module writes."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
-    writer.writeheader()
+    if header:
+        writer.writeheader()
     writer.writerows(rows)
-    atomic_write_text(path, buf.getvalue())
+    return buf.getvalue()
+
+
+class MetricsFile:
+    """metrics.csv written as it grows: each :meth:`flush` appends the rows added since the
+    last one (and fsyncs), instead of rewriting the whole file, whose cost grows with the
+    run. The bytes are those :func:`write_metrics` writes for the same rows.
+
+    ``rows`` are the rows already kept (a resume's rows up to its checkpoint,
+    :func:`read_metrics`): a file that holds more (rows after the checkpoint, or a row torn
+    by a crash) is rewritten at once, atomically, with just those, as a resume truncates it.
+    """
+
+    def __init__(
+        self, path: str | os.PathLike, columns: Sequence[str], rows: Sequence[Mapping[str, Any]]
+    ) -> None:
+        self.path = Path(path)
+        self.columns = tuple(columns)
+        self.written = 0
+        """Rows on disk (the header is written with the first)."""
+        if rows or self.path.exists():
+            write_metrics(self.path, rows, self.columns)
+            self.written = len(rows)
+        self._header = bool(rows) or self.path.exists()
+
+    def flush(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Append ``rows[written:]`` (``rows``: every row of the run so far, in order)."""
+        if self._header and len(rows) == self.written:
+            return
+        text = _csv_rows(rows[self.written :], self.columns, header=not self._header)
+        with self.path.open("a", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.written, self._header = len(rows), True
 
 
 def read_metrics(path: str | os.PathLike, max_step: int | None = None) -> list[dict[str, Any]]:
-    """metrics.csv rows at ``path`` (as strings) up to ``max_step``; [] when there is none yet."""
+    """metrics.csv rows at ``path`` (as strings) up to ``max_step``; [] when there is none yet.
+
+    A row left incomplete by a crash in the middle of an append ends the rows read."""
     path = Path(path)
     if not path.is_file():
         return []
     with path.open(encoding="utf-8", newline="") as fh:
-        rows = list(csv.DictReader(fh))
+        reader = csv.DictReader(fh)
+        rows = []
+        for row in reader:
+            if None in row.values() or None in row:
+                break  # torn (too few fields, or too many): nothing after it was written whole
+            rows.append(row)
     if max_step is None:
         return rows
     return [r for r in rows if int(float(r["step"])) <= max_step]
