@@ -41,7 +41,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "play": ("priqn.tools.play", "watch a trained policy drive in sumo-gui; record it"),
     "diff": ("priqn.tools.diff", "are two runs the same training, bit for bit?"),
-    "bench": ("priqn.bench", "speed benchmarks (env, preorder, train) as ratios"),
+    "bench": (
+        "priqn.bench",
+        "speed as ratios to a baseline in the same command (env, preorder, train, sweep, "
+        "replay, loop)",
+    ),
 }
 
 

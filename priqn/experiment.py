@@ -32,6 +32,7 @@ from priqn.agents.config import (
 )
 from priqn.config import from_dict, load_toml, parse_override, value_pairs
 from priqn.errors import PriqnError
+from priqn.objectives import OUTCOMES  # re-exported: priqn.experiment.OUTCOMES
 from priqn.run.evaluations import snapshot_evaluation
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
@@ -273,10 +274,6 @@ class SequentialSpec:
         for c in self.comparisons:
             out.setdefault(c.family, []).append(c)
         return out
-
-
-OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
-"""How an episode ends, one of four (an episode.csv row has exactly one of them true)."""
 
 
 @dataclass(frozen=True)

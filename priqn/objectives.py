@@ -227,3 +227,42 @@ def names_in_columns(columns: Sequence[str]) -> tuple[str, ...]:
     """The objective names of a table, read from its ``return_<name>`` columns (in order)."""
     return tuple(c.removeprefix("return_") for c in columns if c.startswith("return_")
                  and c != "return_weighted")  # fmt: skip
+
+
+# --------------------------------------------------------------------------- how an episode ends
+# Named once here, beside the objectives: the env, the episode tables, the experiment files
+# and the reports import them from this module.
+
+OUTCOMES: tuple[str, ...] = ("success", "collision", "off_road", "timeout")
+"""How an episode ends, one of four (an episodes.csv row has exactly one of them true)."""
+
+OUTCOME_PRECEDENCE: tuple[str, ...] = ("collision", "off_road", "timeout", "success")
+"""How an episode ends, first match wins: an episode that both collides and leaves the
+road (the same decision) counts as a collision only, so the outcome rates sum to 1."""
+
+COLLISION_COLUMNS: tuple[str, ...] = (
+    "collision_kind",
+    "collision_striker",
+    "collision_other",
+    "collision_ego_speed_mps",
+    "collision_npc_speed_mps",
+    "collision_npc_could_stop",
+    "collision_tm_would_prevent",
+)
+"""The forensics of a collision (:mod:`priqn.env.forensics`): the final ``info`` keys and the
+``episodes.csv`` columns of evaluations made since issue 62 (older tables lack them)."""
+
+COLLISION_KINDS: dict[str, str] = {
+    "obstacle": "the ego hit a static obstacle",
+    "rear-end": "one drove into the other's rear, both going the same way (striker says who)",
+    "head-on": "front to front, opposite ways",
+    "ego-into-npc": "the ego's front into an NPC's side",
+    "ego-standing-in-path": (
+        "an NPC drove into the ego standing or slow (< 2 m/s) in its path, "
+        "which it could have stopped for"
+    ),
+    "ego-in-path": "an NPC drove into the moving ego in its path, which it could have stopped for",
+    "ego-cut-in": "an NPC drove into the ego, which entered its path too late for it to stop",
+}
+"""The kinds of collision (``collision_kind``, :mod:`priqn.env.forensics`), each with what it
+means; an NPC that could have stopped is one a Traffic-Manager-like NPC would not hit."""

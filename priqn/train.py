@@ -45,6 +45,7 @@ from priqn.run.checkpointer import (
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import MetricsFile, metric_columns, metrics_row, read_metrics
+from priqn.run.provenance import thread_limits
 from priqn.run.session import mark_resume_exact, same_cpu_as_before, start_session
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
@@ -387,6 +388,7 @@ class Trainer:
             "crash_margin": round(self.cfg.crash_margin, 4),
             "objectives": list(self.objectives),
             "objective_declarations": _declarations(self.cfg),
+            "threads": thread_limits(),
         }
 
     def start(self) -> None:

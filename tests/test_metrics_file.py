@@ -48,3 +48,11 @@ def test_a_row_torn_by_a_crash_ends_the_rows_read(tmp_path: Path) -> None:
     path.write_text(text + text.splitlines()[-1][:12], encoding="utf-8")  # "train,3" of a 4th
     assert [r["step"] for r in read_metrics(path)] == ["10", "20", "30"]
     assert [r["step"] for r in read_metrics(path, max_step=1000)] == ["10", "20", "30"]
+
+
+def test_the_bench_writes_the_same_file_both_ways() -> None:
+    from priqn.bench.loop import metrics_writes
+
+    m = metrics_writes(decisions=5000, episode_length=100)
+    assert m["same"] and m["writes"] == 5 and m["rows"] == 50
+    assert m["rewrite_s"] > 0 and m["append_s"] > 0

@@ -48,6 +48,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "unranked rows in Table II and the outcome breakdown; repeat for several",
     )
     parser.add_argument(
+        "--horizon",
+        metavar="N[,N...]",
+        help="instead: the same runs at these evaluation-only episode limits (priqn evaluate "
+        "--max-episode-steps N) beside their own evaluation: outcome mix per row and density, "
+        "and where the timeouts go (horizon.md, descriptive)",
+    )
+    parser.add_argument(
         "--partial",
         action="store_true",
         help="report the fully evaluated runs of a grid still running; name the rest",
@@ -58,6 +65,16 @@ def run(args: argparse.Namespace) -> int:
     if args.reps < 1:
         raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
     out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
+    if args.horizon:
+        from priqn.analysis.horizon import write_horizon_report
+
+        try:
+            limits = [int(x) for x in args.horizon.split(",") if x.strip()]
+        except ValueError:
+            raise PriqnError(f"--horizon {args.horizon!r}: expected limits like 200,600") from None
+        command = f"priqn report {shlex.quote(str(args.runs))} --horizon {args.horizon} --out {shlex.quote(str(out))}"
+        print(write_horizon_report(args.runs, limits, out, command))
+        return 0
     exp = design_experiment(args.runs, args.experiment)
     if exp is not None:
         if args.reference:

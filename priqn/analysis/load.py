@@ -18,7 +18,12 @@ import pandas as pd
 
 from priqn.agents.labels import CONFIG_COLUMNS, PolicyLabel, at_budget, budget_text
 from priqn.errors import PriqnError
-from priqn.evaluation.protocol import episode_columns, is_nets_evaluation, snapshot_budget
+from priqn.evaluation.protocol import (
+    episode_columns,
+    is_nets_evaluation,
+    limit_of,
+    snapshot_budget,
+)
 from priqn.io import read_json
 from priqn.objectives import OBJECTIVES, names_in_columns
 from priqn.run.episodes import resolve_outcomes
@@ -122,7 +127,11 @@ def list_evaluations(
     unfinished: list[str] = []
     for run in run_dirs:
         folder = RunFolder(run)
-        names = [c for c in control_evaluations(folder) if is_nets_evaluation(c) == nets]
+        names = [
+            c
+            for c in control_evaluations(folder)
+            if is_nets_evaluation(c) == nets and not limit_of(c)  # limits: priqn report --horizon
+        ]
         for control in names if nets else ["", *names]:
             eval_dir = evaluation_dir(folder, control)
             name = f"{run.name}/{eval_dir.name}" if control else run.name

@@ -1,7 +1,7 @@
 """``priqn bench``: speed measured as ratios against a baseline run in the same command.
 
 Sub-benchmarks live in their own modules (``priqn.bench.env``, ``.preorder``,
-``.train``, ``.sweep``, ``.replay``), each with ``configure_parser`` / ``run`` like a CLI command.
+``.train``, ``.sweep``, ``.replay``, ``.loop``), each with ``configure_parser`` / ``run`` like a CLI command.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ BENCHES: dict[str, str] = {
     "train": "updates/s of IQN vs Pr-IQN; env decisions/s with learning on",
     "sweep": "sweep cells per hour: one at a time vs two (--jobs) at a time",
     "replay": "the replay buffer in a checkpoint: compressed, incremental vs the whole, uncompressed",
+    "loop": "the loop's stalls: metrics.csv appended vs rewritten; env workers with vs without preload",
 }
 
 

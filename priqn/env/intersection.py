@@ -25,6 +25,7 @@ termination, realised density).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import copy
 import dataclasses
@@ -37,12 +38,12 @@ import numpy as np
 from gymnasium import spaces
 
 from priqn.checks import check_density
-from priqn.env import geometry, measures, planner, reads, sensors
+from priqn.env import forensics, geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
 from priqn.env.objective_terms import DecisionContext, EnvObjectives
 from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
-from priqn.env.traffic import Traffic, TrafficBehaviour
+from priqn.env.traffic import NPC_PREFIX, Traffic, TrafficBehaviour
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 from priqn.sim.roadmap import COMMANDS, EgoRoute, wrap_rad
@@ -285,6 +286,13 @@ class _Episode:
     """Undiscounted return per objective so far (``float32 [N]``)."""
     outcome: Outcome = dataclasses.field(default_factory=Outcome)
     done: bool = False
+    history: collections.deque = dataclasses.field(
+        default_factory=lambda: collections.deque(maxlen=forensics.HISTORY_STEPS)
+    )
+    """The last SUMO steps (:class:`~priqn.env.forensics.Step`): the ego and the actors read."""
+    forensics: dict[str, Any] = dataclasses.field(default_factory=forensics.no_collision)
+    """The collision's kind, striker, speeds (:data:`~priqn.env.forensics.COLUMNS`; empty
+    without a collision), in the final ``info``."""
 
     @property
     def net(self) -> str:
@@ -776,6 +784,10 @@ class IntersectionEnv(gymnasium.Env):
             departed.append(sim.simulation.getDepartedIDList())
             arrived.append(sim.simulation.getArrivedIDList())
             raw.append(reads.read_actors(sim, EGO_ID))
+            self._episode.history.append(
+                forensics.Step((float(traj.x[k + 1]), float(traj.y[k + 1])),
+                               float(traj.heading_rad[k + 1]), float(traj.speed_mps[k + 1]), raw[-1])
+            )  # fmt: skip
         return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
     def _drive_by_sumo(self, ep: _Episode) -> tuple[_DecisionPlan, _Decision]:
@@ -819,6 +831,9 @@ class IntersectionEnv(gymnasium.Env):
             pose = handback.read_pose(sim, EGO_ID, cfg.ego_length_m)
             poses.append(pose)
             raw.append(reads.read_actors(sim, EGO_ID))
+            ep.history.append(
+                forensics.Step((pose.x_m, pose.y_m), pose.heading_rad, pose.speed_mps, raw[-1])
+            )
             x, y, h = np.array([pose.x_m]), np.array([pose.y_m]), np.array([pose.heading_rad])
             off = measures.off_road_steps(ep.raster, x, y, h, cfg.ego_length_m, cfg.ego_width_m)
             s, _ = ep.ref.to_frenet(np.stack([x, y], axis=1), window)
@@ -872,6 +887,12 @@ class IntersectionEnv(gymnasium.Env):
             ep.traffic.record_step(sim.departed[k], sim.arrived[k])
         out = ep.outcome
         out.collision, out.off_road, out.success = m.collision, m.off_road, m.success
+        if m.collision:  # the window ends at the colliding step
+            end = len(ep.history) - sim.seen.n_steps + m.steps
+            ep.forensics = forensics.classify(
+                list(ep.history)[:end], self.config.ego_length_m, self.config.ego_width_m,
+                NPC_PREFIX, ep.traffic.emergency_decel_mps2, self.config.sim_step_s, EGO_ID,
+            )  # fmt: skip
         out.timeout = not out.terminated and ep.steps + 1 >= self.config.max_episode_steps
         if not out.terminated:
             ep.traffic.top_up()
@@ -937,6 +958,7 @@ class IntersectionEnv(gymnasium.Env):
             "obstacles": len(ep.traffic.obstacles),
             "returns": ep.returns.copy(),
             "episode_steps": int(ep.steps),
+            **ep.forensics,
         }
 
 

@@ -255,6 +255,10 @@ class Traffic:
             raise PriqnError("traffic.path_braking: the traffic was given no NPC paths")
         self._paths = paths
         self._step_s = step_s
+        self.decel_mps2 = 4.5
+        """The NPCs' vType ``decel`` [m/s²] (read from SUMO in :meth:`setup`)."""
+        self.emergency_decel_mps2 = 9.0
+        """The NPCs' vType ``emergencyDecel`` [m/s²] (read from SUMO in :meth:`setup`)."""
         self.path_braking: PathBraking | None = None
         """The collision stage braking NPCs for the ego (``behaviour.path_braking``; from
         :meth:`setup`), else None."""
@@ -279,14 +283,18 @@ class Traffic:
             sim.vehicletype.setImpatience(NPC_TYPE, self.behaviour.impatience)
         sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
         sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
+        self.decel_mps2 = float(sim.vehicletype.getDecel(NPC_TYPE))
+        """The NPCs' comfortable deceleration bound (vType ``decel``) [m/s²]."""
+        self.emergency_decel_mps2 = float(sim.vehicletype.getEmergencyDecel(NPC_TYPE))
+        """The NPCs' hardest braking (vType ``emergencyDecel``) [m/s²]."""
         if self._paths is not None and self.behaviour.path_braking:
             self.path_braking = PathBraking(
                 sim,
                 self._paths,
                 self.behaviour,
                 self._step_s,
-                decel_mps2=sim.vehicletype.getDecel(NPC_TYPE),
-                emergency_decel_mps2=sim.vehicletype.getEmergencyDecel(NPC_TYPE),
+                decel_mps2=self.decel_mps2,
+                emergency_decel_mps2=self.emergency_decel_mps2,
                 npc_prefix=NPC_PREFIX,
             )
 

@@ -10,6 +10,9 @@ is :mod:`priqn.evaluation.store`.
 ``--acting near-greedy`` evaluates the greedy baselines once more, acting at random
 among their near-best actions (the acting-randomness control), into ``eval-near-greedy/``.
 
+``--max-episode-steps N`` plays the same scenes at an evaluation-only episode limit into
+``eval-limit<N>/`` beside ``eval/`` (``priqn report --horizon``).
+
 ``--nets PATH ...`` plays the same protocol on your own ``.net.xml`` files (checked before
 any episode) into ``eval-nets-<hash>/`` beside ``eval/`` (the generalisation table of
 ``priqn report``). ``--reference sumo|random --out DIR`` evaluates a reference driver
@@ -182,6 +185,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "its final one, into eval-at<N>/ beside eval/",
     )
     parser.add_argument(
+        "--max-episode-steps",
+        type=int,
+        metavar="N",
+        help="an evaluation-only episode limit of N decisions, into eval-limit<N>/ beside "
+        "eval/ (left out of Table II; the policy's training is untouched)",
+    )
+    parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
     )
     parser.add_argument("--force", action="store_true", help="discard earlier evaluations")
@@ -226,6 +236,12 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
                 f"--snapshot {args.snapshot}: expected a budget > 0 (checkpoint.keep_at)"
             )
         values.append(("snapshot", args.snapshot))
+    if args.max_episode_steps is not None:
+        if args.max_episode_steps <= 0:
+            raise PriqnError(
+                f"--max-episode-steps {args.max_episode_steps}: expected a limit > 0 decisions"
+            )
+        values.append(("episode_limit", args.max_episode_steps))
     if args.acting_eps is not None:
         values.append(("acting_eps", check_acting_eps(args.acting_eps, "--acting-eps")))
     if args.densities:

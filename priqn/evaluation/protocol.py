@@ -98,7 +98,14 @@ class EvalConfig:
     num_workers: int = 2
     """Environment worker processes (the parent process never runs SUMO)."""
     max_episode_steps: int = 0
-    """Override of the run's episode step limit; 0 keeps the run's own."""
+    """Override of the run's episode step limit in the evaluation itself (an experiment's
+    ``[evaluate]`` protocol: its cells' ``eval/``); 0 keeps the run's own."""
+    episode_limit: int = 0
+    """An evaluation-only episode limit [decisions] for a side evaluation beside the run's
+    own: played into ``eval-limit<N>/``, never into ``eval/``, and left out of Table II
+    (``priqn evaluate --max-episode-steps N``; docs/evaluation.md, "The horizon"). The
+    observation holds no clock, so a limit changes no decision, only where an episode is
+    cut. 0: none. Wins over ``max_episode_steps``."""
     device: str = "cpu"
     """Torch device for the policy network."""
     acting: str = "own"
@@ -147,6 +154,8 @@ class EvalConfig:
             )
         if self.max_episode_steps < 0:
             raise ValueError(f"max_episode_steps: must be >= 0, got {self.max_episode_steps}")
+        if self.episode_limit < 0:
+            raise ValueError(f"episode_limit: must be >= 0, got {self.episode_limit}")
         bad = [c for c in self.commands if c not in ("left", "straight", "right")]
         if bad:
             raise ValueError(f"commands: {bad[0]!r} is not one of left, straight, right")
@@ -217,6 +226,8 @@ RESULT_NEUTRAL_FIELDS: frozenset[str] = frozenset({"num_workers", "nets", "junct
 ``junction`` say where the files lie and what was asked; what is evaluated on (each net's
 name, SHA-256 and junction) is the evaluation's nets hash, checked on its own."""
 
+LIMIT_PREFIX = "limit"
+"""Evaluations at an evaluation-only episode limit are ``eval-limit<N>/`` (``episode_limit``)."""
 NETS_PREFIX = "nets-"
 """Evaluations on your own nets are ``eval-nets-<hash>[-<control>]/`` (:func:`evaluation_name`)."""
 NETS_HASH_CHARS = 8
@@ -248,7 +259,8 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
     With ``cfg.nets``: ``nets-<first 8 hex digits of nets_hash>``
     (:func:`~priqn.evaluation.targets.nets_hash`), then the control's name if any (``nets-1a2b3c4d-near-greedy``): an evaluation on other nets
     never shares a folder with the hold-out one. With ``cfg.snapshot`` N: ``at<N>`` first
-    (``at60000``, ``at60000-near-greedy``).
+    (``at60000``, ``at60000-near-greedy``). With ``cfg.episode_limit`` N: ``limit<N>`` before
+    the control (``limit600``, ``at60000-limit600-near-greedy``).
     """
     if cfg.nets and not nets_hash:
         raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
@@ -260,8 +272,16 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
             else f"{cfg.acting}-eps{cfg.acting_eps:g}"
         )
     snapshot = snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
+    limit = f"{LIMIT_PREFIX}{cfg.episode_limit}" if cfg.episode_limit else ""
     nets = f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}" if cfg.nets else ""
-    return "-".join(p for p in (snapshot, nets, control) if p)
+    return "-".join(p for p in (snapshot, nets, limit, control) if p)
+
+
+def limit_of(name: str) -> int:
+    """The evaluation-only episode limit of evaluation ``name`` (its ``limit<N>`` part), or
+    0 for an evaluation at the run's own limit."""
+    match = re.search(rf"(?:^|-){LIMIT_PREFIX}(\d+)(?:-|$)", name)
+    return int(match[1]) if match else 0
 
 
 def is_nets_evaluation(name: str) -> bool:

@@ -101,14 +101,15 @@ def evaluation_target(
 def evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None) -> Any:
     """``env_config`` (a run's EnvConfig) set to play ``cfg``'s scenes: on the checked files
     of ``nets`` by their absolute paths, else on the hold-out family (also for a run trained
-    on its own nets or junction); ``cfg.max_episode_steps`` if set."""
+    on its own nets or junction); ``cfg.episode_limit``, else ``cfg.max_episode_steps``, if set."""
     if nets is not None:
         files = tuple(n["path"] for n in nets["nets"])
         env_cfg = dataclasses.replace(env_config, nets=files, junction=cfg.junction)
     else:
         env_cfg = dataclasses.replace(env_config, family=cfg.family, nets=(), junction="")
-    if cfg.max_episode_steps:
-        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=cfg.max_episode_steps)
+    limit = cfg.episode_limit or cfg.max_episode_steps
+    if limit:
+        env_cfg = dataclasses.replace(env_cfg, max_episode_steps=limit)
     return env_cfg
 
 

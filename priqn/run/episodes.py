@@ -11,11 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.objectives import OBJECTIVES
-
-OUTCOME_PRECEDENCE: tuple[str, ...] = ("collision", "off_road", "timeout", "success")
-"""How an episode ends, first match wins: an episode that both collides and leaves the
-road (the same decision) counts as a collision only, so the outcome rates sum to 1."""
+from priqn.objectives import COLLISION_COLUMNS, OBJECTIVES, OUTCOME_PRECEDENCE, OUTCOMES
 
 
 def one_outcome(flags: Mapping[str, bool]) -> dict[str, bool]:
@@ -66,11 +62,7 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
     Exactly one of the outcome flags is set (:func:`one_outcome`): the env may report a
     collision and leaving the road in the same decision; the episode counts as a collision.
     """
-    missing = [
-        k
-        for k in ("success", "collision", "off_road", "timeout", "route_progress", "returns")
-        if k not in info
-    ]
+    missing = [k for k in (*OUTCOMES, "route_progress", "returns") if k not in info]
     if missing:
         raise RuntimeError(f"environment info lacks {missing} (see docs/ARCHITECTURE.md, info)")
     returns = np.asarray(info["returns"], dtype=np.float64).reshape(-1)
@@ -82,7 +74,7 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
         )
     flags = one_outcome({k: bool(info[k]) for k in OUTCOME_PRECEDENCE})
     values = {
-        **{k: flags[k] for k in ("success", "collision", "off_road", "timeout")},
+        **{k: flags[k] for k in OUTCOMES},
         "route_progress": float(info["route_progress"]),
         "density_realised": float(info.get("density_realised", np.nan)),
         "steps": int(info.get("episode_steps", -1)),
@@ -90,4 +82,6 @@ def episode_values(info: Mapping[str, Any]) -> dict[str, Any]:
     values.update({f"return_{name}": float(v) for name, v in zip(names, returns, strict=True)})
     if "command" in info and info["command"] is not None:
         values["command"] = str(info["command"])
+    # The collision's forensics (priqn.env.forensics), where the env records them.
+    values.update({k: info[k] for k in COLLISION_COLUMNS if k in info})
     return values

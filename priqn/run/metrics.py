@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from priqn.io import atomic_write_text
-from priqn.objectives import OBJECTIVES, return_columns, subset_columns
+from priqn.objectives import OBJECTIVES, OUTCOMES, return_columns, subset_columns
 
 
 def metric_columns(objectives: Sequence[str] = OBJECTIVES) -> tuple[str, ...]:
@@ -70,7 +70,7 @@ def metrics_row(
     )
     row["return_weighted"] = round(float(returns @ np.asarray(weights)), 5)
     row["length"] = values["steps"]
-    row.update({k: int(values[k]) for k in ("success", "collision", "off_road", "timeout")})
+    row.update({k: int(values[k]) for k in OUTCOMES})
     row["route_progress"] = round(values["route_progress"], 4)
     row["density_realised"] = round(values["density_realised"], 4)
     row["net"] = net

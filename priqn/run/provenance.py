@@ -11,6 +11,7 @@ before the run folder is touched.
 
 from __future__ import annotations
 
+import os
 import platform
 import subprocess
 from collections.abc import Sequence
@@ -131,3 +132,17 @@ def manifest_hashes(families: Sequence[str], nets_dir: str) -> dict[str, str]:
 
     root = Path(nets_dir) if nets_dir else None
     return {fam: manifest_hash(fam, root) for fam in families}
+
+
+THREAD_VARIABLES: tuple[str, ...] = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+"""The thread limits of the math libraries a process uses (torch's CPU threads follow
+``OMP_NUM_THREADS`` unless ``torch_threads`` sets them; numpy's BLAS follows its own). A
+sweep sets them per cell from its CPU share (:func:`priqn.sweep.process.thread_env`)."""
+
+
+def thread_limits() -> dict[str, Any]:
+    """What meta.json records of this process's CPU threads: torch's, and each of
+    :data:`THREAD_VARIABLES` in its environment (None: unset)."""
+    import torch
+
+    return {"torch": torch.get_num_threads(), **{v: os.environ.get(v) for v in THREAD_VARIABLES}}

@@ -14,10 +14,12 @@ import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from priqn.io import atomic_open
+from priqn.run.provenance import THREAD_VARIABLES
 from priqn.sweep.cells import Cell
 
 DEFAULT_CELL_FN = "priqn.sweep.child:train_and_evaluate"
@@ -62,6 +64,14 @@ def log_tail(path: Path, lines: int = 1) -> str:
     return "\n".join(kept[-lines:])
 
 
+def thread_env(threads: int, environ: Mapping[str, str]) -> dict[str, str]:
+    """The thread limits of a cell with ``threads`` CPUs: each of :data:`THREAD_VARIABLES`
+    set to it, unless ``environ`` (the sweep's own environment) sets it already, which wins.
+    Without them every cell's libraries start a thread per core and fight the other cells
+    (and their own env workers) for the cores."""
+    return {name: str(threads) for name in THREAD_VARIABLES if name not in environ}
+
+
 def run_cell_process(
     spec: dict[str, Any], log_path: Path, stop: threading.Event | None = None
 ) -> tuple[int, str, bool]:
@@ -87,6 +97,8 @@ def run_cell_process(
         env["PYTHONSAFEPATH"] = "1"
     if spec.get("cuda_visible_devices") is not None:  # the local pool's GPU share
         env["CUDA_VISIBLE_DEVICES"] = str(spec["cuda_visible_devices"])
+    if spec.get("threads"):
+        env.update(thread_env(int(spec["threads"]), os.environ))
     spec = {**spec, "parent_pid": os.getpid()}
     log_path.parent.mkdir(parents=True, exist_ok=True)
     interrupted: BaseException | None = None

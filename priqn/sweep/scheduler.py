@@ -177,7 +177,13 @@ def run_sweep(
             )
             try:
                 in_flight = _InFlight(todo, exp, result, say, progress)
-                _schedule(backend, in_flight, exp.runs_dir, retries, _spec_extra(cell_fn, code_dir))
+                _schedule(
+                    backend,
+                    in_flight,
+                    exp.runs_dir,
+                    retries,
+                    _spec_extra(cell_fn, code_dir, exp.resources.cpus_per_cell),
+                )
             finally:
                 backend.close()
                 _write_summary(exp, cells, result)
@@ -186,10 +192,15 @@ def run_sweep(
     return result
 
 
-def _spec_extra(cell_fn: str, code_dir: Path | None) -> dict[str, Any]:
-    """What every cell's spec carries beside the cell's own: the function its child runs
+def _spec_extra(cell_fn: str, code_dir: Path | None, cpus_per_cell: float) -> dict[str, Any]:
+    """What every cell's spec carries beside the cell's own: the function its child runs,
+    its thread limit (its CPU share, at least 1: :func:`priqn.sweep.process.thread_env`)
     and, with ``code_dir``, the priqn checkout the child imports."""
-    return {"cell_fn": cell_fn, **({"code_dir": str(code_dir)} if code_dir is not None else {})}
+    return {
+        "cell_fn": cell_fn,
+        "threads": max(1, int(cpus_per_cell)),
+        **({"code_dir": str(code_dir)} if code_dir is not None else {}),
+    }
 
 
 def _skip_complete(cells: list[Cell], result: SweepResult) -> list[Cell]:

@@ -20,7 +20,8 @@ Writes into ``--out``: ``mechanism.csv`` and ``mechanism.md`` (one row per seed,
 one per group; the reliability table below it in the markdown), ``reliability.csv``,
 ``mechanism.png`` (the figure) and ``decisions/<run>.csv`` (every replayed decision; a
 run whose file is there with the asked-for episodes is not replayed again).
-``--standstill`` measures why a policy stands still instead (:mod:`priqn.tools.standstill`).
+``--standstill`` measures why a policy stands still instead (:mod:`priqn.tools.standstill`);
+``--collisions`` classifies every evaluated collision (:mod:`priqn.tools.collisions`).
 
 Here: the replay (:func:`replay_cell`, through :mod:`priqn.tools.cells`) and the
 per-decision rows (:func:`decision_rows`, from :class:`priqn.evaluation.rollout.RolloutStep`
@@ -256,6 +257,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "and z-scored; IQN cells: greedy stop share); writes standstill.md/.csv/.png",
     )
     parser.add_argument(
+        "--collisions",
+        action="store_true",
+        help="instead: the kind of every evaluated collision (who struck whom, could the NPC "
+        "have stopped; replayed where the evaluation predates the record, any agent); writes "
+        "collisions.md/.csv",
+    )
+    parser.add_argument(
         "--decisions",
         default="",
         metavar="DIR",
@@ -296,8 +304,17 @@ def run(args: argparse.Namespace) -> int:
         snapshot=args.snapshot,
         decisions=args.decisions,
     )
+    if args.standstill and args.collisions:
+        raise PriqnError("--standstill and --collisions: pick one")
     if args.standstill:
         print(_standstill(args.runs, Path(args.out), cfg))
+        return 0
+    if args.collisions:
+        from priqn.evaluation.targets import find_runs
+        from priqn.tools import collisions
+
+        cells = [load_cell(p, cfg.snapshot) for p in find_runs(args.runs)]
+        print(collisions.analyse(cells, Path(args.out), cfg.workers))
         return 0
     print(analyse(args.runs, Path(args.out), cfg))
     return 0

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from priqn.errors import PriqnError
+from priqn.objectives import OUTCOMES
 from priqn.run import checkpointer
 from priqn.run.folder import RunFolder
 from priqn.tools.inspector import (
@@ -157,7 +158,7 @@ def subset_text(policy: Any, decision: Any) -> tuple[str, dict[str, str]]:
 
 
 def _outcome(info: dict[str, Any]) -> str:
-    for key in ("success", "collision", "off_road", "timeout"):
+    for key in OUTCOMES:
         if info.get(key):
             return key
     return "running"

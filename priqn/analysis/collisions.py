@@ -1,0 +1,112 @@
+"""The collision forensics table (``priqn mechanism RUNS --collisions``, descriptive).
+
+From one row per collision (:mod:`priqn.tools.collisions`): per traffic setting, row and
+density, how many collisions, the share of each kind (:data:`COLLISION_KINDS`), the share
+the NPC struck, and the share a Traffic-Manager-like NPC would have prevented (it could have
+stopped when the ego entered its path: the TM's collision stage brakes there).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from priqn.analysis.render import markdown_table, write_csv
+from priqn.errors import PriqnError
+from priqn.io import atomic_write_text
+from priqn.objectives import COLLISION_KINDS
+
+GROUP: tuple[str, ...] = ("traffic", "label", "density")
+"""A table row: the traffic setting, the policy row, the evaluation density."""
+
+
+def _flag(values: pd.Series) -> pd.Series:
+    """A column of True / False / '' (CSV text or values) as floats, '' as NaN."""
+    text = values.astype(str).str.strip().str.lower()
+    return text.map({"true": 1.0, "false": 0.0, "1": 1.0, "0": 0.0, "1.0": 1.0, "0.0": 0.0})
+
+
+def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
+    """Per :data:`GROUP`: ``collisions`` (count), ``seeds``, the share of each kind, the share
+    struck by the NPC and the share a TM-like NPC would have prevented."""
+    rows: list[dict[str, Any]] = []
+    for key, part in collisions.groupby(list(GROUP), sort=True):
+        row = dict(zip(GROUP, key, strict=True))
+        row["collisions"] = len(part)
+        row["seeds"] = part["train_seed"].nunique()
+        for kind in COLLISION_KINDS:
+            row[kind] = float((part["collision_kind"] == kind).mean())
+        row["npc_struck"] = float(part["collision_striker"].isin(["npc", "both"]).mean())
+        row["tm_would_prevent"] = float(_flag(part["collision_tm_would_prevent"]).fillna(0).mean())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_report(collisions: pd.DataFrame, out: Path) -> Path:
+    """``collisions.csv`` (every collision) and ``collisions.md`` (the table) in ``out``."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PriqnError(f"--out {out}: cannot write a report there ({exc.strerror})") from None
+    write_csv(out / "collisions.csv", collisions)
+    if collisions.empty:
+        atomic_write_text(out / "collisions.md", "# Collisions\n\nNo collision to describe.\n")
+        return out / "collisions.md"
+    table = kind_table(collisions)
+
+    def pct(x: float) -> str:
+        return f"{100 * x:.0f} %"
+
+    replayed = collisions["replayed_collision"].astype(str)
+    again = int((replayed == "True").sum())
+    replays = int(replayed.isin(["True", "False"]).sum())
+    text = [
+        "# Collisions, by kind (descriptive)",
+        "",
+        "Each evaluated collision, classified (priqn/env/forensics.py): who struck whom, and "
+        "whether the NPC could have stopped when the ego entered its path (then a Traffic "
+        "Manager-like NPC, whose collision stage brakes for the ego in its path, would have "
+        "prevented it). Kinds:",
+        "",
+        *(f"- `{k}`: {v}" for k, v in COLLISION_KINDS.items()),
+        "",
+        (
+            f"Replayed: {replays} collisions of evaluations made before the forensics existed; "
+            f"{again} ended in a collision again."
+            if replays
+            else "Read from the evaluations' own records (no replay)."
+        ),
+        "",
+        markdown_table(
+            [
+                "traffic",
+                "row",
+                "density",
+                "collisions",
+                "seeds",
+                *COLLISION_KINDS,
+                "NPC struck",
+                "TM-like NPC would prevent",
+            ],  # fmt: skip
+            [
+                [
+                    r["traffic"],
+                    r["label"],
+                    f"{r['density']:g}",
+                    str(r["collisions"]),
+                    str(r["seeds"]),
+                    *(pct(r[k]) for k in COLLISION_KINDS),
+                    pct(r["npc_struck"]),
+                    pct(r["tm_would_prevent"]),
+                ]  # fmt: skip
+                for r in table.to_dict("records")
+            ],
+        ),
+        "",
+    ]
+    write_csv(out / "collisions_by_kind.csv", table)
+    path = out / "collisions.md"
+    atomic_write_text(path, "\n".join(text))
+    return path

@@ -1,0 +1,178 @@
+"""The horizon (``priqn report RUNS --horizon 200,600``, descriptive): the same policies on the
+same scenes at longer evaluation-only episode limits (``priqn evaluate --max-episode-steps
+N``, ``eval-limit<N>/``), beside their own evaluation (``eval/``).
+
+The observation holds no clock, so a longer limit changes no decision of a policy: an
+episode that ended before the shorter limit ends the same way, and one the shorter limit
+cut goes on. Two tables:
+
+* **mix** — per row (policy label), limit and density: the share of episodes ending in each
+  outcome, averaged over the row's training seeds (each seed's share first), and the
+  seed count;
+* **where the timeouts go** — per row and longer limit: of the episodes the row's own limit
+  cut (timeout), the share that end in each outcome at the longer limit, matched scene by
+  scene (evaluation run, net, density, episode). Also the share of all episodes whose
+  outcome differs: anything but the timeouts would mean the limit changed more than the cut.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from priqn.analysis.load import find_run_dirs, read_episodes
+from priqn.analysis.render import markdown_table, write_csv
+from priqn.errors import PriqnError
+from priqn.evaluation.protocol import LIMIT_PREFIX
+from priqn.experiment import OUTCOMES
+from priqn.io import atomic_write_text, read_json
+from priqn.run.evaluations import evaluation_dir
+from priqn.run.folder import RunFolder, Status
+
+SCENE_KEY: tuple[str, ...] = ("eval_run", "net", "density", "episode")
+"""Columns that name one scene of the evaluation protocol (the same at every limit)."""
+
+
+def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
+    """Every run's episodes at its own limit and at each of ``limits``, one frame with a
+    ``limit`` column (decisions) and the outcome of each episode; a run lacking a complete
+    ``eval-limit<N>/`` is a one-line error naming the command that makes it."""
+    frames = []
+    for run in find_run_dirs(runs):
+        folder = RunFolder(run)
+        own = int(read_json(folder.eval_dir / RunFolder.META)["env_config"]["max_episode_steps"])
+        for limit, name in ((own, ""), *((n, f"{LIMIT_PREFIX}{n}") for n in limits)):
+            eval_dir = evaluation_dir(folder, name)
+            meta = eval_dir / RunFolder.META
+            if not meta.is_file() or read_json(meta).get("status") != Status.COMPLETE:
+                raise PriqnError(
+                    f"{eval_dir}: no complete evaluation; run 'priqn evaluate {run}"
+                    + (f" --max-episode-steps {limit}'" if name else "'")
+                )
+            frame = read_episodes(eval_dir)
+            frame["limit"] = limit
+            frame["own_limit"] = own
+            frames.append(frame)
+    if not frames:
+        raise PriqnError(f"{runs}: no evaluated runs")
+    return pd.concat(frames, ignore_index=True)
+
+
+def outcome_of(episodes: pd.DataFrame) -> pd.Series:
+    """The one outcome of each episode (a name of :data:`OUTCOMES`)."""
+    flags = episodes[list(OUTCOMES)].astype(bool)
+    return flags.idxmax(axis=1).where(flags.any(axis=1), "timeout")
+
+
+def mix_table(episodes: pd.DataFrame) -> pd.DataFrame:
+    """``label, limit, density, seeds`` and the share of each outcome: per seed first, then
+    the mean over the row's seeds."""
+    frame = episodes.assign(**{o: episodes[o].astype(bool).astype(float) for o in OUTCOMES})
+    per_seed = frame.groupby(["label", "limit", "density", "train_seed"])[list(OUTCOMES)].mean()
+    table = per_seed.groupby(["label", "limit", "density"]).mean()
+    table["seeds"] = per_seed.groupby(["label", "limit", "density"]).size()
+    return table.reset_index()[["label", "limit", "density", "seeds", *OUTCOMES]]
+
+
+def timeout_table(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per row and longer limit: the episodes its own limit cut, what they end in at the
+    longer limit (shares), and the share of all episodes whose outcome changed otherwise."""
+    frame = episodes.assign(outcome=outcome_of(episodes))
+    key = ["run", *SCENE_KEY]
+    own = frame[frame["limit"] == frame["own_limit"]].set_index(key)
+    rows = []
+    for (label, limit), longer in frame[frame["limit"] != frame["own_limit"]].groupby(
+        ["label", "limit"]
+    ):
+        joined = longer.set_index(key)[["outcome"]].join(
+            own[["outcome"]], rsuffix="_own", how="inner"
+        )
+        cut = joined[joined["outcome_own"] == "timeout"]
+        other = joined[joined["outcome_own"] != "timeout"]
+        row: dict[str, Any] = {"label": label, "limit": int(limit), "episodes": len(joined)}
+        row["cut_at_own_limit"] = len(cut) / max(len(joined), 1)
+        for o in OUTCOMES:
+            row[f"cut_then_{o}"] = float((cut["outcome"] == o).mean()) if len(cut) else 0.0
+        row["others_changed"] = (
+            float((other["outcome"] != other["outcome_own"]).mean()) if len(other) else 0.0
+        )
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, command: str) -> Path:
+    """``horizon.md``, ``tables/horizon_mix.csv`` and ``tables/horizon_timeouts.csv`` in
+    ``out``; returns the Markdown file."""
+    if not limits or any(n <= 0 for n in limits):
+        raise PriqnError(f"--horizon {list(limits)}: expected limits > 0, e.g. 200,600")
+    episodes = limit_episodes(runs, limits)
+    mix, moved = mix_table(episodes), timeout_table(episodes)
+    try:
+        (out / "tables").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PriqnError(f"--out {out}: cannot write a report there ({exc.strerror})") from None
+    write_csv(out / "tables" / "horizon_mix.csv", mix)
+    write_csv(out / "tables" / "horizon_timeouts.csv", moved)
+
+    def pct(x: float) -> str:
+        return f"{100 * x:.1f} %"
+
+    own = sorted(set(episodes["own_limit"]))
+    text = [
+        f"# The horizon: {Path(runs).name} at longer evaluation-only limits (descriptive)",
+        "",
+        f"Made by `{command}`. The runs' own limit: {', '.join(map(str, own))} decisions; "
+        f"the same scenes at {', '.join(map(str, limits))}. The observation holds no clock, "
+        "so the policies decide as before; only where an episode is cut changes.",
+        "",
+        "## Outcome mix per row, limit and density (mean over training seeds)",
+        "",
+        markdown_table(
+            ["row", "limit", "density", "seeds", *OUTCOMES],
+            [
+                [
+                    r.label,
+                    str(r.limit),
+                    f"{r.density:g}",
+                    str(r.seeds),
+                    *(pct(getattr(r, o)) for o in OUTCOMES),
+                ]  # fmt: skip
+                for r in mix.itertuples()
+            ],
+        ),
+        "",
+        "## Where the timeouts go",
+        "",
+        "Of the episodes each row's own limit cut, the share that end in each outcome at the "
+        "longer limit (the same scenes); the last column: the other episodes whose outcome "
+        "changed (0 unless something besides the limit differs).",
+        "",
+        markdown_table(
+            [
+                "row",
+                "limit",
+                "episodes",
+                "cut at own limit",
+                *(f"cut, then {o}" for o in OUTCOMES),
+                "others changed",
+            ],  # fmt: skip
+            [
+                [
+                    r.label,
+                    str(r.limit),
+                    str(r.episodes),
+                    pct(r.cut_at_own_limit),
+                    *(pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
+                    pct(r.others_changed),
+                ]  # fmt: skip
+                for r in moved.itertuples()
+            ],
+        ),
+        "",
+    ]
+    path = out / "horizon.md"
+    atomic_write_text(path, "\n".join(text))
+    return path

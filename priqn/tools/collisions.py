@@ -1,0 +1,106 @@
+"""``priqn mechanism RUNS --collisions --out DIR``: the kind of every evaluated collision.
+
+Evaluations made since issue 62 record each collision's forensics in ``episodes.csv``
+(:mod:`priqn.env.forensics`: who struck whom, the speeds, whether the NPC could have
+stopped, the kind). Committed evaluations made before stay as they are: this tool plays
+their collision episodes again, on the same scenes with the same policy and seeds (the
+env is deterministic per seed, so each ends as it did; ``replayed_collision`` says so),
+and reads the forensics from the replay. An evaluation that already has them is read,
+not replayed.
+
+Writes ``DIR/collisions.csv`` (one row per collision) and ``DIR/collisions.md`` (per row and
+density: the share of each kind, and the share a Traffic-Manager-like NPC would have
+prevented; :mod:`priqn.analysis.collisions`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from priqn.objectives import COLLISION_COLUMNS
+from priqn.run.checkpointer import load_policy
+from priqn.run.episodes import resolve_outcomes
+from priqn.tools.cells import ReplayCell, replayed_episodes
+
+SCENE_KEYS: tuple[str, ...] = ("eval_run", "net", "density", "episode")
+"""The columns that name an evaluation scene."""
+
+
+def collision_rows(cell: ReplayCell, workers: int = 1, progress: Any = None) -> list[dict]:
+    """One row per collision of ``cell``'s evaluation: its scene, the row's label and seed,
+    the traffic, and the forensics (read, or replayed where the table lacks them)."""
+    episodes = resolve_outcomes(cell.episodes)
+    hits = episodes[episodes["collision"].astype(bool)]
+    base = {"cell": cell.name}
+    if all(c in hits.columns for c in COLLISION_COLUMNS):
+        rows = [{**base, **_identity(r), **{c: r[c] for c in COLLISION_COLUMNS},
+                 "replayed_collision": ""} for r in hits.to_dict("records")]  # fmt: skip
+        return rows
+    from priqn.evaluation.protocol import make_scenes
+    from priqn.evaluation.targets import evaluation_env
+
+    keys = {tuple(r[k] for k in SCENE_KEYS): r for r in hits.to_dict("records")}
+    scenes = [
+        s
+        for s in make_scenes(cell.eval_config, cell.net_ids)
+        if (s.eval_run, s.net, s.density, s.episode) in keys
+    ]
+    if not scenes:
+        return []
+    policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
+    env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
+    rows = []
+    played = replayed_episodes(
+        policy, env_cfg, scenes, cell.eval_config.seed, workers=workers, quantiles=False
+    )
+    with contextlib.closing(played):
+        for steps in played:
+            scene, values = steps[-1].scene, steps[-1].episode
+            row = keys[(scene.eval_run, scene.net, scene.density, scene.episode)]
+            rows.append({**base, **_identity(row), **{c: values.get(c, "") for c in COLLISION_COLUMNS},
+                         "replayed_collision": bool(values["collision"])})  # fmt: skip
+            if progress is not None:
+                progress.update(1)
+    return rows
+
+
+def _identity(row: dict) -> dict:
+    """The scene and row of an episode row."""
+    keep = ("label", "agent", "train_seed", *SCENE_KEYS, "command")
+    return {k: row.get(k, "") for k in keep}
+
+
+def analyse(cells: Sequence[ReplayCell], out: Path, workers: int = 1) -> Path:
+    """Every cell's collisions into ``out/collisions.csv`` and their table into
+    ``out/collisions.md``; returns the Markdown file."""
+    import pandas as pd
+    from tqdm.auto import tqdm
+
+    from priqn.analysis.collisions import write_report
+
+    total = sum(int(resolve_outcomes(c.episodes)["collision"].astype(bool).sum()) for c in cells)
+    rows: list[dict] = []
+    with tqdm(total=total, desc="collisions", unit="ep", disable=None) as bar:
+        for cell in cells:
+            rows += collision_rows(cell, workers, bar)
+    traffic = {c.name: _traffic_name(c.path) for c in cells}
+    frame = pd.DataFrame(rows)
+    if not frame.empty:
+        frame.insert(1, "traffic", frame["cell"].map(traffic))
+    return write_report(frame, out)
+
+
+def _traffic_name(run: Path) -> str:
+    """The named traffic setting whose NPC behaviour a run's env has ('' for none)."""
+    from priqn.env.traffic import TRAFFIC_SETTINGS, TrafficBehaviour
+    from priqn.run.folder import RunFolder
+
+    have = RunFolder(run).config().env.traffic
+    for name, setting in TRAFFIC_SETTINGS.items():
+        knobs = {k.removeprefix("traffic."): v for k, v in setting.env if k.startswith("traffic.")}
+        if TrafficBehaviour(**knobs) == have:
+            return name
+    return ""
