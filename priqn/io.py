@@ -187,6 +187,17 @@ def _refusal(message: str, what: str) -> str:
     return f"damaged or unreadable {what} (UnpicklingError{': ' + first if first else ''})"
 
 
+def ensure_dir(path: str | os.PathLike) -> Path:
+    """``path`` as a folder, made with its parents if need be; a folder that cannot be made
+    (not writable, a file in the way, ``/proc``) is a one-line :class:`PriqnError` naming it."""
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _as_user_error(exc, folder) from None
+    return folder
+
+
 def _as_user_error(exc: OSError, target: Path) -> PriqnError:
     if exc.errno == errno.ENOSPC:
         return PriqnError(f"{target}: no space left on device; free some space and retry")

@@ -75,3 +75,14 @@ def test_the_report_and_its_errors(tmp_path: Path) -> None:
 def test_table_ii_leaves_the_limit_evaluations_out(tmp_path: Path) -> None:
     evaluation = load_evaluation(_runs(tmp_path))
     assert len(evaluation.episodes) == 32  # eval/ of both seeds only
+
+
+def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path: Path) -> None:
+    from priqn.io import ensure_dir
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(PriqnError, match=r"file/out: cannot write"):
+        ensure_dir(tmp_path / "file" / "out")
+    runs = _runs(tmp_path / "runs")
+    with pytest.raises(PriqnError, match="^/proc/x/tables: cannot write"):
+        write_horizon_report(runs, [600], Path("/proc/x"), "")

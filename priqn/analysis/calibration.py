@@ -27,7 +27,7 @@ from priqn.analysis.load import read_episodes
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
-from priqn.io import atomic_write_json, atomic_write_text
+from priqn.io import atomic_write_json, atomic_write_text, ensure_dir
 from priqn.run.evaluations import evaluated
 from priqn.run.folder import RunFolder
 
@@ -316,7 +316,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     dist = distances(mean, cal, order)
     chosen = choose(dist)
     folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    ensure_dir(folder)
     write_csv(folder / "mix.csv", mixes, float_format="%.6f")
     write_csv(folder / "distances.csv", dist, float_format="%.6f")
     write_figure(mean, cal, order, folder)

@@ -14,8 +14,7 @@ from typing import Any
 import pandas as pd
 
 from priqn.analysis.render import markdown_table, write_csv
-from priqn.errors import PriqnError
-from priqn.io import atomic_write_text
+from priqn.io import atomic_write_text, ensure_dir
 from priqn.objectives import COLLISION_KINDS
 
 GROUP: tuple[str, ...] = ("traffic", "label", "density")
@@ -46,10 +45,7 @@ def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
 
 def write_report(collisions: pd.DataFrame, out: Path) -> Path:
     """``collisions.csv`` (every collision) and ``collisions.md`` (the table) in ``out``."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise PriqnError(f"--out {out}: cannot write a report there ({exc.strerror})") from None
+    ensure_dir(out)
     write_csv(out / "collisions.csv", collisions)
     if collisions.empty:
         atomic_write_text(out / "collisions.md", "# Collisions\n\nNo collision to describe.\n")

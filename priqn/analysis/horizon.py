@@ -28,7 +28,7 @@ from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
 from priqn.experiment import OUTCOMES
-from priqn.io import atomic_write_text, read_json
+from priqn.io import atomic_write_text, ensure_dir, read_json
 from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder, Status
 
@@ -110,10 +110,7 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
         raise PriqnError(f"--horizon {list(limits)}: expected limits > 0, e.g. 200,600")
     episodes = limit_episodes(runs, limits)
     mix, moved = mix_table(episodes), timeout_table(episodes)
-    try:
-        (out / "tables").mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise PriqnError(f"--out {out}: cannot write a report there ({exc.strerror})") from None
+    ensure_dir(out / "tables")
     write_csv(out / "tables" / "horizon_mix.csv", mix)
     write_csv(out / "tables" / "horizon_timeouts.csv", moved)
 
