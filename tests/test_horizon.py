@@ -11,7 +11,13 @@ from pathlib import Path
 import pytest
 from fake_runs import IQN, write_run
 
-from priqn.analysis.horizon import limit_episodes, mix_table, timeout_table, write_horizon_report
+from priqn.analysis.horizon import (
+    common_scenes,
+    limit_episodes,
+    mix_table,
+    timeout_table,
+    write_horizon_report,
+)
 from priqn.analysis.load import load_evaluation
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EvalConfig, evaluation_name, limit_of
@@ -86,3 +92,12 @@ def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path: Path) -> Non
     runs = _runs(tmp_path / "runs")
     with pytest.raises(PriqnError, match="^/proc/x/tables: cannot write"):
         write_horizon_report(runs, [600], Path("/proc/x"), "")
+
+
+def test_the_mix_is_over_the_scenes_played_at_every_limit(tmp_path: Path) -> None:
+    # The longer limit played only the first evaluation run's scenes (--eval-runs 1): the
+    # own limit's mix is taken over those scenes too (8 per seed, not 16).
+    episodes = limit_episodes(_runs(tmp_path), [600])
+    short = episodes[episodes["eval_run"] == 0]
+    kept = common_scenes(episodes[(episodes["limit"] == 100) | (episodes["eval_run"] == 0)])
+    assert len(kept) == len(short) and set(kept["eval_run"]) == {0}

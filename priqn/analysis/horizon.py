@@ -8,7 +8,7 @@ cut goes on. Two tables:
 
 * **mix** — per row (policy label), limit and density: the share of episodes ending in each
   outcome, averaged over the row's training seeds (each seed's share first), and the
-  seed count;
+  seed count; over the scenes each run played at every limit (:func:`common_scenes`);
 * **where the timeouts go** — per row and longer limit: of the episodes the row's own limit
   cut (timeout), the share that end in each outcome at the longer limit, matched scene by
   scene (evaluation run, net, density, episode). Also the share of all episodes whose
@@ -58,7 +58,17 @@ def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
             frames.append(frame)
     if not frames:
         raise PriqnError(f"{runs}: no evaluated runs")
-    return pd.concat(frames, ignore_index=True)
+    return common_scenes(pd.concat(frames, ignore_index=True))
+
+
+def common_scenes(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Only each run's scenes played at every one of its limits (a longer limit may have
+    played fewer, e.g. ``--eval-runs 1``), so that every limit's mix is over the same scenes."""
+    key = ["run", *SCENE_KEY]
+    limits = episodes.groupby("run")["limit"].nunique()
+    counts = episodes.groupby(key)["limit"].nunique().rename("at_limits").reset_index()
+    counts = counts[counts["at_limits"] == counts["run"].map(limits)]
+    return episodes.merge(counts[key], on=key, how="inner")
 
 
 def outcome_of(episodes: pd.DataFrame) -> pd.Series:
