@@ -8,7 +8,8 @@ import libsumo
 import numpy as np
 import pytest
 
-from priqn.env.forensics import KINDS, Step, classify, point_box_distance_m
+from priqn.env.forensics import Step, classify, point_box_distance_m
+from priqn.objectives import COLLISION_KINDS
 
 DT = 0.1
 EGO_L, EGO_W = 4.5, 1.8
@@ -96,7 +97,7 @@ def test_point_to_box_distance_by_hand() -> None:
         2**0.5
     )
     assert point_box_distance_m(np.array([1.0, 0.5]), np.zeros(2), 0.0, 4.0, 2.0) == 0.0
-    assert set(KINDS) >= {"obstacle", "rear-end", "ego-cut-in", "ego-standing-in-path"}
+    assert set(COLLISION_KINDS) >= {"obstacle", "rear-end", "ego-cut-in", "ego-standing-in-path"}
 
 
 def test_the_ego_in_the_reads_is_not_its_own_collision() -> None:

@@ -10,6 +10,7 @@ about a second before the ego. SUMO runs in a spawned process (one simulation pe
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import itertools
 import multiprocessing
 import subprocess
@@ -215,10 +216,7 @@ def test_every_named_setting_builds_a_train_config() -> None:
 
     for name in TRAFFIC_SETTINGS:
         cfg = resolve_config(values=traffic_values(name))
-        assert cfg.env.traffic == TrafficBehaviour(**{
-            k.removeprefix("traffic."): v
-            for k, v in TRAFFIC_SETTINGS[name].env if k.startswith("traffic.")
-        })  # fmt: skip
+        assert cfg.env.traffic == TRAFFIC_SETTINGS[name].behaviour()
 
 
 # ------------------------------------------------------------- the Traffic-Manager-like setting
@@ -247,9 +245,9 @@ def _drive_stage(
     from priqn.sim.roadmap import RoadMap
     from priqn.sim.sumo import simulation_args
 
-    behaviour = TrafficBehaviour(**{
-        k.removeprefix("traffic."): v for k, v in TRAFFIC_SETTINGS[setting].env
-    }, path_reaction_time_s=reaction_s)  # fmt: skip
+    behaviour = dataclasses.replace(
+        TRAFFIC_SETTINGS[setting].behaviour(), path_reaction_time_s=reaction_s
+    )
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
         sim.route.add("ego_route", ["WC", "CE"])
@@ -393,7 +391,7 @@ def test_braking_speed_by_hand() -> None:
 def test_look_ahead_grows_with_speed_up_to_its_cap() -> None:
     from priqn.env.path_braking import PathBraking
 
-    stage = PathBraking(None, None, TrafficBehaviour(path_braking=True), 0.1, 4.5, 9.0, "npc.")
+    stage = PathBraking(None, None, TrafficBehaviour(path_braking=True), 0.1, 9.0, "npc.")
     assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
     assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 4.35 * 5.0)
     assert stage.look_ahead_m(20.0) == pytest.approx(50.0)

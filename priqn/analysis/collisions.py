@@ -85,7 +85,7 @@ def write_report(collisions: pd.DataFrame, out: Path) -> Path:
                 *COLLISION_KINDS,
                 "NPC struck",
                 "TM-like NPC would prevent",
-            ],  # fmt: skip
+            ],
             [
                 [
                     r["traffic"],
@@ -96,7 +96,7 @@ def write_report(collisions: pd.DataFrame, out: Path) -> Path:
                     *(pct(r[k]) for k in COLLISION_KINDS),
                     pct(r["npc_struck"]),
                     pct(r["tm_would_prevent"]),
-                ]  # fmt: skip
+                ]
                 for r in table.to_dict("records")
             ],
         ),

@@ -27,8 +27,8 @@ from priqn.analysis.load import find_run_dirs, read_episodes
 from priqn.analysis.render import markdown_table, write_csv
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
-from priqn.experiment import OUTCOMES
 from priqn.io import atomic_write_text, ensure_dir, read_json
+from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder, Status
 
@@ -146,7 +146,7 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
                     f"{r.density:g}",
                     str(r.seeds),
                     *(pct(getattr(r, o)) for o in OUTCOMES),
-                ]  # fmt: skip
+                ]
                 for r in mix.itertuples()
             ],
         ),
@@ -165,7 +165,7 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
                 "cut at own limit",
                 *(f"cut, then {o}" for o in OUTCOMES),
                 "others changed",
-            ],  # fmt: skip
+            ],
             [
                 [
                     r.label,
@@ -174,7 +174,7 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
                     pct(r.cut_at_own_limit),
                     *(pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
                     pct(r.others_changed),
-                ]  # fmt: skip
+                ]
                 for r in moved.itertuples()
             ],
         ),

@@ -96,7 +96,9 @@ def run(args: argparse.Namespace) -> int:
     order it prints: each density's env against its floor, the vector env's scaling,
     HighwayEnv beside priqn (``--vs highway``); ``--json`` also writes the results."""
     densities = _checked_densities(args)
-    traffics = _checked_traffic(args.traffic)
+    from priqn.env.traffic import traffic_names
+
+    traffics = traffic_names(args.traffic)
     base = {"family": args.family, "obs_size_px": args.obs_size, "seed": args.seed}
     env_base = {
         **base,
@@ -146,20 +148,6 @@ def run(args: argparse.Namespace) -> int:
 
         atomic_write_json(args.json, results)
     return 0
-
-
-def _checked_traffic(names: str) -> list[str]:
-    """``--traffic`` as a list of named settings; an unknown one is a one-line error."""
-    from priqn.env.traffic import traffic_values
-
-    out = [n.strip() for n in str(names).split(",") if n.strip()]
-    for name in out:
-        traffic_values(name)
-    if not out:
-        from priqn.errors import PriqnError
-
-        raise PriqnError("--traffic: expected one or more setting names, e.g. sumo,tm")
-    return out
 
 
 def _traffic_ratios(

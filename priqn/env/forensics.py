@@ -11,7 +11,7 @@ every actor near it (the context-subscription reads, ids included). At a collisi
   then drove it), the NPC's distance along its own track from there to that place, and its
   speed then: it could have stopped if ``speed * reaction + speed**2 / (2 * emergencyDecel)``
   fits in that distance (a Traffic-Manager-like NPC brakes there: ``tm_would_prevent``);
-- **the kind** (:data:`KINDS`).
+- **the kind** (:data:`priqn.objectives.COLLISION_KINDS`).
 
 Pure functions on arrays; the env (:mod:`priqn.env.intersection`) records the result in the
 final ``info`` (``collision_*`` keys) and evaluations write it to ``episodes.csv``.
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from priqn.env import geometry
-from priqn.objectives import COLLISION_COLUMNS, COLLISION_KINDS
+from priqn.objectives import COLLISION_COLUMNS
 
 HISTORY_STEPS = 80
 """SUMO steps kept for a look back (8 s at 0.1 s)."""
@@ -38,12 +38,6 @@ SAME_DIRECTION_DEG = 30.0
 """Headings closer than this make a collision between a front and a rear a rear-end [deg]."""
 OPPOSITE_DEG = 150.0
 """Headings further apart than this make a both-fronts collision head-on [deg]."""
-
-KINDS = COLLISION_KINDS
-"""Collision kinds, each with what it means (:data:`priqn.objectives.COLLISION_KINDS`)."""
-
-COLUMNS: tuple[str, ...] = COLLISION_COLUMNS
-"""The ``info`` keys and ``episodes.csv`` columns of a collision's forensics."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +55,9 @@ class Step:
 
 
 def no_collision() -> dict[str, Any]:
-    """The :data:`COLUMNS` of an episode without a collision: empty strings (a CSV's empty
+    """The :data:`COLLISION_COLUMNS` of an episode without a collision: empty strings (a CSV's empty
     cells; every value is text, :func:`_text`)."""
-    return dict.fromkeys(COLUMNS, "")
+    return dict.fromkeys(COLLISION_COLUMNS, "")
 
 
 def _box(var: Mapping[int, Any]) -> tuple[np.ndarray, float, float, float, np.ndarray]:
@@ -120,7 +114,7 @@ def classify(
     window: Sequence[Step], ego_length_m: float, ego_width_m: float, npc_prefix: str,
     emergency_decel_mps2: float, reaction_s: float, ego_id: str = "ego",
 ) -> dict[str, Any]:  # fmt: skip
-    """The forensics (:data:`COLUMNS`) of the collision in the window's last step (the
+    """The forensics (:data:`COLLISION_COLUMNS`) of the collision in the window's last step (the
     reads hold the ego itself too, as ``ego_id``: it is left out)."""
     last = window[-1]
     ego = (np.asarray(last.ego_xy), last.ego_heading_rad, ego_length_m, ego_width_m)
@@ -138,13 +132,12 @@ def classify(
     import libsumo
 
     vid, var, (centre, heading, length, width, front) = hit
-    npc_touch = point_box_distance_m(front, *ego[:2], ego_length_m, ego_width_m) <= FRONT_CONTACT_M
-    ego_touch = point_box_distance_m(ego_front, centre, heading, length, width) <= FRONT_CONTACT_M
+    npc_gap = point_box_distance_m(front, *ego[:2], ego_length_m, ego_width_m)
+    ego_gap = point_box_distance_m(ego_front, centre, heading, length, width)
     striker = {(True, True): "both", (True, False): "npc", (False, True): "ego"}.get(
-        (npc_touch, ego_touch),
-        "npc" if point_box_distance_m(front, *ego[:2], ego_length_m, ego_width_m)
-        < point_box_distance_m(ego_front, centre, heading, length, width) else "ego",
-    )  # fmt: skip
+        (npc_gap <= FRONT_CONTACT_M, ego_gap <= FRONT_CONTACT_M),
+        "npc" if npc_gap < ego_gap else "ego",  # neither front touches: the nearer one
+    )
     is_npc = vid.startswith(npc_prefix)
     out = {
         "collision_striker": striker,
@@ -181,7 +174,7 @@ def classify(
             slow = last.ego_speed_mps < SLOW_MPS
             kind = ("ego-standing-in-path" if slow else "ego-in-path") if stop else "ego-cut-in"
     out["collision_kind"] = kind
-    return {k: _text(out[k]) for k in COLUMNS}
+    return {k: _text(out[k]) for k in COLLISION_COLUMNS}
 
 
 def _text(value: Any) -> str:

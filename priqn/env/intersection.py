@@ -291,7 +291,7 @@ class _Episode:
     )
     """The last SUMO steps (:class:`~priqn.env.forensics.Step`): the ego and the actors read."""
     forensics: dict[str, Any] = dataclasses.field(default_factory=forensics.no_collision)
-    """The collision's kind, striker, speeds (:data:`~priqn.env.forensics.COLUMNS`; empty
+    """The collision's kind, striker, speeds (:data:`~priqn.objectives.COLLISION_COLUMNS`; empty
     without a collision), in the final ``info``."""
 
     @property

@@ -154,8 +154,8 @@ class PathBraking:
     """The collision stage of one episode (module docstring); :meth:`check` once per SUMO step.
 
     ``behaviour``: the :class:`~priqn.env.traffic.TrafficBehaviour` with the ``path_*``
-    knobs; ``decel_mps2`` / ``emergency_decel_mps2``: the NPCs' vType limits;
-    ``step_s``: the SUMO step length.
+    knobs; ``emergency_decel_mps2``: the NPCs' vType bound on braking; ``step_s``: the SUMO
+    step length.
     """
 
     def __init__(
@@ -164,7 +164,6 @@ class PathBraking:
         paths: NpcPaths,
         behaviour: Any,
         step_s: float,
-        decel_mps2: float,
         emergency_decel_mps2: float,
         npc_prefix: str,
     ) -> None:
@@ -172,8 +171,6 @@ class PathBraking:
         self.paths = paths
         self.behaviour = behaviour
         self.step_s = float(step_s)
-        self.decel_mps2 = float(decel_mps2)
-        """The NPCs' comfortable deceleration bound (vType ``decel``) [m/s²]."""
         self.emergency_decel_mps2 = float(emergency_decel_mps2)
         """The NPCs' hardest braking (vType ``emergencyDecel``) [m/s²]."""
         self.npc_prefix = npc_prefix
@@ -181,8 +178,6 @@ class PathBraking:
         """Stage time: checks so far times ``step_s`` [s]."""
         self.hazard_m: dict[str, float] = {}
         """NPC id -> hazard distance [m] at the last check, for NPCs with the ego in their path."""
-        self.commanded_mps: dict[str, float] = {}
-        """NPC id -> speed commanded for the next step [m/s], for NPCs braking for the ego."""
         self._braking: dict[str, _Braking] = {}
         self._exit_edge: dict[str, str] = {}
 
@@ -227,7 +222,6 @@ class PathBraking:
         for vid in [v for v in self._braking if v not in hazards]:
             self._release(vid)
         self.hazard_m = hazards
-        self.commanded_mps = {}
         for vid, d in hazards.items():
             state = self._braking.setdefault(vid, _Braking(first_seen_s=now))
             if now - state.first_seen_s < b.path_reaction_time_s - 1e-9:
@@ -240,7 +234,6 @@ class PathBraking:
                 state.speed_mode = int(sim.vehicle.getSpeedMode(vid))
                 sim.vehicle.setSpeedMode(vid, SPEED_MODE_NO_DECEL_BOUND)
             sim.vehicle.setSpeed(vid, target)
-            self.commanded_mps[vid] = target
 
     def _hazard_m(
         self,

@@ -123,6 +123,11 @@ class TrafficSetting:
     env: tuple[tuple[str, Any], ...] = ()
     """``(EnvConfig key, value)`` pairs, nested keys dotted (``traffic.top_up``)."""
 
+    def behaviour(self) -> TrafficBehaviour:
+        """How the setting's NPCs treat the ego: its ``traffic.*`` values over the defaults."""
+        knobs = {k.removeprefix("traffic."): v for k, v in self.env if k.startswith("traffic.")}
+        return TrafficBehaviour(**knobs)
+
     def values(self) -> tuple[tuple[str, Any], ...]:
         """The setting as typed TrainConfig values: ``(env.<key>, value)`` pairs
         (:func:`priqn.config.apply_values`)."""
@@ -150,6 +155,17 @@ TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
 }
 """Named traffic settings (issue 48's calibration candidates, issue 62's ``tm``;
 docs/environment.md)."""
+
+
+def traffic_names(text: str, where: str = "--traffic") -> list[str]:
+    """Comma-separated setting names (``sumo,rude,tm``); an unknown or missing one is a
+    one-line error naming ``where`` and the valid ones."""
+    names = [n.strip() for n in str(text).split(",") if n.strip()]
+    if not names:
+        raise PriqnError(f"{where}: expected one or more setting names, e.g. sumo,tm")
+    for name in names:
+        traffic_values(name)
+    return names
 
 
 def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
@@ -255,8 +271,6 @@ class Traffic:
             raise PriqnError("traffic.path_braking: the traffic was given no NPC paths")
         self._paths = paths
         self._step_s = step_s
-        self.decel_mps2 = 4.5
-        """The NPCs' vType ``decel`` [m/s²] (read from SUMO in :meth:`setup`)."""
         self.emergency_decel_mps2 = 9.0
         """The NPCs' vType ``emergencyDecel`` [m/s²] (read from SUMO in :meth:`setup`)."""
         self.path_braking: PathBraking | None = None
@@ -283,17 +297,13 @@ class Traffic:
             sim.vehicletype.setImpatience(NPC_TYPE, self.behaviour.impatience)
         sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
         sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
-        self.decel_mps2 = float(sim.vehicletype.getDecel(NPC_TYPE))
-        """The NPCs' comfortable deceleration bound (vType ``decel``) [m/s²]."""
         self.emergency_decel_mps2 = float(sim.vehicletype.getEmergencyDecel(NPC_TYPE))
-        """The NPCs' hardest braking (vType ``emergencyDecel``) [m/s²]."""
         if self._paths is not None and self.behaviour.path_braking:
             self.path_braking = PathBraking(
                 sim,
                 self._paths,
                 self.behaviour,
                 self._step_s,
-                decel_mps2=self.decel_mps2,
                 emergency_decel_mps2=self.emergency_decel_mps2,
                 npc_prefix=NPC_PREFIX,
             )

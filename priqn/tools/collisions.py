@@ -36,9 +36,8 @@ def collision_rows(cell: ReplayCell, workers: int = 1, progress: Any = None) -> 
     hits = episodes[episodes["collision"].astype(bool)]
     base = {"cell": cell.name}
     if all(c in hits.columns for c in COLLISION_COLUMNS):
-        rows = [{**base, **_identity(r), **{c: r[c] for c in COLLISION_COLUMNS},
+        return [{**base, **_identity(r), **{c: r[c] for c in COLLISION_COLUMNS},
                  "replayed_collision": ""} for r in hits.to_dict("records")]  # fmt: skip
-        return rows
     from priqn.evaluation.protocol import make_scenes
     from priqn.evaluation.targets import evaluation_env
 
@@ -95,12 +94,8 @@ def analyse(cells: Sequence[ReplayCell], out: Path, workers: int = 1) -> Path:
 
 def _traffic_name(run: Path) -> str:
     """The named traffic setting whose NPC behaviour a run's env has ('' for none)."""
-    from priqn.env.traffic import TRAFFIC_SETTINGS, TrafficBehaviour
+    from priqn.env.traffic import TRAFFIC_SETTINGS
     from priqn.run.folder import RunFolder
 
     have = RunFolder(run).config().env.traffic
-    for name, setting in TRAFFIC_SETTINGS.items():
-        knobs = {k.removeprefix("traffic."): v for k, v in setting.env if k.startswith("traffic.")}
-        if TrafficBehaviour(**knobs) == have:
-            return name
-    return ""
+    return next((n for n, s in TRAFFIC_SETTINGS.items() if s.behaviour() == have), "")

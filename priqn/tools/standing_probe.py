@@ -49,12 +49,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Entry point: each setting in its own process, then the table (and ``--csv``)."""
     from priqn.checks import check_density
-    from priqn.env.traffic import traffic_values
+    from priqn.env.traffic import traffic_names
     from priqn.errors import PriqnError
 
-    names = [n.strip() for n in str(args.traffic).split(",") if n.strip()]
-    for name in names:
-        traffic_values(name)
+    names = traffic_names(args.traffic)
     check_density(args.density, "--density")
     if args.episodes < 1:
         raise PriqnError("--episodes: expected >= 1")
