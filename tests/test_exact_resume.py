@@ -104,7 +104,9 @@ def _assert_same_training(full: Path, resumed: Path, sessions: int = 2) -> None:
 def kill_after_the_first_checkpoint(runs_dir: Path, agent: str, args: list[str]) -> Path:
     """Train ``agent`` with ``args`` (a checkpoint every 100 decisions) into
     ``runs_dir/agent`` and SIGKILL it, and its env workers, at a random moment after its
-    first checkpoint; returns the run folder."""
+    first checkpoint and no later than its last one before the end (at 200: a fast
+    machine can train the other 200 decisions inside the random wait); returns the run
+    folder."""
     run = runs_dir / agent
     proc = subprocess.Popen(
         [sys.executable, "-m", "priqn.cli", "train", "--agent", agent,
@@ -116,7 +118,9 @@ def kill_after_the_first_checkpoint(runs_dir: Path, agent: str, args: list[str])
         while time.time() < deadline and proc.poll() is None and _steps_done(run) < 100:
             time.sleep(0.05)
         assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
-        time.sleep(random.uniform(0.0, 3.0))  # somewhere after the first checkpoint
+        kill_at = time.time() + random.uniform(0.0, 3.0)  # after the first checkpoint
+        while time.time() < kill_at and _steps_done(run) < STEPS - 100:
+            time.sleep(0.02)
     finally:
         _kill_group(proc)
     return run
