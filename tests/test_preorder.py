@@ -1,5 +1,6 @@
-"""Tests of priqn.agents.preorder (public as priqn.preorder): preorders, comparators and
-Algorithm 1 (docs/preorder.md)."""
+"""Tests of the preorder core (public as priqn.preorder): preorders (priqn.agents.preorder),
+comparators (priqn.agents.comparators) and Algorithm 1 (priqn.agents.subsets), checked
+against its slow reference (priqn.agents.subsets_oracle); docs/preorder.md."""
 
 from __future__ import annotations
 
@@ -13,18 +14,17 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from priqn.agents.preorder import (
+from priqn.agents.comparators import (
     COMPARATOR_FUNCTIONS,
-    Preorder,
     RunningScale,
-    _optimal_subsets,
     comparator_scores,
     fsd_relations,
-    optimal_subsets,
     quantile_grid,
-    select,
     zscore,
 )
+from priqn.agents.preorder import Preorder
+from priqn.agents.subsets import _optimal_subsets, optimal_subsets, select
+from priqn.agents.subsets_oracle import reference_optimal_subsets
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 
@@ -490,70 +490,18 @@ def test_subset_sizes():
 # ============================================================================ properties
 
 
-def fsd_pairs(z_KA: list[list[float]], eps: float) -> set[tuple[int, int]]:
-    """ε-FSD on Python lists: a dominates b iff min_k d_k >= -ε and mean_k d_k > ε."""
-    k_count, a_count = len(z_KA), len(z_KA[0])
-    pairs = set()
-    for a in range(a_count):
-        for b in range(a_count):
-            d = [z_KA[k][a] - z_KA[k][b] for k in range(k_count)]
-            if min(d) >= -eps and sum(d) / k_count > eps:
-                pairs.add((a, b))
-    return pairs
+def reference_members(
+    out, q: torch.Tensor, po: Preorder, eps, comparator: str
+) -> list[tuple[list[set[int]], set[int]]]:
+    """The oracle's subsets of every state of ``q`` as sets: ``[(per objective, leaf)]``.
 
-
-def reference(scores_NA: list[list[float]], po: Preorder, eps: list[float], local_pairs=None):
-    """Algorithm 1 on Python sets for one state: (subsets per objective, leaf).
-
-    ``local_pairs[i]`` (optional) replaces objective i's ε-score relation (pairwise
-    comparators such as fsd)."""
-    a_count = len(scores_NA[0])
-    actions = range(a_count)
-
-    def sel(cands: set[int], dom: set[tuple[int, int]]) -> set[int]:
-        # beaten_by[a] = {b in C : b dominates a and a does not dominate b}
-        beaten_by = {a: {b for b in cands if (b, a) in dom and (a, b) not in dom} for a in cands}
-
-        def reach(a: int) -> set[int]:
-            seen, todo = set(), [a]
-            while todo:
-                for b in beaten_by[todo.pop()]:
-                    if b not in seen:
-                        seen.add(b)
-                        todo.append(b)
-            return seen
-
-        reachable = {a: reach(a) for a in cands}
-        return {a for a in cands if all(a in reachable[b] for b in reachable[a])}
-
-    dom: dict[str, set[tuple[int, int]]] = {}
-    subsets: dict[str, set[int]] = {}
-    for r in po.topological_order():
-        i = po.index(r)
-        s = scores_NA[i]
-        if local_pairs is not None:
-            local = local_pairs[i]
-        else:
-            local = {(a, b) for a in actions for b in actions if s[a] - s[b] > eps[i]}
-        parents = po.parents(r)
-        up: set[tuple[int, int]] = set().union(*(dom[p] for p in parents)) if parents else set()
-        if not parents:
-            s_up = set(actions)
-        elif len(parents) == 1:
-            s_up = subsets[parents[0]]
-        else:
-            s_up = sel(set().union(*(subsets[p] for p in parents)), up)
-        decided = up | {(b, a) for a, b in up}
-        dom[r] = up | {pair for pair in local if pair not in decided}
-        subsets[r] = sel(s_up, dom[r])
-    leaves = po.leaves()
-    if len(leaves) == 1:
-        leaf = subsets[leaves[0]]
-    else:
-        leaf = sel(
-            set().union(*(subsets[x] for x in leaves)), set().union(*(dom[x] for x in leaves))
-        )
-    return [subsets[r] for r in po.objectives], leaf
+    The score comparators relate actions by the batched core's own scores
+    (``out.scores``), so rounding cannot flip a relation that sits exactly at ε."""
+    sets, leaf = reference_optimal_subsets(
+        q.numpy(), po, eps, comparator, cvar_alpha=1.0, scores_BNA=out.scores.numpy()
+    )
+    sets_BNA, leaf_BA = torch.from_numpy(sets), torch.from_numpy(leaf)
+    return [([members(row) for row in sets_BNA[b]], members(leaf_BA[b])) for b in range(q.shape[0])]
 
 
 @st.composite
@@ -594,13 +542,7 @@ def test_property_nonempty_and_matches_set_reference(problem):
     po, q, eps, comparator = problem
     out = _run(po, q, eps, comparator)
     assert out.per_objective.any(-1).all() and out.leaf.any(-1).all()
-    eps_list = [eps] * len(po) if isinstance(eps, float) else eps
-    for b in range(q.shape[0]):
-        local = None
-        if comparator == "fsd":
-            z = zscore(q[b : b + 1])[0]  # [N, K, A]
-            local = [fsd_pairs(z[i].tolist(), eps_list[i]) for i in range(len(po))]
-        subsets, leaf = reference(out.scores[b].tolist(), po, eps_list, local)
+    for b, (subsets, leaf) in enumerate(reference_members(out, q, po, eps, comparator)):
         assert [members(s) for s in out.per_objective[b]] == subsets
         assert members(out.leaf[b]) == leaf
     # The O(A) threshold shortcut for tree objectives changes nothing.
@@ -645,8 +587,7 @@ def test_property_deep_dags_nonempty_and_match_reference(problem):
     po, q, eps, comparator = problem
     out = _run(po, q, eps, comparator)
     assert out.per_objective.any(-1).all() and out.leaf.any(-1).all()
-    for b in range(q.shape[0]):
-        subsets, leaf = reference(out.scores[b].tolist(), po, [eps] * len(po))
+    for b, (subsets, leaf) in enumerate(reference_members(out, q, po, eps, comparator)):
         assert [members(s) for s in out.per_objective[b]] == subsets
         assert members(out.leaf[b]) == leaf
 

@@ -7,8 +7,10 @@ the configs and specs themselves live in the torch-free :mod:`priqn.agents.confi
 ``quantile_huber_loss``, ``tau_grid``.
 
 Also here, each its own module: :mod:`~priqn.agents.labels` (a policy's Table II
-identity, torch-free) and :mod:`~priqn.agents.preorder` (preorders, comparators and
-Algorithm 1; the public module is :mod:`priqn.preorder`, which re-exports it).
+identity, torch-free) and the preorder core: :mod:`~priqn.agents.preorder` (the preorder
+graph, torch-free), :mod:`~priqn.agents.comparators` (the comparators and the running
+scale), :mod:`~priqn.agents.subsets` (Algorithm 1) and :mod:`~priqn.agents.subsets_oracle`
+(its slow reference); the public module is :mod:`priqn.preorder`, which re-exports them.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ NORMALISATIONS: tuple[str, ...] = ("zscore", "scaled")
 """Quantile normalisations of the Pr-IQN comparators (docs/preorder.md)."""
 COMPARATOR_NAMES: dict[str, str] = {"qd": "QD", "mv": "MV", "cvar": "CVaR", "fsd": "FSD"}
 """Comparator name → its display name in tables (the functions, in the same order:
-``priqn.agents.preorder.COMPARATOR_FUNCTIONS``)."""
+``priqn.agents.comparators.COMPARATOR_FUNCTIONS``)."""
 PREORDER_PRESETS: tuple[str, ...] = ("total", "partial", "right-of-way")
 """Named preorders (``priqn/presets/<name>.toml``); any other value is a TOML path."""
 COMPILE_MODES: tuple[str, ...] = ("auto", "graphs", "on", "off")

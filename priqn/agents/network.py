@@ -20,8 +20,8 @@ from typing import Any
 import torch
 from torch import nn
 
+from priqn.agents.comparators import quantile_grid
 from priqn.agents.config import NetworkConfig
-from priqn.agents.preorder import quantile_grid
 
 OBS_KEYS: tuple[str, ...] = ("bev", "lidar", "command", "kinematics")
 """Observation keys the encoder reads (the env's Dict space, ARCHITECTURE.md)."""
@@ -127,4 +127,4 @@ class QuantileNetwork(nn.Module):
 
 
 tau_grid = quantile_grid
-"""The fixed acting/subset grid τ_k = (k + 0.5) / K (one grid: :func:`priqn.agents.preorder.quantile_grid`)."""
+"""The fixed acting/subset grid τ_k = (k + 0.5) / K (one grid: :func:`priqn.agents.comparators.quantile_grid`)."""

@@ -9,7 +9,7 @@ in :mod:`priqn.agents.build`). The shipped agents are declared in
 
 Shape suffixes as in :mod:`priqn.agents.network` (``B`` batch, ``H`` heads, ``K`` quantiles,
 ``A`` actions), plus ``O``: the run's objectives (``env.objectives``, five by default, six
-with ``right_of_way``), the length of the reward vector. :mod:`priqn.agents.preorder` calls the
+with ``right_of_way``), the length of the reward vector. :mod:`priqn.agents.subsets` calls the
 same axis ``N``; inside ``priqn.agents`` ``N`` is the learner's τ samples.
 """
 
@@ -49,7 +49,8 @@ class PreorderSubsets:
     """
 
     def __init__(self, preorder: Any, cfg: AgentConfig) -> None:
-        from priqn.agents.preorder import RunningScale, optimal_subsets
+        from priqn.agents.comparators import RunningScale
+        from priqn.agents.subsets import optimal_subsets
 
         self.preorder = preorder
         self.comparator = cfg.comparator

@@ -19,7 +19,7 @@ greedy agents (docs/evaluation.md).
 All quantiles given to the acting and target rules are on the FIXED grid
 τ_k = (k + 0.5)/K (``network.tau_grid``), so selection is deterministic for a network.
 The preorder rules get an ``OptimalSubsets``-like object ``subsets(quantiles_BHKA)``
-with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.agents.preorder``).
+with ``per_objective [B, H, A]`` and ``leaf [B, A]`` bool tensors (``priqn.agents.subsets``).
 Shape suffix ``O``: the run's objectives (the reward vector).
 
 Importing this module does not import torch (the shipped declarations are read by the
@@ -89,7 +89,7 @@ def masked_uniform_choice(mask_BA: Tensor, u_B: Tensor) -> Tensor:
 
     The j-th True entry (j = ⌊u · count⌋) is taken, so a given ``u`` always gives the
     same action: randomness comes only from the caller's generator. Rows must not be
-    empty (``priqn.agents.preorder`` guarantees a non-empty leaf set).
+    empty (``priqn.agents.subsets`` guarantees a non-empty leaf set).
     """
     count_B = mask_BA.sum(dim=1)
     if bool((count_B == 0).any()):
@@ -221,7 +221,7 @@ def near_greedy_subsets(values_BKA: Tensor, eps: float) -> Any:
     while it still ranks actions by its own value; how stochastic depends on ε
     (docs/evaluation.md).
     """
-    from priqn.agents.preorder import optimal_subsets
+    from priqn.agents.subsets import optimal_subsets
 
     return optimal_subsets(values_BKA.unsqueeze(1), _value_preorder(), comparator="qd", eps=eps)
 

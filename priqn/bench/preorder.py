@@ -1,10 +1,12 @@
 """``priqn bench preorder``: batched optimal subsets vs a per-state reference loop.
 
 Times :func:`priqn.preorder.optimal_subsets` on a batch of random quantiles
-``[B, N, K, A]`` against :func:`reference_optimal_subsets`, a straightforward
+``[B, N, K, A]`` against
+:func:`priqn.agents.subsets_oracle.reference_optimal_subsets`, a straightforward
 per-state implementation of Algorithm 1 in plain Python + numpy (one state at a
 time, one objective at a time, the relations as numpy matrices, written the way the
-paper writes it). Both must return the same subsets (checked every run). Where
+paper writes it; the tests check the batched core against the same oracle). Both must
+return the same subsets (checked every run). Where
 ``priqn.agents.network`` is importable it also times one forward pass of the agent's
 network at the same batch, since the subsets run after every forward pass.
 """
@@ -14,7 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
@@ -63,99 +65,6 @@ def _timeit(fn: Callable[[], Any], repeats: int, sync: Callable[[], None]) -> tu
         times.append(time.perf_counter() - t0)
     times.sort()
     return times[len(times) // 2], times[0]
-
-
-# long: the unbatched reference the batched core is timed and checked against, written
-# line by line from the paper's Algorithm 1 on purpose (no helpers that could share a bug).
-def reference_optimal_subsets(
-    quantiles_BNKA: Any,
-    parents: Sequence[Sequence[int]],
-    topo: Sequence[int],
-    leaves: Sequence[int],
-    eps: Sequence[float],
-    comparator: str = "qd",
-    mv_lambda: float = 0.5,
-    cvar_alpha: float = 0.25,
-) -> tuple[Any, Any]:
-    """Algorithm 1 state by state in numpy → (subsets bool [B, N, A], leaf bool [B, A]).
-
-    The straightforward implementation: loops over states and objectives, z-scored
-    quantiles and comparator scores per objective, relation matrices ``Dom``/``DomBy``
-    as in the paper, and select() with the top-SCC rule of docs/preorder.md (closure by
-    repeated boolean matrix products, stopping when it no longer changes).
-    """
-    import numpy as np
-
-    q = np.asarray(quantiles_BNKA, dtype=np.float64)
-    b_count, n, k, a = q.shape
-    tail = sum(1 for i in range(k) if (i + 0.5) / k <= cvar_alpha)
-
-    def normalised(z: np.ndarray) -> np.ndarray:  # z: [K, A]
-        return (z - z.mean()) / max(z.std(), 1e-6)
-
-    def score(z: np.ndarray) -> np.ndarray:  # z: [K, A]
-        zt = normalised(z)
-        if comparator in ("qd", "fsd"):  # fsd's shown score is the mean; QD's differs by a constant
-            ideal = zt.max(axis=1)
-            return -np.abs(zt - ideal[:, None]).mean(axis=0)
-        if comparator == "mv":
-            return zt.mean(axis=0) - mv_lambda * zt.std(axis=0)
-        return zt[:tail].mean(axis=0)
-
-    def select(cand: np.ndarray, dom: np.ndarray, domby: np.ndarray) -> np.ndarray:
-        incomparable = dom & domby
-        down = domby & ~incomparable & cand[:, None] & cand[None, :]
-        reach = down.copy()
-        while True:
-            nxt = reach | ((reach.astype(np.int32) @ reach.astype(np.int32)) > 0)
-            if (nxt == reach).all():
-                break
-            reach = nxt
-        escaped = (reach & ~reach.T).any(axis=1)
-        return cand & ~escaped
-
-    subsets = np.zeros((b_count, n, a), dtype=bool)
-    leaf = np.zeros((b_count, a), dtype=bool)
-    for b in range(b_count):
-        dom: dict[int, np.ndarray] = {}
-        domby: dict[int, np.ndarray] = {}
-        s: dict[int, np.ndarray] = {}
-        for r in topo:
-            sc = score(q[b, r])
-            diff = sc[:, None] - sc[None, :]
-            dom_qd, domby_qd = diff > eps[r], diff < -eps[r]
-            if comparator == "fsd":  # pairwise: min_k d >= -eps and mean_k d > eps
-                zt = normalised(q[b, r])
-                d = zt[:, :, None] - zt[:, None, :]  # [K, a, b]
-                dom_qd = (d.min(axis=0) >= -eps[r]) & (d.mean(axis=0) > eps[r])
-                domby_qd = dom_qd.T
-            if not parents[r]:
-                s_up = np.ones(a, dtype=bool)
-                dom_up = np.zeros((a, a), dtype=bool)
-                domby_up = np.zeros((a, a), dtype=bool)
-            else:
-                dom_up = np.logical_or.reduce([dom[p] for p in parents[r]])
-                domby_up = np.logical_or.reduce([domby[p] for p in parents[r]])
-                if len(parents[r]) == 1:
-                    s_up = s[parents[r][0]]
-                else:
-                    union = np.logical_or.reduce([s[p] for p in parents[r]])
-                    s_up = select(union, dom_up, domby_up)
-            mask = ~(dom_up | domby_up)
-            dom[r] = (~mask & dom_up) | (mask & dom_qd)
-            domby[r] = (~mask & domby_up) | (mask & domby_qd)
-            s[r] = select(s_up, dom[r], domby[r])
-            subsets[b, r] = s[r]
-        if len(leaves) == 1:
-            leaf[b] = s[leaves[0]]
-        else:
-            union = np.logical_or.reduce([s[i] for i in leaves])
-            leaf[b] = select(
-                union,
-                np.logical_or.reduce([dom[i] for i in leaves]),
-                np.logical_or.reduce([domby[i] for i in leaves]),
-            )
-    return subsets, leaf
 
 
 def _network_forward_time(
@@ -269,7 +178,7 @@ class _SubsetTimes(NamedTuple):
     batched: tuple[float, float]
     """Median and minimum seconds per batch of :func:`priqn.preorder.optimal_subsets`."""
     reference: tuple[float, float]
-    """The same of :func:`reference_optimal_subsets`."""
+    """The same of :func:`priqn.agents.subsets_oracle.reference_optimal_subsets`."""
     agree: bool
     """Both give the same subsets (compared in float64)."""
     sizes: list[float]
@@ -289,19 +198,17 @@ def _time_subsets(
     import numpy as np
     import torch
 
+    from priqn.agents.subsets_oracle import reference_optimal_subsets
     from priqn.preorder import optimal_subsets
 
-    n = len(po)
     q64 = torch.from_numpy(quantiles_np)
     q = q64.to(device=device, dtype=torch.float32)
-    eps = [args.eps] * n
 
     def batched() -> Any:
         return optimal_subsets(q, po, comparator=args.comparator, eps=args.eps)
 
     t_batched = _timeit(batched, args.repeats, sync)
-    parents = [po._parents_idx[i] for i in range(n)]
-    ref_args = (parents, po._topo_idx, po._leaves_idx, eps, args.comparator)
+    ref_args = (po, args.eps, args.comparator)
     t_ref = _timeit(
         lambda: reference_optimal_subsets(quantiles_np, *ref_args), args.reference_repeats, sync
     )
