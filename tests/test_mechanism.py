@@ -3,6 +3,7 @@ committed headline cell (2 episodes, SUMO in a worker process)."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -13,11 +14,12 @@ import pytest
 from fake_runs import tiny_grid
 
 from priqn.agents.policy import Decision
+from priqn.analysis.decisions import MECHANISM_ROWS, CellRows, DecisionCache, seed_table
 from priqn.analysis.mechanism import (
     MechanismConfig,
-    group_rows,
+    mechanism_measure,
     reliability_table,
-    seed_summary,
+    removal_measures,
 )
 from priqn.evaluation.protocol import EvalScene
 from priqn.evaluation.rollout import RolloutStep
@@ -116,7 +118,7 @@ def test_waiting_measures_by_hand():
     assert d["speed_mps"].tolist() == [0.0, 0.0, 0.0, 0.0, 3.0, 3.0]
     assert d["top_max_speed_mps"].tolist() == [6.0, 0.0, 0.0, 6.0, 6.0, 3.0]
     assert d["lower_greedy_speed_mps"].tolist() == [6.0] * 4 + [3.0] * 2
-    s = seed_summary(d, CFG)
+    s = removal_measures(d, CFG)
     assert s["standstill"] == pytest.approx(4 / 6)
     assert s["top_only_standstill"] == pytest.approx(2 / 6)  # safety forces the wait
     assert s["standstill_top_allowed_moving"] == pytest.approx(2 / 6)  # chosen below it
@@ -127,11 +129,11 @@ def test_waiting_measures_by_hand():
     d = pd.concat(
         [d, pd.DataFrame(decision_rows(waited, OBJECTIVES, OBJECTIVES, CFG, 10.0, 0.5, SPEEDS_A))]
     )
-    assert seed_summary(d, CFG)["timeout_episodes"] == pytest.approx(1 / 3)
+    assert removal_measures(d, CFG)["timeout_episodes"] == pytest.approx(1 / 3)
 
 
 def test_seed_summary_and_reliability_by_hand():
-    s = seed_summary(rows(), CFG)
+    s = removal_measures(rows(), CFG)
     assert s["episodes"] == 2 and s["decisions"] == 6
     assert s["removes_lane_keeping"] == pytest.approx(2 / 6)
     assert s["violation_after_removal"] == pytest.approx(1 / 2)  # decisions 1, 2: only 2 within
@@ -152,20 +154,50 @@ def test_seed_summary_and_reliability_by_hand():
 
 
 def test_group_rows_average_each_group_over_its_seeds():
-    seeds = pd.DataFrame(
-        {
-            "run": ["a", "b", "c"],
-            "row": ["r"] * 3,
-            "seed": [0, 1, 2],
-            "collapsed": [True, False, False],
-            "removes_lane_keeping": [0.4, 0.1, 0.2],
-        }
-    )
-    groups = group_rows(seeds).set_index("collapsed")
-    assert groups.loc["collapsed", "removes_lane_keeping"] == pytest.approx(0.4)
-    assert groups.loc["healthy", "removes_lane_keeping"] == pytest.approx(0.15)
-    assert groups.loc["all", "removes_lane_keeping"] == pytest.approx(0.7 / 3)
+    """Three seeds (hold-out success 0.2: collapsed; 0.5 and 0.8: healthy), each its rows
+    with a different share of removals; the group rows average the seed rows."""
+    d = rows()
+    cells = []
+    for i, (success, removes) in enumerate([(0.2, 0.4), (0.5, 0.1), (0.8, 0.2)]):
+        evaluated = pd.DataFrame(
+            {"success": [1.0] * int(10 * success) + [0.0] * (10 - int(10 * success))}
+        )
+        own = d.assign(
+            removes_lane_keeping=np.arange(len(d)) < removes * len(d), replay_matches=True
+        )
+        cells.append(CellRows(f"r__seed{i}", i, evaluated, own))
+    table = seed_table(mechanism_measure(CFG), cells)
+    assert table["run"].tolist()[:3] == ["r__seed0", "r__seed1", "r__seed2"]
+    assert table["collapsed"].tolist()[:3] == [True, False, False]
+    seeds = table.iloc[:3]["removes_lane_keeping"].astype(float).tolist()
+    groups = table.iloc[3:].set_index("collapsed")
+    assert groups.loc["collapsed", "removes_lane_keeping"] == pytest.approx(seeds[0])
+    assert groups.loc["healthy", "removes_lane_keeping"] == pytest.approx(np.mean(seeds[1:]))
+    assert groups.loc["all", "removes_lane_keeping"] == pytest.approx(np.mean(seeds))
     assert groups.loc["healthy", "seed"] == 2
+
+
+def test_rows_follow_the_declared_schema_and_the_cache_keys_its_version(tmp_path):
+    """decision_rows' columns are MECHANISM_ROWS' (no unknown one, none missing); the cache
+    gives back what it saved, and nothing under another schema version or parameters."""
+    import dataclasses
+
+    d = rows().assign(replay_matches=True)
+    assert MECHANISM_ROWS.check(d) == ""
+    assert "unknown columns ['stray']" in MECHANISM_ROWS.check(d.assign(stray=1))
+    cache = DecisionCache(tmp_path)
+    params = {"run": "/x", "episodes": 2}
+    cache.save(MECHANISM_ROWS, "cell", params, d)
+    back = cache.load(MECHANISM_ROWS, "cell", params, 2)
+    assert back is not None and back.shape == d.shape
+    assert cache.load(MECHANISM_ROWS, "cell", {**params, "run": "/y"}, 2) is None
+    newer = dataclasses.replace(MECHANISM_ROWS, version=MECHANISM_ROWS.version + 1)
+    assert cache.load(newer, "cell", params, 2) is None
+    replayed = []
+    again = cache.rows(newer, "cell", params, 2, lambda: replayed.append(1) or d)
+    assert replayed == [1] and again.shape == d.shape
+    with pytest.raises(ValueError, match="not mechanism rows"):
+        cache.save(MECHANISM_ROWS, "cell", params, d.drop(columns=["speed_mps"]))
 
 
 def test_top_risk_counts_risk_removals_but_calibrates_the_safety_head():
@@ -200,16 +232,17 @@ def test_smoke_replay_of_a_committed_cell_matches_its_evaluation(tmp_path):
     out = tmp_path / "mech"
     res = subprocess.run(
         [sys.executable, "-m", "priqn.cli", "mechanism", str(CELL), "--episodes", "2",
-         "--out", str(out)],
+         "--out", str(out), "--decisions", str(tmp_path / "cache")],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr[-3000:]
-    table = pd.read_csv(out / "mechanism.csv")
+    table = pd.read_csv(out / "tables" / "mechanism.csv")
     seed = table.iloc[0]
     assert seed["run"] == CELL.name and seed["episodes"] == 2 and seed["decisions"] > 0
     assert seed["replay_matches"] == 1.0
     assert list(table["collapsed"].iloc[1:]) == ["collapsed", "healthy", "all"]
-    decisions = pd.read_csv(out / "decisions" / f"{CELL.name}.csv")
+    (cached,) = (tmp_path / "cache" / "mechanism").glob(f"{CELL.name}.*.csv")
+    decisions = pd.read_csv(cached)
     key = ["eval_run", "net", "density", "episode"]
     played = decisions.groupby(key).size()
     # The first two scenes by (eval run, episode, net, density): episode 0 of the first
@@ -220,8 +253,13 @@ def test_smoke_replay_of_a_committed_cell_matches_its_evaluation(tmp_path):
     ]
     evaluated = pd.read_csv(CELL / "eval" / "episodes.csv").set_index(key)["steps"]
     assert all(evaluated.loc[k] == n for k, n in played.items())
-    assert (out / "mechanism.png").stat().st_size > 0 and (out / "reliability.csv").is_file()
-    assert "| run |" in (out / "mechanism.md").read_text()
+    for name in ("figures/mechanism.png", "figures/mechanism.pdf", "tables/reliability.csv"):
+        assert (out / name).stat().st_size > 0
+    assert "| run |" in (out / "report.md").read_text()
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["kind"] == "mechanism" and meta["command"] == (
+        f"priqn mechanism {CELL} --episodes 2 --out {out}"
+    )
 
 
 SNAPSHOT_GRID = (
@@ -249,17 +287,18 @@ def test_a_kept_snapshot_replays_on_its_own_evaluation(tmp_path):
     out = tmp_path / "mech"
 
     def mechanism(*extra: str) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "priqn.cli", "mechanism", str(cell.run_dir), "--out", str(out)]
+        cmd = [sys.executable, "-m", "priqn.cli", "mechanism", str(cell.run_dir), "--out", str(out),
+               "--decisions", str(tmp_path / "cache")]  # fmt: skip
         return subprocess.run([*cmd, *extra], capture_output=True, text=True, timeout=300)
 
     res = mechanism("--snapshot", "200", "--episodes", "2")
     assert res.returncode == 0, res.stderr[-3000:]
-    seed = pd.read_csv(out / "mechanism.csv").iloc[0]
+    seed = pd.read_csv(out / "tables" / "mechanism.csv").iloc[0]
     assert seed["run"] == "pr-iqn__seed1@200" and seed["episodes"] == 2
     assert seed["replay_matches"] == 1.0
     evaluated = pd.read_csv(cell.run_dir / "eval-at200" / "episodes.csv")
     assert seed["holdout_success"] == pytest.approx(evaluated["success"].astype(float).mean())
-    assert "eval-at200/ scenes" in (out / "mechanism.md").read_text()
+    assert "eval-at200/ scenes" in (out / "report.md").read_text()
     res = mechanism("--snapshot", "300")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
     assert "kept no policy at 300 decisions (checkpoint.keep_at = [200])" in res.stderr

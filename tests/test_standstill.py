@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from priqn.agents.policy import Decision
-from priqn.analysis.standstill import seed_summary
+from priqn.analysis.decisions import STANDSTILL_ROWS
+from priqn.analysis.standstill import waiting_measures
 from priqn.preorder import Preorder, comparator_scores, optimal_subsets
 from priqn.tools.standstill import standstill_rows, stop_vs_go
 
@@ -71,6 +72,7 @@ def test_rows_and_summary_of_a_hand_made_episode() -> None:
         _step(2, 3, _subsets("TTTT", "TTTT", "FFFT", "FFFT", "FFFT"), q_HKA, end),  # go left
     ]
     rows = standstill_rows(steps, LEVELS, ABOVE, SPEEDS_A)
+    assert STANDSTILL_ROWS.check(pd.DataFrame(rows).assign(replay_matches=True)) == ""
     assert [r["removed_by"] for r in rows] == ["safety", "risk", ""]
     assert [r["stop"] for r in rows] == [True, True, False]
     # Risk at decision 1 chooses among safety's subset {0, 1, 2}: best stop 0 (mean 0),
@@ -80,7 +82,7 @@ def test_rows_and_summary_of_a_hand_made_episode() -> None:
     assert rows[1]["risk_z_diff"] == pytest.approx(2.0)
     # At decision 0 safety kept no go action, so risk sees none.
     assert math.isnan(rows[0]["risk_z_diff"])
-    summary = seed_summary(pd.DataFrame(rows))
+    summary = waiting_measures(pd.DataFrame(rows))
     assert summary["decisions"] == 3 and summary["replay_timeout"] == 1.0
     assert summary["no_go"] == pytest.approx(2 / 3)
     assert summary["no_go_safety"] == pytest.approx(1 / 3)
@@ -98,6 +100,7 @@ def test_rows_of_a_scalar_agent_count_its_stops() -> None:
         for t, (a, e) in enumerate([(0, None), (4 % 4, None), (2, end)])
     ]
     rows = standstill_rows(steps, ("safety",), (), SPEEDS_A)
-    summary = seed_summary(pd.DataFrame(rows))
+    assert STANDSTILL_ROWS.check(pd.DataFrame(rows).assign(replay_matches=True)) == ""
+    summary = waiting_measures(pd.DataFrame(rows))
     assert summary["stop"] == pytest.approx(2 / 3)
     assert "no_go" not in summary

@@ -4,6 +4,9 @@ From one row per collision (:mod:`priqn.tools.collisions`): per traffic setting,
 density, how many collisions, the share of each kind (:data:`COLLISION_KINDS`), the share
 the NPC struck, and the share a Traffic-Manager-like NPC would have prevented (it could have
 stopped when the ego entered its path: the TM's collision stage brakes there).
+:func:`write_report` writes the report folder through
+:class:`priqn.analysis.artifacts.ReportFolder`: ``report.md``, ``tables/collisions.csv``
+(every collision), ``tables/collisions_by_kind.csv`` (the table) and ``meta.json``.
 """
 
 from __future__ import annotations
@@ -13,8 +16,8 @@ from typing import Any
 
 import pandas as pd
 
-from priqn.analysis.render import markdown_table, write_csv
-from priqn.io import atomic_write_text, ensure_dir
+from priqn.analysis.artifacts import ReportFolder
+from priqn.analysis.render import markdown_table
 from priqn.objectives import COLLISION_KINDS
 
 GROUP: tuple[str, ...] = ("traffic", "label", "density")
@@ -43,13 +46,19 @@ def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def write_report(collisions: pd.DataFrame, out: Path) -> Path:
-    """``collisions.csv`` (every collision) and ``collisions.md`` (the table) in ``out``."""
-    ensure_dir(out)
-    write_csv(out / "collisions.csv", collisions)
+def write_report(collisions: pd.DataFrame, out: str | Path, command: str) -> Path:
+    """The report folder ``out``: ``tables/collisions.csv`` (every collision),
+    ``tables/collisions_by_kind.csv`` and ``report.md`` (the table), ``meta.json``
+    (``command``: the one that makes it); returns report.md."""
+    folder = ReportFolder.open(out)
+    folder.table("collisions", collisions)
+    fields = {
+        "collisions": len(collisions),
+        "cells_with_collisions": sorted(set(collisions.get("cell", []))),
+    }
+    folder.meta("collisions", command, None, fields)
     if collisions.empty:
-        atomic_write_text(out / "collisions.md", "# Collisions\n\nNo collision to describe.\n")
-        return out / "collisions.md"
+        return folder.text("report.md", "# Collisions\n\nNo collision to describe.\n")
     table = kind_table(collisions)
 
     def pct(x: float) -> str:
@@ -69,10 +78,10 @@ def write_report(collisions: pd.DataFrame, out: Path) -> Path:
         *(f"- `{k}`: {v}" for k, v in COLLISION_KINDS.items()),
         "",
         (
-            f"Replayed: {replays} collisions of evaluations made before the forensics existed; "
+            f"Made by `{command}`. Replayed: {replays} collisions of evaluations made before the forensics existed; "
             f"{again} ended in a collision again."
             if replays
-            else "Read from the evaluations' own records (no replay)."
+            else f"Made by `{command}`. Read from the evaluations' own records (no replay)."
         ),
         "",
         markdown_table(
@@ -102,7 +111,5 @@ def write_report(collisions: pd.DataFrame, out: Path) -> Path:
         ),
         "",
     ]
-    write_csv(out / "collisions_by_kind.csv", table)
-    path = out / "collisions.md"
-    atomic_write_text(path, "\n".join(text))
-    return path
+    folder.table("collisions_by_kind", table)
+    return folder.text("report.md", "\n".join(text))

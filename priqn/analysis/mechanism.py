@@ -1,27 +1,36 @@
 """The measures, tables and figure of ``priqn mechanism`` (descriptive), from its decision rows.
 
 ``priqn mechanism`` (:mod:`priqn.tools.mechanism`) replays evaluated Pr-IQN cells and
-writes one row per decision; here, from those rows alone (docs/mechanism.md):
-:func:`seed_summary` (one seed's removal, violation, calibration and waiting measures),
-:func:`reliability_table` (the safety head's predictions binned against what happened),
-:func:`group_rows` (collapsed, healthy, all) and :func:`write_report` (``mechanism.csv``,
-``mechanism.md``, ``reliability.csv``, ``mechanism.png``). No torch, no SUMO.
+writes one row per decision (:data:`priqn.analysis.decisions.MECHANISM_ROWS`); here, from
+those rows alone (docs/mechanism.md): :func:`removal_measures` (one seed's removal,
+violation, calibration and waiting measures), :func:`reliability_table` (the safety
+head's predictions binned against what happened), :func:`mechanism_measure` (the seed table's
+columns and groups: collapsed, healthy, all) and :func:`write_mechanism` (the report
+folder, through :func:`priqn.analysis.decisions.write_report`). No torch, no SUMO.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import io
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.standstill import EPISODE_KEYS
-from priqn.io import atomic_write_bytes, atomic_write_text
+from priqn.analysis.decisions import (
+    EPISODE_KEYS,
+    MECHANISM_ROWS,
+    CellRows,
+    DecisionCache,
+    DecisionMeasure,
+    ReportTable,
+    default_cache,
+    rate,
+    replay_share,
+    seed_table,
+    write_report,
+)
 from priqn.run.evaluations import evaluation_folder, snapshot_evaluation
 
 DEFAULT_EPISODES = 54
@@ -60,11 +69,23 @@ class MechanismConfig:
     """0: each run's final policy on its ``eval/`` scenes; N: the policy it kept at N
     decisions (``checkpoint.keep_at``) on the scenes of ``eval-at<N>/``."""
     decisions: str = ""
-    """Folder of the per-decision files ("": ``<out>/decisions``)."""
+    """Folder of the decision-row cache ("": :func:`priqn.analysis.decisions.default_cache`)."""
 
-    def decisions_dir(self, out: Path) -> Path:
-        """Where the per-decision files go: :attr:`decisions`, else ``out/decisions``."""
-        return Path(self.decisions) if self.decisions else out / "decisions"
+    def cache(self) -> DecisionCache:
+        """The decision-row cache: :attr:`decisions`, else the default folder."""
+        return DecisionCache(Path(self.decisions) if self.decisions else default_cache())
+
+    def params(self, run: Path, episodes: int) -> dict[str, Any]:
+        """What a cell's mechanism rows depend on, beside the schema (the cache's key):
+        the run folder (resolved), the policy replayed, the episodes and the counting."""
+        return {
+            "run": str(Path(run).resolve()),
+            "snapshot": self.snapshot,
+            "episodes": episodes,
+            "top": self.top,
+            "lower": self.lower,
+            "horizon": self.horizon,
+        }
 
     @property
     def evaluation(self) -> str:
@@ -76,50 +97,44 @@ class MechanismConfig:
 # ----------------------------------------------------------------------------- counting
 
 
-def _rate(values: Any) -> float:
-    values = np.asarray(values, dtype=float)
-    return float(values.mean()) if values.size else math.nan
-
-
-def seed_summary(decisions: Any, cfg: MechanismConfig) -> dict[str, Any]:
-    """One seed's measures from its decision rows (a pandas frame of
-    :func:`priqn.tools.mechanism.decision_rows`).
+def removal_measures(decisions: Any, cfg: MechanismConfig) -> dict[str, Any]:
+    """One seed's measures from its decision rows (:data:`MECHANISM_ROWS`, pandas).
 
     Rates over decisions unless the name says episodes; NaN where a condition never held.
     """
     d = decisions
     removes = d[f"removes_{cfg.lower}"].astype(bool)
     standstill = d["speed_mps"] == 0.0
-    by_episode = d.groupby(["eval_run", "net", "density", "episode"], sort=False)
+    by_episode = d.groupby(EPISODE_KEYS, sort=False)
     episode_removal = by_episode[f"removes_{cfg.lower}"].any()
     episode_violation = by_episode["episode_violation"].first()
     out: dict[str, Any] = {
         "episodes": int(by_episode.ngroups),
         "decisions": len(d),
-        "replay_violation": _rate(episode_violation),
+        "replay_violation": rate(episode_violation),
     }
     for column in d.columns:
         if column.startswith("removes_"):
-            out[column] = _rate(d[column])
+            out[column] = rate(d[column])
     out.update(
         {
-            "violation_after_removal": _rate(d.loc[removes, "violation_within"]),
-            "violation_otherwise": _rate(d.loc[~removes, "violation_within"]),
-            "off_road_after_removal": _rate(d.loc[removes, "off_road_within"]),
-            "off_road_otherwise": _rate(d.loc[~removes, "off_road_within"]),
-            "episodes_with_removal": _rate(episode_removal),
-            "violation_episodes_with_removal": _rate(episode_violation[episode_removal]),
-            "violation_episodes_without": _rate(episode_violation[~episode_removal]),
-            "pred_violation": _rate(d["pred_violation"]),
-            "observed_violation": _rate(d["episode_violation"]),
-            "brier": _rate((d["pred_violation"] - d["episode_violation"].astype(float)) ** 2),
-            "pred_return": _rate(d["pred_return"]),
-            "return_to_go": _rate(d["return_to_go"]),
-            "timeout_episodes": _rate(by_episode["episode_timeout"].first()),
-            "standstill": _rate(standstill),
-            "top_only_standstill": _rate(d["top_max_speed_mps"] == 0.0),
-            "standstill_top_allowed_moving": _rate(standstill & (d["top_max_speed_mps"] > 0.0)),
-            f"standstill_{cfg.lower}_moving": _rate(
+            "violation_after_removal": rate(d.loc[removes, "violation_within"]),
+            "violation_otherwise": rate(d.loc[~removes, "violation_within"]),
+            "off_road_after_removal": rate(d.loc[removes, "off_road_within"]),
+            "off_road_otherwise": rate(d.loc[~removes, "off_road_within"]),
+            "episodes_with_removal": rate(episode_removal),
+            "violation_episodes_with_removal": rate(episode_violation[episode_removal]),
+            "violation_episodes_without": rate(episode_violation[~episode_removal]),
+            "pred_violation": rate(d["pred_violation"]),
+            "observed_violation": rate(d["episode_violation"]),
+            "brier": rate((d["pred_violation"] - d["episode_violation"].astype(float)) ** 2),
+            "pred_return": rate(d["pred_return"]),
+            "return_to_go": rate(d["return_to_go"]),
+            "timeout_episodes": rate(by_episode["episode_timeout"].first()),
+            "standstill": rate(standstill),
+            "top_only_standstill": rate(d["top_max_speed_mps"] == 0.0),
+            "standstill_top_allowed_moving": rate(standstill & (d["top_max_speed_mps"] > 0.0)),
+            f"standstill_{cfg.lower}_moving": rate(
                 standstill & (d["lower_greedy_speed_mps"] > 0.0)
             ),
         }
@@ -141,46 +156,11 @@ def reliability_table(decisions: Any, edges: Sequence[float] = RELIABILITY_EDGES
             {
                 "bin": f"[{edges[b]:.1f}, {edges[b + 1]:.1f}{']' if b == len(edges) - 2 else ')'}",
                 "n": int(hit.sum()),
-                "pred_violation": _rate(p[hit]),
-                "observed_violation": _rate(decisions["episode_violation"].to_numpy()[hit]),
+                "pred_violation": rate(p[hit]),
+                "observed_violation": rate(decisions["episode_violation"].to_numpy()[hit]),
             }
         )
     return pd.DataFrame(rows)
-
-
-def group_rows(seeds: Any) -> Any:
-    """Group rows (collapsed, healthy, all): each measure's mean over the group's seeds."""
-    import pandas as pd
-
-    numeric = [c for c in seeds.columns if c not in ("run", "row", "seed", "collapsed")]
-    rows = []
-    for group in GROUPS:
-        part = seeds if group == "all" else seeds[seeds["collapsed"] == (group == "collapsed")]
-        row = {"run": f"mean of {group} seeds", "row": "", "seed": len(part), "collapsed": group}
-        for c in numeric:
-            row[c] = float(part[c].astype(float).mean()) if len(part) else math.nan
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-# ----------------------------------------------------------------------------- outputs
-
-
-def _markdown(frame: Any, digits: int = 3) -> str:
-    cols = list(frame.columns)
-    rows = []
-    for _, r in frame.iterrows():
-        cells = []
-        for c in cols:
-            v = r[c]
-            if isinstance(v, float) and c in ("episodes", "decisions", "n"):
-                cells.append("–" if math.isnan(v) else f"{v:g}")  # counts (group: means)
-            elif isinstance(v, float):
-                cells.append("–" if math.isnan(v) else f"{v:.{digits}f}")
-            else:
-                cells.append(str(v))
-        rows.append(cells)
-    return markdown_table(cols, rows)
 
 
 MARKDOWN_COLUMNS: tuple[str, ...] = (
@@ -204,15 +184,51 @@ MARKDOWN_COLUMNS: tuple[str, ...] = (
     "top_only_standstill",
     "standstill_{lower}_moving",
 )
-"""Columns of the seed table in mechanism.md (all of them are in mechanism.csv)."""
+"""Columns of the seed table in report.md (all of them are in tables/mechanism.csv)."""
+COUNTS = {"episodes": "g", "decisions": "g", "n": "g"}
+"""report.md's formats of the count columns (a group row's count is a mean)."""
 
 
-def write_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig, path: Path) -> None:
-    """``mechanism.png``: removal rate against hold-out success per seed, and the safety
-    head's reliability curve per group."""
-    import matplotlib
+def mechanism_measure(cfg: MechanismConfig) -> DecisionMeasure:
+    """The seed table of ``priqn mechanism``: per cell its name, row, training seed,
+    hold-out success (``collapsed`` below ``cfg.collapsed_below``), ``replay_matches`` and
+    :func:`removal_measures`; group rows: the collapsed, the healthy and all seeds."""
 
-    matplotlib.use("Agg")
+    def identity(cell: CellRows) -> dict[str, Any]:
+        success = float(cell.evaluated["success"].astype(float).mean())
+        return {
+            "run": cell.name,
+            "row": cell.row,
+            "seed": cell.seed,
+            "holdout_success": success,
+            "collapsed": success < cfg.collapsed_below,
+            "replay_matches": replay_share(cell.decisions),
+        }
+
+    def groups(seeds: Any) -> list[tuple[dict[str, Any], Any]]:
+        out = []
+        for group in GROUPS:
+            mask = (seeds["collapsed"] == (group == "collapsed")) | (group == "all")
+            ident = {"run": f"mean of {group} seeds", "row": "", "seed": int(mask.sum())}
+            out.append(({**ident, "collapsed": group}, mask))
+        return out
+
+    return DecisionMeasure(
+        "mechanism",
+        identity,
+        lambda d: removal_measures(d, cfg),
+        groups,
+        tuple(c.format(lower=cfg.lower) for c in MARKDOWN_COLUMNS),
+        COUNTS,
+    )
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+def mechanism_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig) -> Any:
+    """Removal rate against hold-out success per seed, and the safety head's reliability
+    curve per group (a matplotlib figure)."""
     import matplotlib.pyplot as plt
 
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
@@ -247,72 +263,57 @@ def write_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConfig, 
     ax_b.set_ylabel("observed: episode ends in a violation")
     ax_b.set_title(f"{CALIBRATED} head reliability (decisions)", fontsize=9)
     ax_b.legend(fontsize=7)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=130, metadata={"Software": None})
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    return fig
 
 
-def seed_row(
-    run: str, seed: int, holdout_success: float, decisions: Any, cfg: MechanismConfig
-) -> dict[str, Any]:
-    """One row of the seed table: the cell's name, row and training seed, its hold-out
-    success (``collapsed`` below ``cfg.collapsed_below``), the share of its replayed
-    episodes that ended as evaluated, and :func:`seed_summary` of its decision rows."""
-    row = {
-        "run": run,
-        "row": run.split("__seed")[0],
-        "seed": seed,
-        "holdout_success": holdout_success,
-        "collapsed": holdout_success < cfg.collapsed_below,
-        "replay_matches": _rate(decisions.groupby(EPISODE_KEYS)["replay_matches"].first()),
-    }
-    row.update(seed_summary(decisions, cfg))
-    return row
-
-
-def write_report(
-    seeds: Sequence[dict[str, Any]], decisions: dict[str, Any], cfg: MechanismConfig, out: Path
+def write_mechanism(
+    cells: Sequence[CellRows], cfg: MechanismConfig, out: str | Path, command: str
 ) -> Path:
-    """Write ``mechanism.csv``, ``reliability.csv``, ``mechanism.png`` and ``mechanism.md``
-    into ``out`` from the seed rows (:func:`seed_row`) and each seed's decision rows (run
-    name → pandas frame); returns the table."""
+    """The report folder ``out`` of ``priqn mechanism`` (``command``: the one that makes
+    it) from the replayed cells: ``tables/mechanism.csv`` (a row per seed, then per
+    group), ``tables/reliability.csv``, ``figures/mechanism.png``/``.pdf``, ``report.md``
+    and ``meta.json``; returns report.md."""
     import pandas as pd
 
-    table = pd.DataFrame(seeds)
-    full = pd.concat([table, group_rows(table)], ignore_index=True)
-    write_csv(out / "mechanism.csv", full, float_format=None)
-
+    m = mechanism_measure(cfg)
+    table = seed_table(m, cells)
+    seeds = table.iloc[: len(cells)]
     reliability = {}
     for group in GROUPS:
-        names = [
-            r["run"] for r in seeds if group == "all" or r["collapsed"] == (group == "collapsed")
-        ]
-        if names:
-            reliability[group] = reliability_table(pd.concat([decisions[n] for n in names]))
+        names = seeds["run"][(seeds["collapsed"] == (group == "collapsed")) | (group == "all")]
+        if len(names):
+            frames = {c.name: c.decisions for c in cells}
+            reliability[group] = reliability_table(pd.concat([frames[n] for n in names]))
     rel = pd.concat([t.assign(group=g) for g, t in reliability.items()], ignore_index=True)
-    write_csv(out / "reliability.csv", rel, float_format=None)
-    write_figure(table, reliability, cfg, out / "mechanism.png")
-    columns = [c.format(lower=cfg.lower) for c in MARKDOWN_COLUMNS]
-    text = [
-        "# Pr-IQN mechanism (priqn mechanism)",
-        "",
-        f"{len(seeds)} seeds, {cfg.episodes or 'all'} episodes each (the first of each cell's "
+    intro = (
+        f"{len(cells)} seeds, {cfg.episodes or 'all'} episodes each (the first of each cell's "
         f"{cfg.evaluation} scenes by eval run, episode, net, density"
         + (f"; the policy each kept at {cfg.snapshot} decisions" if cfg.snapshot else "")
         + f"), top level `{cfg.top}`, lower objective `{cfg.lower}`, violation "
         f"horizon {cfg.horizon} decisions; collapsed = hold-out success < "
         f"{cfg.collapsed_below:g}. Measures: docs/mechanism.md. Rates are over decisions "
-        "unless named after episodes; group rows are means over their seeds.",
-        "",
-        _markdown(full[columns]),
-        "",
-        f"## Reliability of the {CALIBRATED} head (decisions)",
-        "",
-        _markdown(rel[["group", "bin", "n", "pred_violation", "observed_violation"]]),
-        "",
-        "![mechanism](mechanism.png)",
-        "",
+        "unless named after episodes; group rows are means over their seeds."
+    )
+    tables = [
+        ReportTable("mechanism", table, m.shown, formats=m.formats),
+        ReportTable(
+            "reliability",
+            rel,
+            ("group", "bin", "n", "pred_violation", "observed_violation"),
+            f"Reliability of the {CALIBRATED} head (decisions)",
+            COUNTS,
+        ),
     ]
-    atomic_write_text(out / "mechanism.md", "\n".join(text))
-    return out / "mechanism.csv"
+    fields = {
+        "cells": [c.name for c in cells],
+        "episodes": cfg.episodes,
+        "top": cfg.top,
+        "lower": cfg.lower,
+        "horizon": cfg.horizon,
+        "collapsed_below": cfg.collapsed_below,
+        "snapshot": cfg.snapshot,
+        "decision_rows": {"kind": MECHANISM_ROWS.kind, "version": MECHANISM_ROWS.version},
+    }
+    title = "Pr-IQN mechanism (priqn mechanism)"
+    figure = mechanism_figure(seeds, reliability, cfg)
+    return write_report(out, "mechanism", command, title, intro, tables, figure, fields)

@@ -8,9 +8,10 @@ env is deterministic per seed, so each ends as it did; ``replayed_collision`` sa
 and reads the forensics from the replay. An evaluation that already has them is read,
 not replayed.
 
-Writes ``DIR/collisions.csv`` (one row per collision) and ``DIR/collisions.md`` (per row and
-density: the share of each kind, and the share a Traffic-Manager-like NPC would have
-prevented; :mod:`priqn.analysis.collisions`).
+Writes the report folder ``DIR`` (:func:`priqn.analysis.collisions.write_report`):
+``tables/collisions.csv`` (one row per collision), ``tables/collisions_by_kind.csv`` and
+``report.md`` (per row and density: the share of each kind, and the share a
+Traffic-Manager-like NPC would have prevented), ``meta.json``.
 """
 
 from __future__ import annotations
@@ -72,9 +73,9 @@ def _identity(row: dict) -> dict:
     return {k: row.get(k, "") for k in keep}
 
 
-def analyse(cells: Sequence[ReplayCell], out: Path, workers: int = 1) -> Path:
-    """Every cell's collisions into ``out/collisions.csv`` and their table into
-    ``out/collisions.md``; returns the Markdown file."""
+def analyse(cells: Sequence[ReplayCell], out: Path, workers: int, command: str) -> Path:
+    """Every cell's collisions and their table into the report folder ``out``
+    (``command``: the one that makes it, for ``meta.json``); returns its report.md."""
     import pandas as pd
     from tqdm.auto import tqdm
 
@@ -89,7 +90,7 @@ def analyse(cells: Sequence[ReplayCell], out: Path, workers: int = 1) -> Path:
     frame = pd.DataFrame(rows)
     if not frame.empty:
         frame.insert(1, "traffic", frame["cell"].map(traffic))
-    return write_report(frame, out)
+    return write_report(frame, out, command)
 
 
 def _traffic_name(run: Path) -> str:

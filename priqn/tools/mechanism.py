@@ -16,43 +16,50 @@ recorded) and measures per training seed (docs/mechanism.md):
 3. **collapsed vs healthy**: the same measures for seeds whose hold-out success (all of
    their ``eval/episodes.csv``) is below a threshold, and for the others.
 
-Writes into ``--out``: ``mechanism.csv`` and ``mechanism.md`` (one row per seed, then
-one per group; the reliability table below it in the markdown), ``reliability.csv``,
-``mechanism.png`` (the figure) and ``decisions/<run>.csv`` (every replayed decision; a
-run whose file is there with the asked-for episodes is not replayed again).
+Writes the report folder ``--out`` (:func:`priqn.analysis.mechanism.write_mechanism`:
+``report.md``, ``tables/mechanism.csv``, ``tables/reliability.csv``,
+``figures/mechanism.png``/``.pdf``, ``meta.json``) and caches every replayed decision
+(:class:`priqn.analysis.decisions.DecisionCache` under ``--decisions``; a cell whose rows
+are there, of the same schema version and parameters, is not replayed again).
 ``--standstill`` measures why a policy stands still instead (:mod:`priqn.tools.standstill`);
 ``--collisions`` classifies every evaluated collision (:mod:`priqn.tools.collisions`).
 
-Here: the replay (:func:`replay_cell`, through :mod:`priqn.tools.cells`) and the
-per-decision rows (:func:`decision_rows`, from :class:`priqn.evaluation.rollout.RolloutStep`
-records; no SUMO). The seed measures, the tables and the figure are
-:mod:`priqn.analysis.mechanism`'s, from those rows.
+Here: the replay (:func:`replay_cell`, through :mod:`priqn.tools.cells`), the per-decision
+rows (:func:`decision_rows`, from :class:`priqn.evaluation.rollout.RolloutStep` records; no
+SUMO; their schema is :data:`priqn.analysis.decisions.MECHANISM_ROWS`) and the command.
+The seed measures, the tables and the figure are :mod:`priqn.analysis.mechanism`'s.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from priqn.analysis.artifacts import ReportFolder
+from priqn.analysis.decisions import (
+    EPISODE_KEYS,
+    MECHANISM_ROWS,
+    CellRows,
+    default_cache,
+    ended_as_evaluated,
+)
 from priqn.analysis.mechanism import (
     CALIBRATED,
     DEFAULT_COLLAPSED_BELOW,
     DEFAULT_EPISODES,
     MechanismConfig,
-    seed_row,
-    write_report,
+    write_mechanism,
 )
-from priqn.analysis.render import write_csv
-from priqn.analysis.standstill import EPISODE_KEYS, episodes_in
+from priqn.analysis.standstill import DEFAULT_TARGET
 from priqn.errors import PriqnError
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
-from priqn.tools import standstill
 from priqn.tools.cells import ReplayCell, load_cell, replay_scenes, replayed_episodes
 from priqn.tools.decisions import decision_key, greedy_removals
 
@@ -174,10 +181,8 @@ def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) ->
         for played in episodes:
             last = played[-1]
             new = decision_rows(played, agent.objectives, levels, cfg, penalty, gamma, speeds_A)
-            want = expected.loc[last.scene.cell + (last.scene.episode,)]
-            matches = int(want["steps"]) == len(played) and all(
-                bool(want[k]) == bool(last.episode[k]) for k in ("success", "collision", "off_road")
-            )
+            key = last.scene.cell + (last.scene.episode,)
+            matches = ended_as_evaluated(expected, key, len(played), last.episode)
             for r in new:
                 r["replay_matches"] = matches
             rows.extend(new)
@@ -186,40 +191,30 @@ def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) ->
     return pd.DataFrame(rows)
 
 
-def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Path:
-    """Replay every cell under ``paths`` (a cell whose decision file is there with the
-    asked-for episodes and columns is read instead), write the outputs into ``out``
-    (:func:`priqn.analysis.mechanism.write_report`); returns the table."""
-    import pandas as pd
+def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig, command: str) -> Path:
+    """Replay every cell under ``paths`` (a cell whose rows are in ``cfg.cache()`` is read
+    instead), write the report folder ``out``
+    (:func:`priqn.analysis.mechanism.write_mechanism`); returns its report.md."""
     from tqdm.auto import tqdm
 
     from priqn.evaluation.targets import find_runs
 
     cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
-    seeds, frames = [], {}
-    total = sum(
-        len(c.episodes) if not cfg.episodes else min(cfg.episodes, len(c.episodes)) for c in cells
-    )
-    with tqdm(total=total, desc="mechanism", unit="ep", disable=None) as bar:
+    cache = cfg.cache()
+    replayed = []
+    wanted = {c.name: min(cfg.episodes or len(c.episodes), len(c.episodes)) for c in cells}
+    with tqdm(total=sum(wanted.values()), desc="mechanism", unit="ep", disable=None) as bar:
         for cell in cells:
-            cached = cfg.decisions_dir(out) / f"{cell.name}.csv"
-            want = min(cfg.episodes or len(cell.episodes), len(cell.episodes))
-            frame = pd.read_csv(cached) if cached.is_file() else None
-            stale = frame is not None and not set(_NEWEST_COLUMNS) <= set(frame.columns)
-            if frame is None or stale or episodes_in(frame) != want:
-                frame = replay_cell(cell, cfg, progress=bar)
-                write_csv(cached, frame, float_format=None)
-            else:
-                bar.update(want)
-            frames[cell.name] = frame
+            want = wanted[cell.name]
+            params = cfg.params(cell.path, want)
+
+            def replay(cell: ReplayCell = cell) -> Any:
+                return replay_cell(cell, cfg, progress=bar)
+
+            rows = cache.rows(MECHANISM_ROWS, cell.name, params, want, replay, bar)
             seed = int(RunFolder(cell.path).config().seed)
-            seeds.append(seed_row(cell.name, seed, cell.holdout_success, frame, cfg))
-    return write_report(seeds, frames, cfg, out)
-
-
-_NEWEST_COLUMNS = ("episode_timeout", "speed_mps", "calibrated_head")
-"""Decision columns an older priqn did not write: a cached file without them is replayed
-(before ``calibrated_head``, ``--top risk`` calibrated the risk head)."""
+            replayed.append(CellRows(cell.name, seed, cell.episodes, rows))
+    return write_mechanism(replayed, cfg, out, command)
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -227,7 +222,9 @@ _NEWEST_COLUMNS = ("episode_timeout", "speed_mps", "calibrated_head")
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("runs", nargs="+", help="evaluated Pr-IQN run folders, or folders of them")
-    parser.add_argument("--out", required=True, help="output folder (table, figure, decisions/)")
+    parser.add_argument(
+        "--out", required=True, help="report folder (report.md, tables/, figures/, meta.json)"
+    )
     parser.add_argument(
         "--episodes",
         type=int,
@@ -252,22 +249,29 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--standstill",
         action="store_true",
-        help="instead: why the policy stands still (does any go action reach progress's "
-        "choice, which level removed the last one, safety/risk stop-vs-go differences raw "
-        "and z-scored; IQN cells: greedy stop share); writes standstill.md/.csv/.png",
+        help="instead: why the policy stands still (does any go action reach the --target "
+        "level's choice, which level removed the last one, safety/risk stop-vs-go differences "
+        "raw and z-scored; IQN cells: greedy stop share)",
+    )
+    parser.add_argument(
+        "--target",
+        default=DEFAULT_TARGET,
+        metavar="LEVEL",
+        help=f"with --standstill: the level whose choice set a go action must reach "
+        f"(default {DEFAULT_TARGET})",
     )
     parser.add_argument(
         "--collisions",
         action="store_true",
         help="instead: the kind of every evaluated collision (who struck whom, could the NPC "
-        "have stopped; replayed where the evaluation predates the record, any agent); writes "
-        "collisions.md/.csv",
+        "have stopped; replayed where the evaluation predates the record, any agent)",
     )
     parser.add_argument(
         "--decisions",
         default="",
         metavar="DIR",
-        help="folder of the per-decision files (default OUT/decisions)",
+        help=f"cache of the per-decision rows (default {default_cache()}); rows of another "
+        "schema version or other parameters are replayed again",
     )
     parser.add_argument(
         "--snapshot",
@@ -277,6 +281,34 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help="replay the policy each run kept at N decisions (checkpoint.keep_at) on the "
         "scenes of its eval-at<N>/ (default: the final policy on eval/)",
     )
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The command that makes this report folder again (``meta.json``): the runs as given,
+    the mode and every option that shapes the report and differs from its default
+    (``--workers`` and ``--decisions`` shape nothing)."""
+    words = ["priqn", "mechanism", *args.runs]
+    defaults = MechanismConfig()
+    options = [("--snapshot", args.snapshot, defaults.snapshot)]
+    if args.collisions:
+        words.append("--collisions")
+    elif args.standstill:
+        words.append("--standstill")
+        options += [("--target", args.target, DEFAULT_TARGET),
+                    ("--episodes", args.episodes, defaults.episodes)]  # fmt: skip
+    else:
+        options += [
+            ("--episodes", args.episodes, defaults.episodes),
+            ("--top", args.top, defaults.top),
+            ("--lower", args.lower, defaults.lower),
+            ("--horizon", args.horizon, defaults.horizon),
+            ("--collapsed-below", args.collapsed_below, defaults.collapsed_below),
+        ]
+    for flag, value, default in options:
+        if value != default:
+            words += [flag, f"{value:g}" if isinstance(value, float) else str(value)]
+    words += ["--out", args.out]
+    return shlex.join(words)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -294,6 +326,10 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError(
             f"--collapsed-below: expected a success rate in [0, 1], got {args.collapsed_below}"
         )
+    if args.standstill and args.collisions:
+        raise PriqnError("--standstill and --collisions: pick one")
+    if args.target != DEFAULT_TARGET and not args.standstill:
+        raise PriqnError("--target: only with --standstill")
     cfg = MechanismConfig(
         episodes=args.episodes,
         top=args.top,
@@ -304,31 +340,36 @@ def run(args: argparse.Namespace) -> int:
         snapshot=args.snapshot,
         decisions=args.decisions,
     )
-    if args.standstill and args.collisions:
-        raise PriqnError("--standstill and --collisions: pick one")
+    command = command_line(args)
+    out = ReportFolder.open(
+        args.out
+    ).root  # a folder that cannot be made: one line, before any replay
     if args.standstill:
-        print(_standstill(args.runs, Path(args.out), cfg))
+        print(_standstill(args.runs, out, cfg, args.target, command))
         return 0
     if args.collisions:
         from priqn.evaluation.targets import find_runs
         from priqn.tools import collisions
 
         cells = [load_cell(p, cfg.snapshot) for p in find_runs(args.runs)]
-        print(collisions.analyse(cells, Path(args.out), cfg.workers))
+        print(collisions.analyse(cells, out, cfg.workers, command))
         return 0
-    print(analyse(args.runs, Path(args.out), cfg))
+    print(analyse(args.runs, out, cfg, command))
     return 0
 
 
-def _standstill(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig) -> Path:
+def _standstill(
+    paths: Sequence[str | Path], out: Path, cfg: MechanismConfig, target: str, command: str
+) -> Path:
     """``--standstill``: :func:`priqn.tools.standstill.analyse` on the cells under
     ``paths`` (any agent), each on the first ``cfg.episodes`` scenes of its evaluation."""
     from priqn.evaluation.protocol import make_scenes
     from priqn.evaluation.targets import find_runs
+    from priqn.tools import standstill
 
     cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
 
     def scenes(cell: ReplayCell) -> list[Any]:
         return replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
 
-    return standstill.analyse(cells, out, cfg.decisions_dir(out), scenes)
+    return standstill.analyse(cells, out, cfg, scenes, target, command)

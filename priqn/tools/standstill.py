@@ -15,7 +15,8 @@ decision (docs/mechanism.md, "Standing still"):
    that raw spread;
 3. for a scalar agent (IQN): whether its greedy (executed) action stands still.
 
-The rows (:func:`stop_vs_go`, :func:`standstill_rows`) work on
+The rows (:func:`stop_vs_go`, :func:`standstill_rows`; their schema is
+:data:`priqn.analysis.decisions.STANDSTILL_ROWS`) work on
 :class:`priqn.evaluation.rollout.RolloutStep` records and need no SUMO; the seed measures,
 the table and the figure are :mod:`priqn.analysis.standstill`'s.
 """
@@ -30,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from priqn.analysis.render import write_csv
-from priqn.analysis.standstill import COMPARED, episodes_in, seed_row, write_report
+from priqn.analysis.decisions import EPISODE_KEYS, STANDSTILL_ROWS, CellRows, ended_as_evaluated
+from priqn.analysis.mechanism import MechanismConfig
+from priqn.analysis.standstill import COMPARED, DEFAULT_TARGET, write_standstill
 from priqn.errors import PriqnError
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
@@ -126,7 +128,8 @@ def standstill_rows(
 
 def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) -> Any:
     """Play ``scenes`` (a :class:`priqn.tools.cells.ReplayCell`'s) with its policy,
-    quantiles recorded; its :func:`standstill_rows` (pandas)."""
+    quantiles recorded; its :func:`standstill_rows` (pandas), each with
+    ``replay_matches``: its episode ended as the cell's ``episodes.csv`` says."""
     import pandas as pd
 
     from priqn.env.intersection import action_grid
@@ -146,9 +149,14 @@ def replay(cell: Any, scenes: Sequence[Any], target: str, progress: Any = None) 
     episodes = replayed_episodes(
         policy, env_cfg, scenes, cell.eval_config.seed, quantiles=agent.subsets is not None
     )
+    expected = cell.episodes.set_index(EPISODE_KEYS)
     with contextlib.closing(episodes):
         for played in episodes:
-            rows.extend(standstill_rows(played, agent.objectives, above, speeds_A, floor))
+            last = played[-1]
+            key = last.scene.cell + (last.scene.episode,)
+            matches = ended_as_evaluated(expected, key, len(played), last.episode)
+            new = standstill_rows(played, agent.objectives, above, speeds_A, floor)
+            rows.extend({**r, "replay_matches": matches} for r in new)
             if progress is not None:
                 progress.update(1)
     return pd.DataFrame(rows)
@@ -167,32 +175,31 @@ def _above(preorder: Any, target: str) -> tuple[str, ...]:
 def analyse(
     cells: Sequence[Any],
     out: Path,
-    decisions_dir: Path,
+    cfg: MechanismConfig,
     pick_scenes: Callable[[Any], Sequence[Any]],
-    target: str = "progress",
+    target: str = DEFAULT_TARGET,
+    command: str = "",
 ) -> Path:
-    """Replay every cell (``pick_scenes(cell)``: its scenes), write ``standstill.csv``,
-    ``standstill.md`` and ``standstill.png`` into ``out``
-    (:func:`priqn.analysis.standstill.write_report`) and one decision file per cell into
-    ``decisions_dir`` (a file there with the asked-for episodes is not replayed)."""
-    import pandas as pd
+    """Replay every cell (``pick_scenes(cell)``: its scenes; a cell whose rows are in
+    ``cfg.cache()`` is read instead; ``cfg.episodes``: asked per cell)
+    and write the report folder ``out``
+    (:func:`priqn.analysis.standstill.write_standstill`); returns its report.md."""
     from tqdm.auto import tqdm
 
     scenes = {c.name: list(pick_scenes(c)) for c in cells}
-    seeds, frames = [], []
+    cache = cfg.cache()
+    replayed = []
     with tqdm(total=sum(map(len, scenes.values())), desc="standstill", unit="ep") as bar:
         for cell in cells:
-            cached = decisions_dir / f"{cell.name}.csv"
-            frame = pd.read_csv(cached) if cached.is_file() else None
-            if frame is None or episodes_in(frame) != len(scenes[cell.name]):
-                frame = replay(cell, scenes[cell.name], target, progress=bar)
-                write_csv(cached, frame, float_format=None)
-            else:
-                bar.update(len(scenes[cell.name]))
-            group = cell.name.split("__seed")[0]
-            frames.append(frame.assign(group=group))
-            seed = RunFolder(cell.path).config().seed
-            seeds.append(seed_row(group, cell.name, seed, cell.episodes, frame))
+            picked = scenes[cell.name]
+            params = {"run": str(Path(cell.path).resolve()), "snapshot": cell.snapshot,
+                      "episodes": len(picked), "target": target}  # fmt: skip
+
+            def play(cell: Any = cell, picked: list[Any] = picked) -> Any:
+                return replay(cell, picked, target, progress=bar)
+
+            rows = cache.rows(STANDSTILL_ROWS, cell.name, params, len(picked), play, bar)
+            seed = int(RunFolder(cell.path).config().seed)
+            replayed.append(CellRows(cell.name, seed, cell.episodes, rows))
     eps = max((float(c.episodes["eps"].iloc[0]) for c in cells if "eps" in c.episodes), default=0.2)
-    replayed = {name: len(s) for name, s in scenes.items()}
-    return write_report(seeds, frames, replayed, eps, target, out)
+    return write_standstill(replayed, cfg.episodes, eps, target, out, command)
