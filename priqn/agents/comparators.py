@@ -162,7 +162,12 @@ def _spread_floor_N1(
         raise PriqnError(
             f"spread_floor: expected one value per objective ({n}), got {floor_N.numel()}"
         )
-    if not bool(torch.isfinite(floor_N).all()) or bool((floor_N < 0).any()):
+    on_accelerator = isinstance(spread_floor, torch.Tensor) and spread_floor.device.type != "cpu"
+    # A floor already on an accelerator (RunningScale's, finite and >= 0 by construction)
+    # is not checked here: reading it back would be a host sync on every call.
+    if not on_accelerator and (
+        not bool(torch.isfinite(floor_N).all()) or bool((floor_N < 0).any())
+    ):
         raise PriqnError("spread_floor: expected finite values >= 0")
     return floor_N.view(n, 1)
 
@@ -268,7 +273,7 @@ class RunningScale:
         """Fold in a batch of quantiles ``[..., N, K, A]`` (see the class docstring)."""
         q = quantiles_BNKA.detach().to(torch.float64)
         std_BN = torch.std(q.flatten(-2), dim=-1, correction=0)
-        batch_N = std_BN.reshape(-1, std_BN.shape[-1]).mean(dim=0).cpu()
+        batch_N = std_BN.reshape(-1, std_BN.shape[-1]).mean(dim=0)  # stays on the device
         if batch_N.numel() != self.scale_N.numel():
             raise PriqnError(
                 f"running scale: expected {self.scale_N.numel()} objectives, got {batch_N.numel()}"
@@ -276,11 +281,13 @@ class RunningScale:
         if self.count == 0:
             self.scale_N = batch_N
         else:
-            self.scale_N = (1.0 - self.momentum) * self.scale_N + self.momentum * batch_N
+            scale_N = self.scale_N.to(batch_N.device)  # a no-op but after a load
+            self.scale_N = (1.0 - self.momentum) * scale_N + self.momentum * batch_N
         self.count += 1
 
     def floor(self) -> torch.Tensor:
-        """``fraction × running scale`` ``[N]`` (float64, CPU)."""
+        """``fraction × running scale`` ``[N]`` (float64, on the device of the quantiles
+        it was last updated with: no host sync per update)."""
         return self.fraction * self.scale_N
 
     def state_dict(self) -> dict[str, Any]:

@@ -22,6 +22,37 @@ from priqn.agents.registry import Agent
 from priqn.errors import PriqnError
 
 
+class UpdateStats(Mapping[str, float]):
+    """One update's statistics (loss, mean prediction, mean target |S_r|): kept as 0-d
+    tensors on the learner's device and turned into floats only when first read, so an
+    update costs no host sync; the loop reads the latest update's when it logs. The
+    floats are the ones an eager ``float(tensor)`` would give."""
+
+    def __init__(self, tensors: Mapping[str, torch.Tensor]) -> None:
+        self._tensors = dict(tensors)
+        self._floats: dict[str, float] | None = None
+
+    def _read(self) -> dict[str, float]:
+        if self._floats is None:  # one host sync, for all of them
+            values = torch.stack([t.double() for t in self._tensors.values()]).tolist()
+            self._floats = dict(zip(self._tensors, values, strict=True))
+        return self._floats
+
+    @property
+    def pending(self) -> bool:
+        """True until the statistics are first read (no host sync has happened)."""
+        return self._floats is None
+
+    def __getitem__(self, key: str) -> float:
+        return self._read()[key]
+
+    def __iter__(self) -> Any:
+        return iter(self._tensors)
+
+    def __len__(self) -> int:
+        return len(self._tensors)
+
+
 def make_adam(params: Any, lr: float, eps: float, device: torch.device) -> torch.optim.Adam:
     """Adam, fused where this torch build supports it on ``device`` (faster on CPU too)."""
     params = list(params)
@@ -179,8 +210,9 @@ class Learner:
             self._target_forward = torch.compile(self.target, mode=mode, dynamic=False)
             self._loss = torch.compile(_online_loss, mode=mode, dynamic=False)
 
-    def update(self, batch: Mapping[str, Any]) -> dict[str, float]:
-        """One gradient step on a batch from ``ReplayBuffer.sample``; returns stats.
+    def update(self, batch: Mapping[str, Any]) -> UpdateStats:
+        """One gradient step on a batch from ``ReplayBuffer.sample``; returns its
+        statistics (read lazily: :class:`UpdateStats`).
 
         ``reward`` is ``[B, O]`` (the run's O objectives); ``discount`` is ``[B, O]``
         (γ_i^m per objective, as the replay gives it) or ``[B]`` (the same for every
@@ -241,11 +273,12 @@ class Learner:
         self.updates += 1
         if self.updates % cfg.target_update_interval == 0:
             self.sync_target()
-        stats = {"loss": float(loss.detach()), "q_mean": float(pred_BHN.detach().mean())}
+        stats = {"loss": loss.detach(), "q_mean": pred_BHN.detach().mean()}
         if target_subsets is not None:
             # How much each preorder level pruned the target batch (mean |S_r|).
-            stats.update({f"subset_size/{k}": v for k, v in target_subsets.sizes().items()})
-        return stats
+            sizes = target_subsets.size_tensors()
+            stats.update({f"subset_size/{k}": v for k, v in sizes.items()})
+        return UpdateStats(stats)
 
     def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)``; a compiled ``fn`` that fails to build is one line naming the fix."""

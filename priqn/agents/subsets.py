@@ -66,9 +66,13 @@ class OptimalSubsets:
 
     def sizes(self) -> dict[str, float]:
         """Mean optimal-subset size |S_r| over the batch per objective, and of the leaf."""
+        return {k: float(v) for k, v in self.size_tensors().items()}
+
+    def size_tensors(self) -> dict[str, torch.Tensor]:
+        """:meth:`sizes` as 0-d tensors on the subsets' device: no host sync until read."""
         per_N = self.per_objective.float().sum(dim=-1).reshape(-1, len(self.objectives))
-        out = dict(zip(self.objectives, per_N.mean(dim=0).tolist(), strict=True))
-        out["leaf"] = float(self.leaf.float().sum(dim=-1).mean())
+        out = dict(zip(self.objectives, per_N.mean(dim=0).unbind(), strict=True))
+        out["leaf"] = self.leaf.float().sum(dim=-1).mean()
         return out
 
 
