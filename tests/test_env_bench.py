@@ -115,6 +115,10 @@ def test_bench_train_twin_ratios_pair_each_case_with_its_one_switch() -> None:
         "iqn on: nondeterministic / deterministic on cuda: 0.93x updates/s (3.33 -> 3.57 ms/update)",
     ]
     assert twin_ratios(rows[:1]) == []
+    read = dict(case("iqn", "off", True, 80.0), read_each=True)  # a host sync per update
+    assert twin_ratios([rows[0], read]) == [
+        "iqn read: at log time / every update on cuda: 1.25x updates/s (12.50 -> 10.00 ms/update)"
+    ]
     cpu = updates_per_second("default", ["iqn"], 4, 0.05, "cpu", rounds=1, nondeterministic=True)
     assert [(r["agent"], r["deterministic"]) for r in cpu] == [("iqn", False)]
 

@@ -84,6 +84,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         help="on CUDA, also time every case with cuda_deterministic off, beside training's "
         "deterministic kernels (part 1)",
     )
+    parser.add_argument(
+        "--read-stats",
+        action="store_true",
+        help="also time every case reading its statistics after every update (a host sync "
+        "per update, the learner before issue 61), beside reading them at log time (part 1)",
+    )
     _loop_options(parser)
 
 
@@ -133,9 +139,14 @@ class Case(NamedTuple):
     """``learner.compile``: ``off`` (eager, the baseline), ``graphs`` or ``on``."""
     deterministic: bool
     """Training's deterministic CUDA kernels (``cuda_deterministic``); False on the CPU."""
+    read_each: bool = False
+    """Read every update's statistics right away (a host sync per update, as the learner
+    did before issue 61); False: never read, as the loop reads only the logged ones."""
 
 
-def _time_updates(learner: Any, batches: list[Any], seconds: float) -> float:
+def _time_updates(
+    learner: Any, batches: list[Any], seconds: float, read_each: bool = False
+) -> float:
     import torch
 
     cuda = learner.device.type == "cuda"
@@ -143,7 +154,9 @@ def _time_updates(learner: Any, batches: list[Any], seconds: float) -> float:
         torch.cuda.synchronize()
     n, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds or n < 5:
-        learner.update(batches[n % 4])
+        stats = learner.update(batches[n % 4])
+        if read_each:
+            dict(stats)
         n += 1
     if cuda:
         torch.cuda.synchronize()
@@ -160,6 +173,7 @@ def updates_per_second(
     bf16: bool = False,
     compile_settings: tuple[str, ...] = (),
     nondeterministic: bool = False,
+    read_stats: bool = False,
 ) -> list[dict[str, Any]]:
     """Time ``Learner.update`` for one preset, every agent, on synthetic transitions.
 
@@ -169,17 +183,19 @@ def updates_per_second(
     ``compile_settings`` adds each of those once more per ``learner.compile`` setting named
     (the others run with ``"off"``: eager whatever the device). On CUDA every case runs with training's
     deterministic kernels (``cuda_deterministic``), and ``nondeterministic`` adds each once
-    more without them.
+    more without them. ``read_stats`` adds each once more reading its statistics after
+    every update (the host sync per update the learner had before issue 61).
     """
     from priqn.run.train_config import cuda_determinism, select_device
 
     cuda = select_device(device).type == "cuda"
     cases = [
-        Case(a, b, c, d)
+        Case(a, b, c, d, r)
         for a in agents
         for b in ((False, True) if bf16 else (False,))
         for c in ("off", *compile_settings)
         for d in ((True, False) if nondeterministic and cuda else (cuda,))
+        for r in ((False, True) if read_stats else (False,))
     ]
     if cuda:
         cuda_determinism(True)  # before the first CUDA matrix product (cuBLAS's workspace)
@@ -190,7 +206,9 @@ def updates_per_second(
             learner, (_, batches) = made[c]
             if cuda:
                 cuda_determinism(c.deterministic)
-            best[c] = max(best[c], _time_updates(learner, batches, seconds / rounds))
+            best[c] = max(
+                best[c], _time_updates(learner, batches, seconds / rounds, c.read_each)
+            )
     if cuda:
         cuda_determinism(True)
     out = []
@@ -311,15 +329,16 @@ def _case_name(r: dict[str, Any]) -> str:
     return r["agent"] + "".join(
         f" {word}"
         for word, on in (("bf16", r["bf16"]), (r["compile"], r["compile"] != "off"),
-                         ("nondet", nondet))
+                         ("nondet", nondet), ("read", r.get("read_each", False)))
         if on
     )  # fmt: skip
 
 
 def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
     """One line per case that has a twin differing in one switch: each compile setting /
-    eager, and nondeterministic / deterministic kernels (CUDA), in updates/s."""
-    by_case = {Case(*(r[f] for f in Case._fields)): r for r in results}
+    eager, nondeterministic / deterministic kernels (CUDA), and statistics read at log
+    time / read every update, in updates/s."""
+    by_case = {Case(**{f: r[f] for f in Case._fields if f in r}): r for r in results}
     lines = []
     for case, base in by_case.items():
         twins = [
@@ -330,6 +349,8 @@ def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
         if case.deterministic:
             label = "nondeterministic / deterministic"
             twins.append((by_case.get(case._replace(deterministic=False)), label))
+        if case.read_each:  # the baseline is the old way: read every update
+            twins.append((by_case.get(case._replace(read_each=False)), "at log time / every update"))
         for twin, label in twins:
             if twin is None:
                 continue
@@ -375,6 +396,7 @@ def run(args: argparse.Namespace) -> int:
             bf16=args.bf16,
             compile_settings=tuple(c for c in args.compile.split(",") if c),
             nondeterministic=args.cuda_nondeterministic,
+            read_stats=args.read_stats,
         )
         base = results[0]["ms_per_update"]
         for r in results:
