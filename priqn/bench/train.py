@@ -206,9 +206,7 @@ def updates_per_second(
             learner, (_, batches) = made[c]
             if cuda:
                 cuda_determinism(c.deterministic)
-            best[c] = max(
-                best[c], _time_updates(learner, batches, seconds / rounds, c.read_each)
-            )
+            best[c] = max(best[c], _time_updates(learner, batches, seconds / rounds, c.read_each))
     if cuda:
         cuda_determinism(True)
     out = []
@@ -350,7 +348,9 @@ def twin_ratios(results: list[dict[str, Any]]) -> list[str]:
             label = "nondeterministic / deterministic"
             twins.append((by_case.get(case._replace(deterministic=False)), label))
         if case.read_each:  # the baseline is the old way: read every update
-            twins.append((by_case.get(case._replace(read_each=False)), "at log time / every update"))
+            twins.append(
+                (by_case.get(case._replace(read_each=False)), "at log time / every update")
+            )
         for twin, label in twins:
             if twin is None:
                 continue
