@@ -126,8 +126,8 @@ def standstill_measure(columns: Sequence[str] = TABLE_COLUMNS) -> DecisionMeasur
 # ----------------------------------------------------------------------------- outputs
 
 
-def standstill_figure(table: Any, decisions: Any, eps: float) -> Any:
-    """Per seed and group, the share of decisions with no go action left for progress by
+def standstill_figure(table: Any, decisions: Any, eps: float, target: str = DEFAULT_TARGET) -> Any:
+    """Per seed and group, the share of decisions with no go action left for ``target`` by
     removing level (Pr-IQN) or stopping (IQN), with the hold-out timeout rate; and
     safety's raw stop − go difference against its raw spread (a matplotlib figure)."""
     import matplotlib.pyplot as plt
@@ -154,7 +154,7 @@ def standstill_figure(table: Any, decisions: Any, eps: float) -> Any:
     ax_a.set_ylabel("share of replayed decisions")
     ax_a.set_ylim(0, 1)
     ax_a.legend(fontsize=6, loc="upper right", bbox_to_anchor=(1.0, 0.92))
-    ax_a.set_title("decisions where no go action reaches progress's choice", fontsize=9)
+    ax_a.set_title(f"decisions where no go action reaches {target}'s choice", fontsize=9)
     for group, marker in zip(decisions["group"].unique(), ("o", "s", "^", "v"), strict=False):
         part = decisions[(decisions["group"] == group) & decisions["safety_spread"].notna()]
         if not len(part):
@@ -213,7 +213,7 @@ def write_standstill(
         "target": target,
         "decision_rows": {"kind": STANDSTILL_ROWS.kind, "version": STANDSTILL_ROWS.version},
     }
-    figure = standstill_figure(table.iloc[: len(cells)], decisions, eps)
+    figure = standstill_figure(table.iloc[: len(cells)], decisions, eps, target)
     tables = [ReportTable("standstill", table, m.shown, formats=m.formats)]
     title = "Standing still (priqn mechanism --standstill)"
     return write_report(out, "standstill", command, title, intro, tables, figure, fields)
