@@ -5,10 +5,13 @@ acting rule) → step the env workers → learn while they simulate → collect 
 store it → log → evaluate on the hold-out nets → keep a snapshot at a listed budget →
 checkpoint, each a named call of :class:`Trainer`. Before the loop, :class:`Trainer`
 builds the network, learner, policy and replay buffer, :func:`_resume` restores a
-checkpoint and :class:`HoldoutEvaluation` starts its env worker. The config is :mod:`priqn.run.train_config`; every file of the run
-folder goes through :class:`priqn.run.folder.RunFolder`, in :mod:`priqn.run.checkpoint`'s format
-for the torch files; :mod:`priqn.run.provenance` gathers what meta.json records about the
-run's origin; tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
+checkpoint and :class:`HoldoutEvaluation` starts its env worker. A checkpoint or snapshot
+is copied in the loop and its files written by a background thread
+(:class:`priqn.run.writer.BackgroundWriter`) while the loop goes on. The config is
+:mod:`priqn.run.train_config`; every file of the run folder goes through
+:class:`priqn.run.folder.RunFolder`, in :mod:`priqn.run.checkpoint`'s format for the torch
+files; :mod:`priqn.run.provenance` gathers what meta.json records about the run's origin;
+tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
 """
 
 from __future__ import annotations
@@ -36,11 +39,13 @@ from priqn.errors import PriqnError
 from priqn.objectives import subset_columns
 from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.run.checkpointer import (
+    CheckpointWrite,
+    capture_checkpoint,
+    copy_tensors,
+    keep_snapshot,
     load_checkpoint,
     replay_files,
-    save_checkpoint,
     save_policy,
-    save_snapshot,
 )
 from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
@@ -59,6 +64,7 @@ from priqn.run.train_config import (
     resolve_config,
     select_device,
 )
+from priqn.run.writer import BackgroundWriter
 from priqn.sim.scenario import family_net_refs
 
 ALL_ENVS = slice(None)
@@ -87,7 +93,8 @@ class TrainLogger:
 
     ``episode`` records a finished training episode, ``interval`` writes the periodic
     scalars and metrics.csv, ``evaluation`` the in-training evaluation episodes,
-    ``checkpoint`` flushes everything and redraws learning_curve.png.
+    ``checkpoint`` flushes everything, and ``learning_curve`` redraws learning_curve.png
+    (in the checkpoint's background write).
     """
 
     def __init__(self, cfg: TrainConfig, run: RunFolder, step: int, resume: bool) -> None:
@@ -142,11 +149,16 @@ class TrainLogger:
         self.metrics.flush(self.rows)
 
     def checkpoint(self) -> None:
-        from priqn.analysis.figures import write_training_curve
-
+        """metrics.csv and TensorBoard flushed: every row so far is on disk."""
         self.metrics.flush(self.rows)
         self.writer.flush()
-        write_training_curve(self.rows, self.run.learning_curve_path, self.run.name)
+
+    def learning_curve(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """learning_curve.png of ``rows`` (a copy of :attr:`rows`: drawn in the writer's
+        thread while the loop adds more; matplotlib is used by no other thread then)."""
+        from priqn.analysis.figures import write_training_curve
+
+        write_training_curve(rows, self.run.learning_curve_path, self.run.name)
 
     def close(self) -> None:
         self.bar.close()
@@ -178,11 +190,19 @@ def _postfix(
 # ============================================================================ training
 
 
-def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bool = False) -> Path:
+def train(
+    cfg: TrainConfig,
+    run_dir: str | Path,
+    resume: bool = False,
+    force: bool = False,
+    background_writes: bool = True,
+) -> Path:
     """Train ``cfg`` into ``run_dir``; ``resume`` continues from its latest checkpoint.
 
     Returns the run folder. meta.json says ``running`` while training, ``complete``
-    when the budget is spent, ``failed`` (with the error) otherwise.
+    when the budget is spent, ``failed`` (with the error) otherwise. ``background_writes``
+    False writes checkpoints and snapshots in the loop (the same files; ``priqn bench
+    loop`` times both).
     """
     from priqn.agents.build import build_agent
     from priqn.run import provenance
@@ -199,7 +219,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     # back to complete and the error is kept beside it.
     failed_status = Status.COMPLETE if was_complete else Status.FAILED
     try:
-        _train_loop(cfg, run, agent, resume)
+        _train_loop(cfg, run, agent, resume, background_writes)
     except KeyboardInterrupt:
         run.update_meta(status=failed_status, error="interrupted (continue with --resume)")
         raise
@@ -212,8 +232,14 @@ def train(cfg: TrainConfig, run_dir: str | Path, resume: bool = False, force: bo
     return run.path
 
 
-def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> None:
-    """One training session of ``run`` with ``agent``, from its checkpoint if ``resume``."""
+def _train_loop(
+    cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool, background_writes: bool = True
+) -> None:
+    """One training session of ``run`` with ``agent``, from its checkpoint if ``resume``.
+
+    Checkpoints and snapshots are written by a background thread (``background_writes``),
+    every meta.json write of the loop with them; leaving the ``with`` block waits for the
+    one in flight, so :func:`_finish` writes after it."""
     from priqn.env.vector import EnvGroups, make_vector_env
 
     meta = run.meta()
@@ -226,7 +252,8 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
         else:
             envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"], preload=True)
         stack.callback(envs.close)
-        t = Trainer(cfg, agent, envs, seeds, device)
+        writer = stack.enter_context(BackgroundWriter(background_writes))
+        t = Trainer(cfg, agent, envs, seeds, device, writer)
         run.update_meta(**t.facts())
         resumed = _resume(run, t, device) if resume else None
         obs = _start_episodes(run, t, envs, resumed, _env_reset_seed(seeds["env"], session))
@@ -251,7 +278,7 @@ def _train_loop(cfg: TrainConfig, run: RunFolder, agent: Any, resume: bool) -> N
             if t.step in cfg.checkpoint.keep_at:
                 t.keep_snapshot(run)  # 7. keep the policy at a listed budget
             if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
-                t.checkpoint(run, logger, envs, obs)  # 8. checkpoint
+                t.checkpoint(run, logger, envs, obs)  # 8. checkpoint (written in the background)
     _finish(run, t)
 
 
@@ -333,11 +360,19 @@ class Trainer:
     the replay and exploration generators. :func:`_train_loop` calls :meth:`act`,
     :meth:`issue`, :meth:`collect`, :meth:`learn`, :meth:`log`, :meth:`evaluate`,
     :meth:`keep_snapshot` and :meth:`checkpoint`
-    for every env step; ``step`` counts env decisions (all workers together).
+    for every env step; ``step`` counts env decisions (all workers together). The files
+    of a checkpoint or snapshot are written by ``writer`` (its thread, while the loop goes
+    on) from copies the loop takes.
     """
 
     def __init__(
-        self, cfg: TrainConfig, agent: Any, envs: Any, seeds: Mapping[str, int], device: Any
+        self,
+        cfg: TrainConfig,
+        agent: Any,
+        envs: Any,
+        seeds: Mapping[str, int],
+        device: Any,
+        writer: BackgroundWriter,
     ) -> None:
         from priqn.agents.build import build_learner, build_policy, obs_spec
         from priqn.agents.policy import SubsetSizeMeans
@@ -374,6 +409,10 @@ class Trainer:
         """The latest learner update's statistics (loss, q_mean, target |S_r|), for logging."""
         self.replay_chunks: list[dict[str, Any]] | None = None
         """The replay files the latest checkpoint names (the next one adds to them)."""
+        self.writer = writer
+        """Writes the checkpoints' and snapshots' files and meta.json's records of them."""
+        self.writing: CheckpointWrite | None = None
+        """The latest checkpoint handed to the writer, until its replay rows are safe."""
         self.same_learner = True
         """A resume restored the learner on the device it was written on (τ generator too)."""
 
@@ -430,6 +469,7 @@ class Trainer:
         with self.clock("replay_add"):
             ended = np.logical_or(terminated, truncated)
             final_obs = [infos["final_obs"][e] if ended[e] else None for e in range(len(ended))]
+            self._spare_checkpoint_rows()
             self.replay.add(obs, actions, rewards, terminated, truncated, final_obs, rows)
         return next_obs, ended, infos
 
@@ -493,6 +533,7 @@ class Trainer:
             self.next_log = self.step + self.cfg.log_interval_steps
             scalars = {"epsilon": self.epsilon, "updates_per_s": self.updates_per_s}
             logger.interval(self.step, line, {**scalars, **self.latest_update_stats})
+            self.writer.check()  # a failed background write stops the run here at the latest
         self.clock.add("logging", time.perf_counter() - log_t0)
 
     def evaluate(self, evaluation: HoldoutEvaluation, logger: TrainLogger) -> None:
@@ -516,29 +557,34 @@ class Trainer:
         )
 
     def keep_snapshot(self, run: RunFolder) -> None:
-        """snapshots/policy-at<step>.pt (checkpoint.keep_at), its SHA-256 in meta.json."""
+        """snapshots/policy-at<step>.pt (checkpoint.keep_at), its SHA-256 in meta.json:
+        the policy copied now, its file written by the writer."""
         with self.clock("checkpoint"):
-            sha = save_snapshot(run, self.policy_state())
-            snapshots = dict(run.meta().get("snapshots") or {})
-            snapshots[str(self.step)] = {
-                "file": run.rel(run.snapshot_path(self.step)),
-                "sha256": sha,
-            }
-            run.update_meta(snapshots=snapshots)
+            state = copy_tensors(self.policy_state())
+            self.writer.submit(lambda: keep_snapshot(run, state))
+            self.writing = None  # the checkpoint before it is written by now (submit waited)
 
     def checkpoint(
         self, run: RunFolder, logger: TrainLogger, envs: Any, obs: Mapping[str, Any]
     ) -> None:
         """checkpoints/latest.pt (+ the replay rows added since the last one, and every
-        worker's episode in flight), metrics and meta.json's progress."""
+        worker's episode in flight), metrics and meta.json's progress.
+
+        The state is captured here (copies of the learner's tensors, the generators, the
+        observations; the replay rows stay in the ring, :meth:`_spare_checkpoint_rows`)
+        and metrics.csv flushed, then the writer writes the files and, once latest.pt is
+        on disk, meta.json's ``steps_done``, then learning_curve.png. It first waits for
+        the previous checkpoint (whose error, if any, is raised here); the run's last one
+        is waited for."""
         with self.clock("checkpoint"):
+            self.writer.wait()
             self.next_ckpt = _next_multiple(self.step, self.cfg.checkpoint.interval_steps)
             wall = self.wall_before + time.perf_counter() - self.t0
             state = Checkpoint(
                 step=self.step,
                 episodes=self.episodes,
                 wall_s=wall,
-                learner=self.learner.state_dict(),
+                learner=copy_tensors(self.learner.state_dict()),
                 rng_replay=self.rng_replay.bit_generator.state,
                 rng_act=self.rng_act.bit_generator.state,
                 obs={k: np.array(v) for k, v in obs.items()},
@@ -554,14 +600,32 @@ class Trainer:
                     "update_stats": dict(self.latest_update_stats),
                 },
             )
-            saved = save_checkpoint(
-                run, state, self.replay if self.cfg.checkpoint.save_replay else None
-            )
-            self.replay_chunks = saved.replay_chunks
-            logger.checkpoint()
-            run.update_meta(
-                steps_done=self.step, episodes_done=self.episodes, wall_s=round(wall, 1)
-            )
+            progress = {
+                "steps_done": self.step,
+                "episodes_done": self.episodes,
+                "wall_s": round(wall, 1),
+            }
+            replay = self.replay if self.cfg.checkpoint.save_replay else None
+            self.writing = pending = capture_checkpoint(run, state, replay, progress)
+            self.replay_chunks = pending.state.replay_chunks
+            logger.checkpoint()  # metrics.csv holds every row to here before latest.pt does
+            rows = list(logger.rows)
+
+            def write() -> None:
+                pending.write()  # the replay file, latest.pt, then meta.json's progress
+                logger.learning_curve(rows)
+
+            self.writer.submit(write)
+            if self.step >= self.cfg.total_steps:  # the last: nothing left to overlap it
+                self.writer.wait()
+
+    def _spare_checkpoint_rows(self) -> None:
+        """Wait for the checkpoint being written before the next step's rows could
+        overwrite, in the replay ring, rows it has yet to save (the presets' rings hold
+        two checkpoint intervals or more: the write is long done by then)."""
+        if self.writing is not None and self.writing.ring_reaches(self.replay):
+            self.writer.wait()
+            self.writing = None
 
 
 def _check_replay_storage(cfg: TrainConfig) -> None:

@@ -11,6 +11,8 @@ it comes from. Torch-free at import (the analysis and the sweep read run folders
   ``PolicyState``);
 - :mod:`~priqn.run.checkpointer` — those files saved and loaded in a run folder, and
   ``load_policy`` (the network built by :mod:`priqn.agents.build`);
+- :mod:`~priqn.run.writer` — ``BackgroundWriter``: the thread that writes a training
+  session's checkpoints, snapshots and meta.json records while the loop goes on;
 - :mod:`~priqn.run.metrics` — the format of ``metrics.csv``, written and read;
 - :mod:`~priqn.run.evaluations` — the evaluations a run folder holds: names, folders,
   recorded status;

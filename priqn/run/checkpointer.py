@@ -4,17 +4,23 @@ loaded back from them (:func:`load_policy`).
 
 Where each file lives is :class:`~priqn.run.folder.RunFolder`'s (its paths), what is in
 it :mod:`priqn.run.checkpoint`'s (the format); this module decides the order of the
-writes (replay files first, then ``latest.pt`` naming them) and which file a policy is
-loaded from. The network a policy acts with is built by :mod:`priqn.agents.build`.
+writes (replay files first, then ``latest.pt`` naming them, then meta.json's record) and
+which file a policy is loaded from. A checkpoint is captured (:func:`capture_checkpoint`)
+apart from its writing (:meth:`CheckpointWrite.write`), which the training loop hands to
+its background writer (:mod:`priqn.run.writer`). The network a policy acts with is built
+by :mod:`priqn.agents.build`.
 Torch-free at import, like the format.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import os
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, sha256_file
@@ -32,23 +38,94 @@ def save_checkpoint(run: RunFolder, state: Checkpoint, replay: Any | None) -> Ch
     ``replay`` None saves no buffer (``checkpoint.save_replay = false``). Each file is
     atomic and latest.pt is the commit point, so a kill at any moment, in the middle of
     this too, leaves a latest.pt whose replay files are all there. The format is
-    :mod:`priqn.run.checkpoint`'s.
+    :mod:`priqn.run.checkpoint`'s. :func:`capture_checkpoint` and
+    :meth:`CheckpointWrite.write` in one go.
     """
-    chunks = None
+    pending = capture_checkpoint(run, state, replay)
+    pending.write()
+    return pending.state
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CheckpointWrite:
+    """A checkpoint captured in the loop whose files are still to be written (by
+    :meth:`write`, in the loop or in :class:`~priqn.run.writer.BackgroundWriter`'s thread)."""
+
+    run: RunFolder
+    state: Checkpoint
+    """The checkpoint as it will be saved: its ``replay_chunks`` final, its tensors and
+    arrays the capture's own (the learner goes on training meanwhile)."""
+    replay: Any | None
+    """The replay buffer as it stood at the capture (:func:`frozen_rows`), None: no buffer."""
+    since: np.ndarray | None
+    """Per env, the rows the previous replay file ended at: the new file holds the rows
+    from ``max(since, end - ring rows)`` to the capture's end."""
+    progress: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """meta.json's fields (``steps_done`` ...) written once latest.pt is on disk ({}: none)."""
+
+    def write(self) -> None:
+        """The new replay file, latest.pt naming every replay file still needed, the files
+        it does not name removed, then meta.json's ``progress``."""
+        if self.replay is not None and self.state.replay_chunks:
+            with atomic_open(self.run.checkpoint_dir / self.state.replay_chunks[-1]["file"]) as fh:
+                self.replay.save_rows(fh, self.since)
+        checkpoint.save(self.state, self.run.latest_checkpoint)
+        keep = {c["file"] for c in self.state.replay_chunks or []}
+        for old in self.run.checkpoint_dir.glob("replay-*.npz"):
+            if old.name not in keep:
+                old.unlink(missing_ok=True)
+        if self.progress:
+            self.run.update_meta(**self.progress)
+
+    def ring_reaches(self, replay: Any, rows: int = 2) -> bool:
+        """Whether writing ``rows`` more rows per env into ``replay`` (the live buffer; one
+        vector step writes at most 2: the transition and an ended episode's final
+        observation) could overwrite a row this write has yet to save."""
+        if self.replay is None or self.since is None:
+            return False
+        end = self.replay.written
+        first = np.maximum(self.since, end - replay.rows)  # the first row the new file holds
+        return bool(np.any(replay.written + rows > first + replay.rows))
+
+
+def capture_checkpoint(
+    run: RunFolder, state: Checkpoint, replay: Any | None, progress: dict[str, Any] | None = None
+) -> CheckpointWrite:
+    """The files of checkpoint ``state`` decided now, to be written by the returned
+    :meth:`CheckpointWrite.write`: the replay files it names (those whose rows the ring
+    has not all overwritten, and a new one of the rows added since the last), and the
+    buffer's rows frozen where they stand (:func:`frozen_rows`).
+
+    ``state`` must hold its own copies of anything the loop goes on changing (the
+    learner's tensors: :func:`copy_tensors`); ``replay``'s rows up to the capture must stay
+    until the write is done (:meth:`CheckpointWrite.ring_reaches` says when they would not).
+    """
+    chunks = since = frozen = None
     if replay is not None:
         chunks = [c for c in state.replay_chunks or [] if not replay.overwritten(c["end"])]
-        since = chunks[-1]["end"] if chunks else [0] * replay.num_envs
+        since = np.asarray(chunks[-1]["end"] if chunks else [0] * replay.num_envs)
+        frozen = frozen_rows(replay)
         name = f"replay-{state.step:012d}.npz"
-        with atomic_open(run.checkpoint_dir / name, "wb") as fh:
-            end = replay.save_rows(fh, since)
-        chunks.append({"file": name, "end": [int(n) for n in end]})
+        chunks.append({"file": name, "end": [int(n) for n in frozen.written]})
     state = dataclasses.replace(state, replay_file=None, replay_chunks=chunks)
-    checkpoint.save(state, run.latest_checkpoint)
-    keep = {c["file"] for c in chunks or []}
-    for old in run.checkpoint_dir.glob("replay-*.npz"):
-        if old.name not in keep:
-            old.unlink(missing_ok=True)
-    return state
+    return CheckpointWrite(run, state, frozen, since, dict(progress or {}))
+
+
+def frozen_rows(replay: Any) -> Any:
+    """``replay`` as it stands now, for :meth:`~priqn.agents.replay.ReplayBuffer.save_rows`
+    after the loop has stored more: the same rings (no copy), its count of rows written
+    (``written``, all that says where the rows end) copied. The rows it saves are the
+    ones stored up to now as long as the ring has not come round to them."""
+    view = copy.copy(replay)
+    view.written = replay.written.copy()
+    return view
+
+
+def copy_tensors(value: Any) -> Any:
+    """A copy of ``value`` (a state dict: nested dicts and lists of tensors, arrays and
+    plain data) that the loop's further training cannot change. Tensors sharing a storage
+    still share one (:func:`copy.deepcopy`), so the copy saves to the same bytes."""
+    return copy.deepcopy(value)
 
 
 def load_checkpoint(run: RunFolder, device: Any) -> Checkpoint:
@@ -80,6 +157,15 @@ def save_snapshot(run: RunFolder, state: PolicyState) -> str:
     path = run.snapshot_path(state.step)
     checkpoint.save(state, path)
     return sha256_file(path)
+
+
+def keep_snapshot(run: RunFolder, state: PolicyState) -> None:
+    """``snapshots/policy-at<step>.pt`` (:func:`save_snapshot`), then its SHA-256 in
+    meta.json's ``snapshots``."""
+    sha = save_snapshot(run, state)
+    snapshots = dict(run.meta().get("snapshots") or {})
+    snapshots[str(state.step)] = {"file": run.rel(run.snapshot_path(state.step)), "sha256": sha}
+    run.update_meta(snapshots=snapshots)
 
 
 def load_policy(run: RunFolder | str | os.PathLike, device: str = "cpu", snapshot: int = 0) -> Any:
