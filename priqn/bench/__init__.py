@@ -15,7 +15,7 @@ BENCHES: dict[str, str] = {
     "train": "updates/s of IQN vs Pr-IQN; env decisions/s with learning on",
     "sweep": "sweep cells per hour: one at a time vs two (--jobs) at a time",
     "replay": "the replay buffer in a checkpoint: compressed, incremental vs the whole, uncompressed",
-    "loop": "the loop's stalls: metrics.csv appended vs rewritten; env workers with vs without preload",
+    "loop": "the loop's stalls: metrics.csv appended vs rewritten; env workers with vs without preload; checkpoints on a writer thread vs in the loop",
 }
 
 
