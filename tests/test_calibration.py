@@ -161,11 +161,14 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
     assert meta["bootstrap"] == {"resamples": 10_000, "seed": 2026,
                                  "chosen": {"far": 0.0, "near": 1.0}}  # fmt: skip
     assert meta["command"] == "priqn report results/cal --out report"
-    first = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert (meta["schema"], meta["kind"], meta["experiment"]) == (1, "calibration", "cal")
+    first = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*.*")}
     calibration.write_report(exp, out, "priqn report results/cal --out report")
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == first
-    assert {"calibration.png", "calibration.pdf", "mix.csv", "distances.csv",
-            "seed_distances.csv", "choice_bootstrap.csv"} <= set(first)  # fmt: skip
+    assert {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*.*")} == first
+    assert set(first) == {"report.md", "meta.json", "figures/calibration.png",
+                          "figures/calibration.pdf", "tables/mix.csv", "tables/distances.csv",
+                          "tables/seed_distances.csv", "tables/choice_bootstrap.csv"}  # fmt: skip
+    assert "![outcome mix per density](figures/calibration.png)" in text
 
 
 def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ import pandas as pd
 from fake_runs import IQN, PR, write_run
 
 from priqn.analysis import curves
-from priqn.analysis.figures import row_colors, sample_efficiency_figure
+from priqn.analysis.figures import efficiency_figure, row_colors, sample_efficiency_figure
 from priqn.experiment import load_experiment
 
 
@@ -166,12 +166,7 @@ def test_panels_cut_long_kinds_into_balanced_chunks() -> None:
 def test_the_reference_line_is_the_iqn_group_that_reaches_furthest() -> None:
     """A design with IQN at 60k (first in file order) and IQN at 240k: the Pr-IQN panel's
     dotted IQN is the 240k one, the curve a 240k Pr-IQN* is compared with."""
-    from types import SimpleNamespace
-
-    from priqn.analysis.sequential_report import efficiency_figure
-
-    policies = [SimpleNamespace(group_name=g, agent=a)
-                for g, a in (("iqn-halving", "iqn"), ("iqn", "iqn"), ("pr", "pr-iqn"))]  # fmt: skip
+    agents = {"iqn-halving": "iqn", "iqn": "iqn", "pr": "pr-iqn"}
     reach = {"iqn-halving": 60_000, "iqn": 240_000, "pr": 240_000}
     curve = pd.DataFrame(
         [
@@ -190,7 +185,7 @@ def test_the_reference_line_is_the_iqn_group_that_reaches_furthest() -> None:
             for budget in (top // 2, top)
         ]
     )
-    fig = efficiency_figure(SimpleNamespace(policies=policies), curve)
+    fig = efficiency_figure(curve, agents)
     legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes]
     assert legends[1] == ["iqn (for reference)", "pr (2 seeds)"]
     dotted = fig.axes[1].get_lines()[0]
@@ -198,7 +193,7 @@ def test_the_reference_line_is_the_iqn_group_that_reaches_furthest() -> None:
     # Among equals, the first in file order (the headline: one IQN row).
     reach["iqn"] = 60_000
     curve.loc[curve["row"] == "iqn", "budget"] = [30_000, 60_000]
-    fig = efficiency_figure(SimpleNamespace(policies=policies), curve)
+    fig = efficiency_figure(curve, agents)
     assert fig.axes[1].get_legend().get_texts()[0].get_text() == "iqn-halving (for reference)"
 
 

@@ -11,7 +11,13 @@ from typing import Any
 import pandas as pd
 import pytest
 
-from priqn.analysis import questions, questions_report, sequential, sequential_report
+from priqn.analysis import (
+    questions,
+    questions_outcomes,
+    questions_report,
+    sequential,
+    sequential_report,
+)
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
@@ -337,7 +343,7 @@ def test_outcome_by_manoeuvre_counts_seeds_and_the_timeouts_progress() -> None:
     rows = [episode(0, "left", "timeout", 0.2), episode(0, "left", "timeout", 0.6),
             episode(1, "left", "success", 1.0), episode(1, "left", "success", 1.0),
             episode(0, "right", "collision", 0.5), episode(1, None, "timeout", 0.3)]  # fmt: skip
-    table = questions_report.manoeuvre_table(pd.DataFrame(rows)).set_index("command")
+    table = questions_outcomes.manoeuvre_table(pd.DataFrame(rows)).set_index("command")
     assert list(table.index) == ["left", "right", "unknown"]
     assert (table.loc["left", "timeout"], table.loc["left", "episodes"]) == (0.5, 4)
     assert table.loc["left", "timeout_progress"] == pytest.approx(0.4)
@@ -369,7 +375,7 @@ def test_outcome_mix_is_each_seeds_share_first_and_its_l1_to_the_paper() -> None
                     {"label": "IQN", "train_seed": seed, "density": density,
                      **{o: o == outcome for o in OUTCOMES}}
                 ] * count  # fmt: skip
-    md_rows, records, seed_records = questions_report._mix_rows(pd.DataFrame(rows))
+    md_rows, records, seed_records = questions_outcomes.mix_rows(pd.DataFrame(rows))
     assert md_rows[0][:3] == ["IQN", "2", "success"]
     assert md_rows[0][3] == f"{paper['success'][0] + 0.1:.3f} ({paper['success'][0]:.3f})"
     assert md_rows[0][-2:] == ["0.200", "0.20 [0.00, 0.40]"]  # seed 0 at 0, seed 1 0.2 + 0.2
@@ -452,3 +458,16 @@ def test_report_tables_each_questions_looks_and_draws_them_look_by_look(tmp_path
     titles = [ax.get_title() for ax in fig.axes]
     assert titles == ["safety: a vs b: a violates more", "long: a > b: reproduced"]
     assert (tmp_path / "r" / "figures" / "looks.png").stat().st_size > 0
+
+
+def test_verdict_words_name_the_row(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``a better`` / ``a violates more``: every report prints the comparison's first row
+    by its name; other verdict words stay as they are."""
+    from priqn.experiment import ComparisonSpec
+
+    c = ComparisonSpec("pr vs iqn", "safety", "pr-iqn-qd", "iqn")
+    for words, printed in (("a violates more", "pr-iqn-qd violates more"),
+                           ("a better", "pr-iqn-qd better"), ("reproduced", "reproduced"),
+                           ("no difference found at 5 seeds", "no difference found at 5 seeds")):  # fmt: skip
+        monkeypatch.setattr(sequential_report, "verdict", lambda d, r, x, w=words: w)
+        assert sequential_report.row_verdict(None, None, c) == printed

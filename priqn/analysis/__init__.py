@@ -11,7 +11,8 @@ Read and estimate:
 - :mod:`analysis.paper` — what the paper reports (Table II rows, success rates, quoted
   gains), with sources;
 - :mod:`analysis.claims` — the paper's claims as data and the verdict rule;
-- :mod:`analysis.curves` — sample-efficiency curves (success against training decisions).
+- :mod:`analysis.curves` — sample-efficiency curves (success against training decisions),
+  one section every report shares (:func:`analysis.curves.efficiency`).
 
 Pre-registered designs of an experiment file:
 
@@ -26,14 +27,23 @@ Pre-registered designs of an experiment file:
 Tables, figures and reports:
 
 - :mod:`analysis.tables` — Table II and Table I as data, Markdown, LaTeX and CSV;
-- :mod:`analysis.figures` — the paper-style figures (PNG + PDF);
-- :mod:`analysis.render` — the one CSV writer and Markdown table renderer;
-- :mod:`analysis.report` — ``priqn report`` / :func:`analysis.report.make_report`, and
-  :func:`analysis.report.write_experiment_report`, the one place an experiment's report
-  writer is chosen;
+- :mod:`analysis.figures` — the paper-style figures (matplotlib figures);
+- :mod:`analysis.render` — the one CSV and Markdown table renderer;
+- :mod:`analysis.artifacts` — :class:`~analysis.artifacts.ReportFolder`, the one writer of
+  every report's files (``report.md``, ``meta.json`` in one schema, ``tables/``,
+  ``figures/`` as PNG + PDF);
+- :mod:`analysis.reports` — every kind of report (:data:`~analysis.reports.REPORTS`), and
+  the one place ``priqn report`` and ``priqn sweep`` choose a folder's kind;
+- :mod:`analysis.request` — what a report is asked for, and the one builder of the command
+  its ``meta.json`` records (re-running it regenerates the folder byte for byte);
+- :mod:`analysis.report` — the grid report (Tables I/II, rliable):
+  :func:`analysis.report.make_report`;
 - :mod:`analysis.claims_report` — the claims section and ``tables/claims.csv``;
 - :mod:`analysis.sequential_report` — the report of a ``[sequential]`` table;
-- :mod:`analysis.questions_report` — the report of ``[[question]]`` tables;
+- :mod:`analysis.questions_report` — the report of ``[[question]]`` tables, with
+  :mod:`analysis.questions_outcomes`, its descriptive sections on how the counted cells'
+  episodes end;
+- :mod:`analysis.horizon` — the same runs at longer evaluation-only episode limits;
 - :mod:`analysis.generalisation` — evaluations on other nets (``priqn evaluate --nets``),
   reported apart from Table II;
 - :mod:`analysis.reference` — reference drivers (``priqn evaluate --reference``) as

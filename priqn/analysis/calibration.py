@@ -10,26 +10,31 @@ target's; the chosen row has the smallest distance (a tie: the row first in the 
 
 Descriptive, as the rule is: no interval decides anything here. Pure functions of the
 cells' ``eval/episodes.csv`` (:func:`cell_rates`, :func:`setting_mixes`,
-:func:`distances`, :func:`choose`), then :func:`write_report` (report.md, four CSVs, a
-figure and meta.json). How sure the choice is, beside it: each seed's own distance
-(:func:`seed_distances`) and the rule applied again to bootstrap resamples of each row's
-seeds (:func:`choice_bootstrap`).
+:func:`distances`, :func:`choose`), then :func:`write_report` (kind ``calibration``,
+through a :class:`~priqn.analysis.artifacts.ReportFolder`: ``report.md``, four CSVs in
+``tables/``, a figure in ``figures/`` and ``meta.json``). How sure the choice is, beside
+it: each seed's own distance (:func:`seed_distances`) and the rule applied again to
+bootstrap resamples of each row's seeds (:func:`choice_bootstrap`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from priqn.analysis.load import read_episodes
-from priqn.analysis.render import markdown_table, write_csv
+from priqn.analysis.render import markdown_table
+from priqn.analysis.request import ReportRequest, report_command
 from priqn.errors import PriqnError
 from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
-from priqn.io import atomic_write_json, atomic_write_text, ensure_dir
 from priqn.run.evaluations import evaluated
 from priqn.run.folder import RunFolder
+
+if TYPE_CHECKING:
+    from priqn.analysis.artifacts import ReportFolder
 
 MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
 """Columns of :func:`setting_mixes`: one row per (cell, outcome, density)."""
@@ -229,10 +234,10 @@ def _distance_table(dist: pd.DataFrame, chosen: str, final: bool) -> str:
 
 
 def _sureness_lines(
-    mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str], folder: Path
+    mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str], folder: ReportFolder
 ) -> tuple[list[str], dict]:
-    """The section "How sure is the choice", ``seed_distances.csv`` and
-    ``choice_bootstrap.csv`` in ``folder``, and meta.json's ``bootstrap`` record."""
+    """The section "How sure is the choice", ``tables/seed_distances.csv`` and
+    ``tables/choice_bootstrap.csv`` in ``folder``, and meta.json's ``bootstrap`` record."""
     by_row, target = seed_mixes(mixes, cal, order), target_vector(cal)
     per_seed = seed_distances(by_row, target)
     seeds = {row: list(m.index) for row, m in by_row.items()}
@@ -241,8 +246,8 @@ def _sureness_lines(
         [(row, s, d) for row in by_row for s, d in zip(seeds[row], per_seed[row], strict=True)],
         columns=["row", "seed", "l1"],
     )
-    write_csv(folder / "seed_distances.csv", seed_frame, float_format="%.6f")
-    write_csv(folder / "choice_bootstrap.csv", boot, float_format="%.6f")
+    folder.table("seed_distances", seed_frame, float_format="%.6f")
+    folder.table("choice_bootstrap", boot, float_format="%.6f")
     rows = [
         [b.row, ", ".join(f"{s}: {d:.2f}" for s, d in zip(seeds[b.row], per_seed[b.row],
                                                           strict=True)),
@@ -272,10 +277,10 @@ def _sureness_lines(
     return lines, record
 
 
-def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out: Path) -> None:
-    """``calibration.png`` / ``.pdf`` in ``out``: stacked outcome shares per density, the
-    target's bar, then each row's."""
-    from priqn.analysis.figures import plt, save_figure
+def figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> Any:
+    """The report's figure (``figures/calibration``): stacked outcome shares per density,
+    the target's bar, then each row's."""
+    from priqn.analysis.figures import plt
 
     colours = {"success": "#4c9a2a", "collision": "#c0392b", "off_road": "#e67e22",
                "timeout": "#95a5a6"}  # fmt: skip
@@ -297,15 +302,18 @@ def write_figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str], out
     handles, labels = ax.get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=4, frameon=False)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    save_figure(fig, out, "calibration")
+    return fig
 
 
 def write_report(exp: Experiment, out: str | Path, command: str | None = None) -> Path:
-    """report.md, ``mix.csv`` (every cell's rates), ``distances.csv``,
-    ``seed_distances.csv``, ``choice_bootstrap.csv``, ``calibration.png`` (and ``.pdf``)
-    and ``meta.json`` (with ``command``, the one that regenerates it) into ``out``; returns
-    report.md's path. Cells not complete yet are named, and the choice is marked
-    provisional until every cell is in."""
+    """report.md, ``tables/mix.csv`` (every cell's rates), ``tables/distances.csv``,
+    ``tables/seed_distances.csv``, ``tables/choice_bootstrap.csv``,
+    ``figures/calibration.png`` (and ``.pdf``) and ``meta.json`` (with ``command``, the one
+    that regenerates it: by default :func:`priqn.analysis.request.report_command`'s) into
+    ``out``; returns report.md's path. Cells not complete yet are named, and the choice is
+    marked provisional until every cell is in."""
+    from priqn.analysis.artifacts import ReportFolder
+
     cal = _spec(exp)
     mixes, missing = setting_mixes(exp)
     if mixes.empty:
@@ -315,11 +323,12 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     mean = mean_mix(mixes)
     dist = distances(mean, cal, order)
     chosen = choose(dist)
-    folder = Path(out)
-    ensure_dir(folder)
-    write_csv(folder / "mix.csv", mixes, float_format="%.6f")
-    write_csv(folder / "distances.csv", dist, float_format="%.6f")
-    write_figure(mean, cal, order, folder)
+    folder = ReportFolder.open(out)
+    if command is None:
+        command = report_command(ReportRequest(exp.runs_dir, Path(out), exp), "calibration")
+    folder.table("mix", mixes, float_format="%.6f")
+    folder.table("distances", dist, float_format="%.6f")
+    folder.figure("calibration", figure(mean, cal, order))
     sureness, bootstrap = _sureness_lines(mixes, cal, order, folder)
     budget = exp.experiment.steps
     words = "chosen" if not missing else "provisionally nearest (cells missing)"
@@ -343,7 +352,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "",
         _mix_table(mean, cal, order, traffic),
         "",
-        "![outcome mix per density](calibration.png)",
+        "![outcome mix per density](figures/calibration.png)",
         "",
         "## Distance to the target",
         "",
@@ -353,23 +362,16 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     ]
     if missing:
         md += ["## Cells not counted yet", "", *(f"- {m}" for m in missing), ""]
-    if command:
-        md[1:1] = ["", f"Made by `{command}` from the cells' run folders and the rule in "
-                   f"`{exp.path.name}` (committed before any of its cells trained)."]  # fmt: skip
-    path = folder / "report.md"
-    atomic_write_text(path, "\n".join(md))
-    atomic_write_json(
-        folder / "meta.json",
-        {
-            "experiment": exp.experiment.name,
-            "file": exp.path.name,
-            "command": command,
-            "chosen": chosen,
-            "final": not missing,
-            "cells": int(mixes.groupby(["row", "seed"]).ngroups),
-            "missing": missing,
-            "distances": {r.row: round(float(r.l1), 6) for r in dist.itertuples()},
-            "bootstrap": bootstrap,
-        },
-    )
+    md[1:1] = ["", f"Made by `{command}` from the cells' run folders and the rule in "
+               f"`{exp.path.name}` (committed before any of its cells trained)."]  # fmt: skip
+    path = folder.text("report.md", "\n".join(md))
+    fields = {
+        "chosen": chosen,
+        "final": not missing,
+        "cells": int(mixes.groupby(["row", "seed"]).ngroups),
+        "missing": missing,
+        "distances": {r.row: round(float(r.l1), 6) for r in dist.itertuples()},
+        "bootstrap": bootstrap,
+    }
+    folder.meta("calibration", command, exp.experiment.name, fields)
     return path

@@ -1,22 +1,18 @@
-"""``priqn report``: its flags and what they run.
+"""``priqn report``: its flags, as a :class:`~priqn.analysis.request.ReportRequest`.
 
-An experiment's runs folder with a design (``[sequential]``, ``[[question]]`` or
-``[calibration]``) gets that design's report (:func:`priqn.analysis.report.write_experiment_report`);
-any other folder of evaluated runs the Tables I/II report (:func:`priqn.analysis.report.make_report`).
+Which report a folder gets (an experiment's design, the horizon, else the Tables I/II
+grid report) and the command its ``meta.json`` records are
+:mod:`priqn.analysis.reports`' choice and :func:`priqn.analysis.request.report_command`'s,
+the same for ``priqn sweep``.
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
 from pathlib import Path
 
-from priqn.analysis.report import (
-    DEFAULT_REPS,
-    design_experiment,
-    make_report,
-    write_experiment_report,
-)
+from priqn.analysis.reports import experiment_of, write_report
+from priqn.analysis.request import DEFAULT_REPS, ReportRequest
 from priqn.errors import PriqnError
 
 
@@ -36,8 +32,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--experiment",
         default=None,
         metavar="NAME",
-        help="the runs are a sequential experiment's (default: the experiment file named like "
-        "the runs folder, if it has a [sequential] design): report its looks and verdicts",
+        help="the runs are this experiment's, one with a [sequential], [[question]] or "
+        "[calibration] design (default: the experiment file named like the runs folder, if "
+        "any): report its looks and verdicts, or its choice",
     )
     parser.add_argument(
         "--reference",
@@ -64,41 +61,26 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.reps < 1:
         raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
-    out = Path(args.out) if args.out else Path("reports") / Path(args.runs).resolve().name
-    if args.horizon:
-        from priqn.analysis.horizon import write_horizon_report
-
-        try:
-            limits = [int(x) for x in args.horizon.split(",") if x.strip()]
-        except ValueError:
-            raise PriqnError(f"--horizon {args.horizon!r}: expected limits like 200,600") from None
-        command = f"priqn report {shlex.quote(str(args.runs))} --horizon {args.horizon} --out {shlex.quote(str(out))}"
-        print(write_horizon_report(args.runs, limits, out, command))
-        return 0
-    exp = design_experiment(args.runs, args.experiment)
-    if exp is not None:
-        if args.reference:
-            raise PriqnError("--reference: not for a sequential experiment's report")
-        command = f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))}"
-        print(write_experiment_report(exp, out, command))
-        return 0
-    command = (
-        f"priqn report {shlex.quote(str(args.runs))} --out {shlex.quote(str(out))} "
-        f"--seed {args.seed} --reps {args.reps}"
-        + (f" --seeds {args.seeds}" if args.seeds else "")
-        + (" --partial" if args.partial else "")
-        + "".join(f" --reference {shlex.quote(str(d))}" for d in args.reference)
+    runs = Path(args.runs)
+    out = Path(args.out) if args.out else Path("reports") / runs.resolve().name
+    request = ReportRequest(
+        runs,
+        out,
+        experiment_of(runs, args.experiment),
+        seed=args.seed,
+        reps=args.reps,
+        min_seeds=args.seeds,
+        partial=args.partial,
+        references=tuple(args.reference),
+        horizon=_limits(args.horizon) if args.horizon else (),
     )
-    print(
-        make_report(
-            args.runs,
-            out,
-            seed=args.seed,
-            reps=args.reps,
-            min_seeds=args.seeds,
-            command=command,
-            partial=args.partial,
-            references=tuple(args.reference),
-        )
-    )
+    print(write_report(request))
     return 0
+
+
+def _limits(text: str) -> tuple[int, ...]:
+    """``--horizon 200,600`` as limits (a one-line error for anything else)."""
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise PriqnError(f"--horizon {text!r}: expected limits like 200,600") from None

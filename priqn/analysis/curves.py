@@ -24,11 +24,17 @@ possible values), so the middle half of the seeds is mostly ties; with 3 seeds r
 IQM trims no seed at all (``int(0.25 * 3) = 0``) and *is* the mean; and the verdicts
 (claims, sequential designs) are about the mean over seeds, so the curve's final point
 is the number they test.
+
+:func:`efficiency` is the one route from cells to a report's sample-efficiency section
+(the curve, its rows and notes; drawn by :func:`priqn.analysis.figures.efficiency_figure`):
+every report (the grid's, a ``[sequential]`` table's, ``[[question]]`` tables') chooses
+only its cells and rows, and writes what it returns.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -238,3 +244,46 @@ def panels(
         for i, chunk in enumerate(np.array_split(np.array(mine, dtype=object), n)):
             out.append((kind if n == 1 else f"{kind} ({i + 1}/{n})", [str(r) for r in chunk]))
     return out
+
+
+@dataclass(frozen=True)
+class Efficiency:
+    """A report's sample-efficiency section as data (:func:`efficiency`); nothing written."""
+
+    curve: pd.DataFrame
+    """:func:`sample_efficiency`'s table (``tables/sample_efficiency.csv``); empty: no curve."""
+    agents: dict[str, str]
+    """Row -> agent, every row of the report in its order (the figure's colours and panels)."""
+    notes: list[str]
+    """The cells that lack an estimator, and why (:func:`curve_points`)."""
+    reps: int
+    """Bootstrap replications of every point's interval."""
+    seed: int
+    """``np.random.seed`` before each point's rliable call."""
+
+    @property
+    def drawn(self) -> bool:
+        """Whether there is a curve to show (else the report says so, or leaves it out)."""
+        return len(self.curve) > 0
+
+
+def efficiency(
+    cells: Iterable[tuple[str, int, Path]], agents: Mapping[str, str], reps: int, seed: int
+) -> Efficiency:
+    """The sample-efficiency section of a report: :func:`sample_efficiency` of every point
+    of ``cells`` ``(row, training seed, run folder)`` (:func:`curve_points`), rows in the
+    order of ``agents`` (row -> agent, the report's row order: every row of the report,
+    curve or not, so each keeps its colour of the report's other figures)."""
+    points, notes = curve_points(cells)
+    rank = {row: i for i, row in enumerate(agents)}
+    points = points.sort_values("row", key=lambda s: s.map(rank), kind="mergesort")
+    return Efficiency(sample_efficiency(points, reps, seed), dict(agents), notes, reps, seed)
+
+
+def reference_row(curve: pd.DataFrame, agents: Mapping[str, str]) -> str | None:
+    """The row drawn dotted, for reference, in the panels without it: the IQN row whose
+    curve reaches furthest (the first in ``agents``' order among equals: with IQN at 60k
+    and at 240k, the one a Pr-IQN* 240k curve is compared with); None without an IQN curve."""
+    reach = curve.groupby("row")["budget"].max()
+    iqn = [row for row, agent in agents.items() if agent == "iqn" and row in reach.index]
+    return max(iqn, key=lambda row: reach[row]) if iqn else None  # max keeps the first of ties

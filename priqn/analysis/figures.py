@@ -1,7 +1,8 @@
-"""Figures in the paper's style (rliable's plot utilities), saved as PNG and PDF.
-
-Output is deterministic for the same inputs: no timestamps in PDF metadata, a fixed
-SVG hash salt, the Agg backend.
+"""Figures in the paper's style (rliable's plot utilities): each function returns a
+matplotlib figure, which a report writes as PNG and PDF through
+:meth:`priqn.analysis.artifacts.ReportFolder.figure` (deterministic bytes: no timestamps,
+a fixed SVG hash salt, the Agg backend). The one file written here is a run's
+``learning_curve.png`` (:func:`write_training_curve`, during training).
 """
 
 from __future__ import annotations
@@ -26,27 +27,6 @@ from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  #
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
 from priqn.io import atomic_write_bytes  # noqa: E402
 from priqn.objectives import names_in_columns  # noqa: E402
-
-plt.rcParams["svg.hashsalt"] = "priqn"
-plt.rcParams["pdf.compression"] = 6
-
-
-def save_figure(fig: plt.Figure, out_dir: Path, name: str) -> list[Path]:
-    """Write ``name.png`` (150 dpi) and ``name.pdf`` atomically; close the figure."""
-    import io
-
-    paths = []
-    for ext, kwargs in (
-        ("png", {"dpi": 150, "metadata": {"Software": None}}),
-        ("pdf", {"metadata": {"CreationDate": None, "ModDate": None}}),
-    ):
-        buf = io.BytesIO()
-        fig.savefig(buf, format=ext, bbox_inches="tight", **kwargs)
-        path = Path(out_dir) / f"{name}.{ext}"
-        atomic_write_bytes(path, buf.getvalue())
-        paths.append(path)
-    plt.close(fig)
-    return paths
 
 
 def seed_dots(
@@ -341,6 +321,23 @@ def sample_efficiency_figure(
         frameon=False,
     )
     return fig
+
+
+def efficiency_figure(curve: pd.DataFrame, agents: Mapping[str, str]) -> plt.Figure:
+    """A report's sample-efficiency figure (:func:`priqn.analysis.curves.efficiency`'s
+    curve and rows): baselines and Pr-IQN variants in panels of at most 4 rows
+    (:func:`~priqn.analysis.curves.panels`), the IQN row that reaches furthest dotted in the
+    panels without it (:func:`~priqn.analysis.curves.reference_row`), each row in its colour
+    of the report's figures (by its place in ``agents``, row -> agent in the report's order)."""
+    from priqn.analysis.curves import panels, reference_row, row_kinds
+
+    rows = [row for row in agents if row in set(curve["row"])]
+    return sample_efficiency_figure(
+        curve,
+        panels(rows, row_kinds(dict(agents))),
+        row_colors(list(agents)),
+        reference_row(curve, agents),
+    )
 
 
 def _frame_efficiency_panel(ax: plt.Axes, title: str) -> None:

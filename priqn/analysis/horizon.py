@@ -13,6 +13,10 @@ cut goes on. Two tables:
   cut (timeout), the share that end in each outcome at the longer limit, matched scene by
   scene (evaluation run, net, density, episode). Also the share of all episodes whose
   outcome differs: anything but the timeouts would mean the limit changed more than the cut.
+
+:func:`write_horizon_report` (kind ``horizon``) writes them through a
+:class:`~priqn.analysis.artifacts.ReportFolder`: ``horizon.md``, ``tables/horizon_mix.csv``,
+``tables/horizon_timeouts.csv`` and ``meta.json``.
 """
 
 from __future__ import annotations
@@ -24,10 +28,10 @@ from typing import Any
 import pandas as pd
 
 from priqn.analysis.load import find_run_dirs, read_episodes
-from priqn.analysis.render import markdown_table, write_csv
+from priqn.analysis.render import markdown_table
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
-from priqn.io import atomic_write_text, ensure_dir, read_json
+from priqn.io import read_json
 from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder, Status
@@ -113,21 +117,50 @@ def timeout_table(episodes: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, command: str) -> Path:
-    """``horizon.md``, ``tables/horizon_mix.csv`` and ``tables/horizon_timeouts.csv`` in
-    ``out``; returns the Markdown file."""
+def write_horizon_report(
+    runs: str | Path,
+    limits: Sequence[int],
+    out: str | Path,
+    command: str,
+    experiment: str | None = None,
+) -> Path:
+    """``horizon.md``, ``tables/horizon_mix.csv``, ``tables/horizon_timeouts.csv`` and
+    ``meta.json`` (``command``; ``experiment``: the name of the experiment whose runs these
+    are, or None) in ``out``; returns the Markdown file."""
+    from priqn.analysis.artifacts import ReportFolder
+
     if not limits or any(n <= 0 for n in limits):
         raise PriqnError(f"--horizon {list(limits)}: expected limits > 0, e.g. 200,600")
+    folder = ReportFolder.open(out)
     episodes = limit_episodes(runs, limits)
     mix, moved = mix_table(episodes), timeout_table(episodes)
-    ensure_dir(out / "tables")
-    write_csv(out / "tables" / "horizon_mix.csv", mix)
-    write_csv(out / "tables" / "horizon_timeouts.csv", moved)
-
-    def pct(x: float) -> str:
-        return f"{100 * x:.1f} %"
-
+    folder.table("horizon_mix", mix)
+    folder.table("horizon_timeouts", moved)
     own = sorted(set(episodes["own_limit"]))
+    path = folder.text("horizon.md", horizon_markdown(runs, limits, own, mix, moved, command))
+    fields = {
+        "limits": [int(n) for n in limits],
+        "own_limits": [int(n) for n in own],
+        "runs": sorted(set(episodes["run"])),
+    }
+    folder.meta("horizon", command, experiment, fields)
+    return path
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
+def horizon_markdown(
+    runs: str | Path,
+    limits: Sequence[int],
+    own: Sequence[int],
+    mix: pd.DataFrame,
+    moved: pd.DataFrame,
+    command: str,
+) -> str:
+    """``horizon.md``: the mix per row, limit and density (:func:`mix_table`), and where
+    the timeouts of the runs' own limits ``own`` go (:func:`timeout_table`)."""
     text = [
         f"# The horizon: {Path(runs).name} at longer evaluation-only limits (descriptive)",
         "",
@@ -145,7 +178,7 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
                     str(r.limit),
                     f"{r.density:g}",
                     str(r.seeds),
-                    *(pct(getattr(r, o)) for o in OUTCOMES),
+                    *(_pct(getattr(r, o)) for o in OUTCOMES),
                 ]
                 for r in mix.itertuples()
             ],
@@ -171,15 +204,13 @@ def write_horizon_report(runs: str | Path, limits: Sequence[int], out: Path, com
                     r.label,
                     str(r.limit),
                     str(r.episodes),
-                    pct(r.cut_at_own_limit),
-                    *(pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
-                    pct(r.others_changed),
+                    _pct(r.cut_at_own_limit),
+                    *(_pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
+                    _pct(r.others_changed),
                 ]
                 for r in moved.itertuples()
             ],
         ),
         "",
     ]
-    path = out / "horizon.md"
-    atomic_write_text(path, "\n".join(text))
-    return path
+    return "\n".join(text)

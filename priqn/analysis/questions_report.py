@@ -1,14 +1,19 @@
-"""The report of an experiment with ``[[question]]`` designs (``priqn report results/explain``).
+"""The report of an experiment with ``[[question]]`` designs (kind ``questions``,
+``priqn report results/explain``).
 
 Per question: its design, the looks taken, each comparison's estimate, Welch interval,
 minimum detectable difference and verdict words (:mod:`priqn.analysis.questions`); across
 questions, each group's endpoints at every budget its cells reach, and the change of a
-difference between budgets over the same seeds. Deterministic: the same committed cells
-give byte-identical files (tables, figure, ``report.md``, ``meta.json``).
+difference between budgets over the same seeds; then the descriptive sections of how the
+counted cells' episodes end (:mod:`priqn.analysis.questions_outcomes`) and the
+sample-efficiency curves (:func:`priqn.analysis.curves.efficiency`). Written through a
+:class:`~priqn.analysis.artifacts.ReportFolder`; deterministic: the same committed cells
+give byte-identical files (tables, figures, ``report.md``, ``meta.json``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,22 +23,13 @@ import numpy as np
 import pandas as pd
 
 from priqn.agents.labels import budget_text, seeds_text
-from priqn.analysis import inference, questions, tables
-from priqn.analysis.load import (
-    RESUMED_NOTE,
-    SORT_COLUMNS,
-    commit_text,
-    read_evaluation,
-    resumed_before,
-    resumed_text,
-)
-from priqn.analysis.paper import PAPER_DENSITIES
-from priqn.analysis.render import markdown_table, write_csv
-from priqn.analysis.sequential import Looks, relative_path, verdict
-from priqn.analysis.sequential_report import looks_figure
-from priqn.experiment import OUTCOMES, Experiment, SequentialSpec
-from priqn.io import atomic_write_text
-from priqn.run.episodes import resolve_outcomes
+from priqn.analysis import curves, inference, questions
+from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
+from priqn.analysis.render import markdown_table
+from priqn.analysis.request import ReportRequest, report_command
+from priqn.analysis.sequential import Looks
+from priqn.analysis.sequential_report import CURVE_REPS, CURVE_SEED, looks_figure, row_verdict
+from priqn.experiment import Experiment, SequentialSpec
 from priqn.run.evaluations import evaluated, evaluation_dir, kept_evaluations, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 
@@ -138,7 +134,7 @@ def _comparison_rows(
                 "paper_difference": c.paper_difference,
                 "decision": result.decisions[c.name],
                 "looks": len(result.looks),
-                "verdict": verdict(question, result, c),
+                "verdict": row_verdict(question, result, c),
             }
         )
     return out
@@ -207,10 +203,9 @@ def report_markdown(
     scores: pd.DataFrame | None = None,
 ) -> str:
     """``report.md`` of an experiment with questions (``descriptive``: the lines of the
-    outcome-mix, outcome-by-manoeuvre, Table I and sample-efficiency sections,
-    :func:`_mix_lines`, :func:`_manoeuvre_lines`, :func:`_returns_lines` and
-    :func:`_efficiency`;
-    ``scores``: every question's counted cells,
+    outcome-mix, outcome-by-manoeuvre and Table I sections,
+    :func:`priqn.analysis.questions_outcomes.outcome_sections`, and the sample-efficiency
+    section, :func:`_efficiency_lines`; ``scores``: every question's counted cells,
     ``tables/scores.csv``, for the "Cells" section)."""
     e = exp.experiment
     lines = [
@@ -476,256 +471,11 @@ def _budget_tables(
     return frame.assign(question=question.name), changes
 
 
-def counted_episodes(exp: Experiment, scores: pd.DataFrame) -> dict[int, pd.DataFrame]:
-    """Per question budget, the hold-out episodes of the cells the questions count
-    (``scores``), each cell read once: one frame of episodes (outcomes resolved, sorted),
-    each named by its group's policy label (with the group's name where two groups share a
-    label) in ``label`` and by its training seed in ``train_seed``."""
-    if scores.empty:
-        return {}
-    budget_of = {q.name: q.budget for q in exp.designs}
-    cells = scores.assign(budget=scores["question"].map(budget_of)).drop_duplicates(
-        ["budget", "policy", "train_seed"]
-    )
-    out = {}
-    for budget, part in cells.groupby("budget", sort=True):
-        frames = []
-        for row in part.itertuples(index=False):
-            run = Path(row.run_dir)
-            evaluation = row.evaluation if isinstance(row.evaluation, str) else ""
-            frame, _ = read_evaluation(run.name, run, evaluation_dir(RunFolder(run), evaluation))
-            label = str(frame["label"].iloc[0]).removesuffix(f" @{budget_text(int(budget))}")
-            frames.append(frame.assign(label=label, group=row.policy))
-        episodes = pd.concat(frames, ignore_index=True)
-        shared = episodes.groupby("label")["group"].transform("nunique") > 1
-        episodes.loc[shared, "label"] += " " + episodes.loc[shared, "group"]
-        episodes = resolve_outcomes(episodes.drop(columns="group"))
-        episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort")
-        out[int(budget)] = episodes.reset_index(drop=True)
-    return out
-
-
-def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tables.Table]:
-    """Table I (episode returns per objective, per-decision risk and lane keeping, episode
-    length; Δ% relative to IQN) per question budget, from :func:`counted_episodes`: each
-    group at each budget is one row, named by its policy label. Unranked: descriptive."""
-    return {b: tables.table1(e, ranked=False) for b, e in episodes_by_budget.items()}
-
-
-def seed_shares(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Per label, training seed, density and outcome: the share of that seed's episodes
-    at that density ending in that outcome (columns label, train_seed, density, outcome,
-    rate)."""
-    flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
-    keys = [episodes["label"], episodes["train_seed"], episodes["density"].astype(float)]
-    per_seed = flags.groupby(keys, sort=False).mean().reset_index()
-    return per_seed.melt(["label", "train_seed", "density"], var_name="outcome", value_name="rate")
-
-
-def _paper_mix(label: str, densities: list[float]) -> dict[tuple[str, float], float]:
-    """``(outcome, density) -> rate`` of the paper's Table II row of ``label`` at those of
-    ``densities`` it has (empty when it has no such row)."""
-    from priqn.analysis.paper import paper_outcomes
-
-    paper = paper_outcomes(label)
-    if paper is None:
-        return {}
-    return {
-        (o, d): paper[o][PAPER_DENSITIES.index(d)]
-        for o in OUTCOMES
-        for d in densities
-        if d in PAPER_DENSITIES
-    }
-
-
-def _mix_rows(
-    episodes: pd.DataFrame,
-) -> tuple[list[list[str]], list[dict[str, Any]], list[dict[str, Any]]]:
-    """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
-    density's rate (each seed's share first, :func:`seed_shares`, then their mean:
-    :func:`~priqn.analysis.calibration.mean_mix`) beside the paper's (its Table II row of the same
-    label), the L1 distance of the 12 numbers to the paper's row, and each training seed's
-    own L1 (its shares, not the mean; median [min, max] in the Markdown, one record per
-    seed in the third list)."""
-    from priqn.analysis.calibration import l1_by_outcome, mean_mix, rates_of
-
-    shares = seed_shares(episodes)
-    mix = mean_mix(shares, group="label", seed="train_seed")
-    densities = sorted(mix["density"].unique())
-    md_rows, records, seed_records = [], [], []
-    for label, mine in mix.groupby("label", sort=False):
-        rate = rates_of(mine)
-        theirs = _paper_mix(str(label), densities)
-        full = len(theirs) == len(OUTCOMES) * len(densities) == 12
-        l1 = sum(l1_by_outcome(rate, theirs).values()) if full else math.nan
-        seed_l1 = {
-            seed: sum(l1_by_outcome(rates_of(own), theirs).values())
-            for seed, own in shares[shares["label"] == label].groupby("train_seed", sort=True)
-        } if full else {}  # fmt: skip
-        seed_records += [{"label": label, "train_seed": k, "l1_to_paper": v}
-                         for k, v in seed_l1.items()]  # fmt: skip
-        per_seed = (
-            f"{np.median(list(seed_l1.values())):.2f} "
-            f"[{min(seed_l1.values()):.2f}, {max(seed_l1.values()):.2f}]"
-            if seed_l1
-            else ""
-        )
-        for i, outcome in enumerate(OUTCOMES):
-            cells = [
-                f"{rate[(outcome, d)]:.3f}"
-                + (f" ({theirs[(outcome, d)]:.3f})" if (outcome, d) in theirs else "")
-                for d in densities
-            ]
-            head = [str(label), str(int(mine["seeds"].min()))] if i == 0 else ["", ""]
-            tail = [f"{l1:.3f}", per_seed] if i == 0 and full else ["", ""]
-            md_rows.append([*head, outcome.replace("_", "-"), *cells, *tail])
-            records += [
-                {"label": label, "seeds": int(mine["seeds"].min()), "outcome": outcome,
-                 "density": d, "rate": rate[(outcome, d)],
-                 "paper": theirs.get((outcome, d), math.nan), "l1_to_paper": l1}
-                for d in densities
-            ]  # fmt: skip
-    return md_rows, records, seed_records
-
-
-def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
-    """The outcome-mix section: per question budget, how each group's hold-out episodes
-    end at each density beside the paper's Table II row of the same label, with the L1
-    distance calibration uses (``tables/outcome_mix_<budget>.csv``); none while no cell
-    is counted."""
-    if not episodes_by_budget:
+def _efficiency_lines(efficiency: curves.Efficiency) -> list[str]:
+    """The "Sample efficiency" section of :func:`_efficiency` (none without a curve)."""
+    if not efficiency.drawn:
         return []
-    lines = [
-        "## Outcome mix beside the paper's (descriptive)",
-        "",
-        "How the hold-out episodes end, per density: the share of each outcome, each "
-        "training seed's first, then their mean; in brackets the paper's Table II row of "
-        "the same label (2M decisions in CARLA; its timeouts are what success, collision "
-        "and off-road leave). L1: the distance of the 12 numbers to the paper's row, as "
-        "the calibration's rule measures it; of a seed alone: each training seed's own "
-        "shares' distance, median [min, max] (`tables/outcome_mix_<budget>_seeds.csv`). "
-        "Descriptive: no test decides on these.",
-        "",
-    ]
-    for budget, episodes in episodes_by_budget.items():
-        md_rows, records, seed_records = _mix_rows(episodes)
-        name = f"outcome_mix_{budget_text(budget)}"
-        write_csv(out / "tables" / f"{name}.csv", pd.DataFrame(records))
-        if seed_records:
-            write_csv(out / "tables" / f"{name}_seeds.csv", pd.DataFrame(seed_records))
-        densities = sorted(episodes["density"].astype(float).unique())
-        heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities),
-                 "L1", "L1 of a seed alone"]  # fmt: skip
-        lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, md_rows), ""]
-    return lines
-
-
-def manoeuvre_table(episodes: pd.DataFrame) -> pd.DataFrame:
-    """How each label's episodes end per ego manoeuvre (:func:`tables.outcomes_by_command`:
-    densities and seeds pooled, every seed playing the same hold-out scenes), with its
-    ``seeds`` and ``timeout_progress``, the median route progress of the episodes that
-    timed out (NaN where none did); labels in first-seen order."""
-    labels = list(dict.fromkeys(episodes["label"]))
-    table = tables.outcomes_by_command(episodes, labels)
-    seeds = episodes.groupby("label")["train_seed"].nunique()
-    timed_out = episodes["timeout"].astype(bool)
-    keys = [episodes["label"][timed_out], tables.route_commands(episodes)[timed_out]]
-    median = episodes[timed_out].groupby(keys)["route_progress"].median().to_dict()
-    table.insert(2, "seeds", table["label"].map(seeds))
-    table["timeout_progress"] = [
-        median.get((label, command), math.nan)
-        for label, command in zip(table["label"], table["command"], strict=True)
-    ]
-    return table
-
-
-def _manoeuvre_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
-    """The outcome-by-manoeuvre section: per question budget, how each group's hold-out
-    episodes end for each route command of the ego (:func:`manoeuvre_table`,
-    ``tables/outcome_by_manoeuvre_<budget>.csv`` and its figure); none while no cell is
-    counted."""
-    from priqn.analysis.figures import outcomes_figure, save_figure
-
-    if not episodes_by_budget:
-        return []
-    lines = [
-        "## Outcome by manoeuvre (descriptive)",
-        "",
-        "How the hold-out episodes end for each route command of the ego: the share of "
-        "each outcome over every density and training seed (every seed plays the same "
-        "scenes). Timeouts' progress: the median route progress (0 at the route's start, 1 "
-        "at its end) of the episodes that timed out. Descriptive: no test decides on these.",
-        "",
-    ]
-    heads = ["policy", "manoeuvre", "seeds", "episodes",
-             *(o.replace("_", "-") for o in OUTCOMES), "timeouts' progress"]  # fmt: skip
-    for budget, episodes in episodes_by_budget.items():
-        name = f"outcome_by_manoeuvre_{budget_text(budget)}"
-        table = manoeuvre_table(episodes)
-        write_csv(out / "tables" / f"{name}.csv", table)
-        save_figure(outcomes_figure(table, list(dict.fromkeys(table["label"]))),
-                    out / "figures", name)  # fmt: skip
-        rows = [
-            [r.label, r.command, str(r.seeds), str(r.episodes),
-             *(f"{getattr(r, o):.3f}" for o in OUTCOMES),
-             "–" if math.isnan(r.timeout_progress) else f"{r.timeout_progress:.2f}"]
-            for r in table.itertuples(index=False)
-        ]  # fmt: skip
-        lines += [
-            f"### At {budget_text(budget)} decisions",
-            "",
-            markdown_table(heads, rows),
-            "",
-            f"![outcome by manoeuvre at {budget_text(budget)}](figures/{name}.png)",
-            "",
-        ]
-    return lines
-
-
-def _returns_lines(episodes_by_budget: dict[int, pd.DataFrame], out: Path) -> list[str]:
-    """The Table I section: per question budget, ``tables/table1_<budget>.{md,csv}`` and
-    the table itself; none while no cell is counted."""
-    by_budget = returns_tables(episodes_by_budget)
-    if not by_budget:
-        return []
-    lines = [
-        "## Returns per objective (Table I, descriptive)",
-        "",
-        "The paper's Table I over the cells the questions count, at each question's budget "
-        "(mean ± sample std over training seeds × evaluation runs, Δ% relative to IQN). "
-        "Descriptive: no test decides on these columns.",
-        "",
-    ]
-    for budget, table in by_budget.items():
-        name = f"table1_{budget_text(budget)}"
-        atomic_write_text(out / "tables" / f"{name}.md", tables.to_markdown(table))
-        atomic_write_text(out / "tables" / f"{name}.csv", tables.to_csv(table))
-        lines += [f"### At {budget_text(budget)} decisions", "", tables.to_markdown(table)]
-    return lines
-
-
-def _efficiency(exp: Experiment, out: Path) -> list[str]:
-    """The sample-efficiency curves of every complete cell's group (periodic evaluations
-    and full evaluations at each budget, kept snapshots included): table, figure and the
-    report's lines; none while no cell is complete."""
-    from priqn.analysis import curves, sequential_report
-    from priqn.analysis.figures import save_figure
-
-    cells = [
-        cell
-        for cell in curves.experiment_cells(exp)
-        if evaluated(folder := RunFolder(cell[2]), kept_evaluations(folder))
-    ]
-    points, notes = curves.curve_points(cells)
-    if points.empty:
-        return []
-    curve = curves.sample_efficiency(
-        points, sequential_report.CURVE_REPS, sequential_report.CURVE_SEED
-    )
-    write_csv(out / "tables" / "sample_efficiency.csv", curve)
-    save_figure(
-        sequential_report.efficiency_figure(exp, curve), out / "figures", "sample_efficiency"
-    )
+    notes = efficiency.notes
     return [
         "## Sample efficiency (descriptive)",
         "",
@@ -733,7 +483,7 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
         "cells: lines are the in-training evaluations (6 episodes a point), markers the full "
         "evaluations (162 episodes) at each budget a cell reaches, kept snapshots included; "
         f"mean over training seeds with a 95 % stratified-bootstrap band "
-        f"({sequential_report.CURVE_REPS} replications, seed {sequential_report.CURVE_SEED}).",
+        f"({efficiency.reps} replications, seed {efficiency.seed}).",
         *([""] + [f"- {n}" for n in notes] if notes else []),
         "",
         "![sample efficiency](figures/sample_efficiency.png)",
@@ -741,13 +491,43 @@ def _efficiency(exp: Experiment, out: Path) -> list[str]:
     ]
 
 
-def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
-    """Write the questions' report into ``out_dir``; returns ``report.md``."""
-    from priqn.analysis.figures import save_figure
-    from priqn.io import atomic_write_json
+def _efficiency(exp: Experiment) -> curves.Efficiency:
+    """The sample-efficiency curves of every complete cell's group (periodic evaluations
+    and full evaluations at each budget, kept snapshots included)."""
+    cells = [
+        cell
+        for cell in curves.experiment_cells(exp)
+        if evaluated(folder := RunFolder(cell[2]), kept_evaluations(folder))
+    ]
+    agents = {p.group_name: p.agent for p in exp.policies}
+    return curves.efficiency(cells, agents, CURVE_REPS, CURVE_SEED)
 
-    out = Path(out_dir)
-    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
+
+@dataclasses.dataclass(frozen=True)
+class DesignTables:
+    """Every question's looks taken (:func:`design_tables`), as the report's tables."""
+
+    scores: pd.DataFrame
+    """Every question's counted cells (``question`` column): ``tables/scores.csv``."""
+    comparisons: pd.DataFrame
+    """One row per comparison (:func:`_comparison_rows`): ``tables/comparisons.csv``."""
+    looks: pd.DataFrame
+    """One row per question, look and comparison: ``tables/looks.csv``."""
+    budgets: pd.DataFrame
+    """Each group's outcome rates at every budget it reaches: ``tables/budgets.csv``."""
+    budget_changes: pd.DataFrame
+    """How each difference changes with the budget: ``tables/budget_changes.csv``."""
+    by_question: dict[str, pd.DataFrame]
+    """Each question's counted cells."""
+    results: list[tuple[SequentialSpec, Looks]]
+    """Each question with its looks taken."""
+
+    CSV = ("scores", "comparisons", "looks", "budgets", "budget_changes")
+    """The fields written as ``tables/<field>.csv``."""
+
+
+def design_tables(exp: Experiment) -> DesignTables:
+    """Take every question's looks and tabulate them (:class:`DesignTables`)."""
     scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
     results: list[tuple[SequentialSpec, Looks]] = []
     for q in exp.designs:
@@ -760,8 +540,6 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
         if by_budget is not None:
             budget_frames.append(by_budget[0])
             change_frames += by_budget[1]
-    comparisons = pd.DataFrame(comparison_rows)
-    looks = pd.DataFrame(look_rows, columns=LOOK_COLUMNS)
     budgets = pd.concat(budget_frames, ignore_index=True) if budget_frames else pd.DataFrame()
     budgets = (
         budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets
@@ -779,40 +557,49 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
     all_scores = pd.concat(
         [s.assign(question=name) for name, s in scores_by_q.items()], ignore_index=True
     )
-    for name, frame in (("scores", all_scores), ("comparisons", comparisons), ("looks", looks),
-                        ("budgets", budgets), ("budget_changes", changes)):  # fmt: skip
-        write_csv(out / "tables" / f"{name}.csv", frame)
-    save_figure(figure(exp, scores_by_q), out / "figures", "questions")
-    monitoring = looks_figure(results, f"{exp.experiment.name}: each comparison look by look")
+    comparisons = pd.DataFrame(comparison_rows)
+    looks = pd.DataFrame(look_rows, columns=LOOK_COLUMNS)
+    return DesignTables(all_scores, comparisons, looks, budgets, changes, scores_by_q, results)
+
+
+def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
+    """Write the questions' report into ``out_dir``; returns ``report.md``. ``command``:
+    the one recorded (by default :func:`priqn.analysis.request.report_command`'s)."""
+    from priqn.analysis.artifacts import ReportFolder
+    from priqn.analysis.figures import efficiency_figure
+    from priqn.analysis.questions_outcomes import outcome_sections
+
+    folder = ReportFolder.open(out_dir)
+    if command is None:
+        command = report_command(ReportRequest(exp.runs_dir, Path(out_dir), exp), "questions")
+    t = design_tables(exp)
+    for name in DesignTables.CSV:
+        folder.table(name, getattr(t, name))
+    folder.figure("questions", figure(exp, t.by_question))
+    monitoring = looks_figure(t.results, f"{exp.experiment.name}: each comparison look by look")
     if monitoring is not None:
-        save_figure(monitoring, out / "figures", "looks")
-    if len(budgets):
-        save_figure(budget_outcomes_figure(budgets), out / "figures", "outcomes_by_budget")
-    episodes_by_budget = counted_episodes(exp, all_scores)
-    descriptive = [
-        *_mix_lines(episodes_by_budget, out),
-        *_manoeuvre_lines(episodes_by_budget, out),
-        *_returns_lines(episodes_by_budget, out),
-        *_efficiency(exp, out),
-    ]
-    report = out / "report.md"
+        folder.figure("looks", monitoring)
+    if len(t.budgets):
+        folder.figure("outcomes_by_budget", budget_outcomes_figure(t.budgets))
+    efficiency = _efficiency(exp)
+    if efficiency.drawn:
+        folder.table("sample_efficiency", efficiency.curve)
+        folder.figure("sample_efficiency", efficiency_figure(efficiency.curve, efficiency.agents))
+    descriptive = [*outcome_sections(exp, t.scores, folder), *_efficiency_lines(efficiency)]
     text = report_markdown(
-        exp, comparisons, looks, budgets, changes, command, descriptive, all_scores
+        exp, t.comparisons, t.looks, t.budgets, t.budget_changes, command, descriptive, t.scores
     )
-    atomic_write_text(report, text)
-    atomic_write_json(
-        out / "meta.json",
-        {
-            "command": command,
-            "experiment": exp.path.name,
-            "verdicts": {r["comparison"]: r["verdict"] for r in comparison_rows},
-            "looks": {
-                q: int(looks[looks["question"] == q]["look"].max() or 0)
-                if len(looks[looks["question"] == q])
-                else 0
-                for q in scores_by_q
-            },
-            "cells": {q: len(s) for q, s in scores_by_q.items()},
+    report = folder.text("report.md", text)
+    looks = t.looks
+    fields = {
+        "verdicts": {r.comparison: r.verdict for r in t.comparisons.itertuples()},
+        "looks": {
+            q: int(looks.loc[looks["question"] == q, "look"].max() or 0)
+            if (looks["question"] == q).any()
+            else 0
+            for q in t.by_question
         },
-    )
+        "cells": {q: len(s) for q, s in t.by_question.items()},
+    }
+    folder.meta("questions", command, exp.experiment.name, fields)
     return report

@@ -1,9 +1,11 @@
-"""How every report writes what it computed: CSV text and Markdown tables, one way each.
+"""How every report renders what it computed: CSV text and Markdown tables, one way each.
 
 The report writers (:mod:`priqn.analysis.report`, ``sequential_report``,
-``questions_report``, ``calibration``, ``mechanism``, ``standstill``, ``generalisation``)
-choose their columns and format their cells; the shape of the file is decided here, so a
-committed CSV or table reads the same whichever report made it.
+``questions_report``, ``calibration``, ``horizon``, ``mechanism``, ``standstill``,
+``generalisation``) choose their columns and format their cells; the shape of the text is
+decided here, so a committed CSV or table reads the same whichever report made it. A
+report's files are written by :class:`priqn.analysis.artifacts.ReportFolder`; the one file
+written here is a CSV outside any report (:func:`write_csv`, a tool's cache).
 """
 
 from __future__ import annotations
@@ -27,8 +29,10 @@ def csv_text(frame: Any, float_format: str | None = FLOAT_FORMAT) -> str:
     return frame.to_csv(index=False, float_format=float_format, lineterminator="\n")
 
 
-def write_csv(path: Path, frame: Any, float_format: str | None = FLOAT_FORMAT) -> None:
-    """:func:`csv_text` of ``frame`` into ``path``, atomically (temp file + rename)."""
+def write_csv(path: str | Path, frame: Any, float_format: str | None = FLOAT_FORMAT) -> None:
+    """A CSV outside any report folder (a tool's cache of replayed rows, ``priqn probe
+    --csv``): :func:`csv_text` of ``frame`` into ``path``, atomically. A report's tables
+    go through :meth:`priqn.analysis.artifacts.ReportFolder.table`."""
     atomic_write_text(path, csv_text(frame, float_format))
 
 

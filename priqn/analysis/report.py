@@ -1,6 +1,9 @@
-"""``priqn report``: Tables I and II, rliable statistics and figures from evaluated runs.
+"""The grid report (kind ``grid``): Tables I and II, rliable statistics and figures from
+evaluated runs (``priqn report`` on a folder of runs that is no design's; the choice is
+:func:`priqn.analysis.reports.choose_kind`'s).
 
-``make_report(runs_dir, out_dir, seed=0)`` writes::
+``make_report(runs_dir, out_dir, seed=0)`` writes, through a
+:class:`~priqn.analysis.artifacts.ReportFolder`::
 
     out_dir/report.md                 everything at a glance
     out_dir/meta.json                 inputs (runs, hold-out hash), seed, reps, command
@@ -25,17 +28,17 @@ Same inputs and seed give byte-identical tables and report.md (no timestamps).
 from __future__ import annotations
 
 import dataclasses
-import shlex
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from priqn.analysis.render import markdown_table, write_csv
-from priqn.errors import PriqnError
-from priqn.io import atomic_write_json, atomic_write_text
+from priqn.analysis.render import markdown_table
+from priqn.analysis.request import DEFAULT_REPS, ReportRequest, report_command
 from priqn.run.folder import RunFolder
 
-DEFAULT_REPS = 2000
-"""Bootstrap replications by default (rliable suggests >= 2000 for 95% CIs)."""
+if TYPE_CHECKING:
+    from priqn.analysis.artifacts import ReportFolder
+    from priqn.analysis.curves import Efficiency
+
 MIN_SEEDS_FOR_STATISTICS = 2
 """Fewer training seeds per policy: no best/second marks and no CIs in the report."""
 
@@ -240,9 +243,9 @@ def compute_statistics(
 
 
 def draw_figures(
-    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics, reps: int, seed: int
-) -> tuple[dict[str, Any], Any, list[str]]:
-    """Every figure by file stem, the sample-efficiency table and its notes."""
+    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics
+) -> dict[str, Any]:
+    """Every figure by file stem but the sample-efficiency one (:func:`efficiency_of`)."""
     from priqn.analysis import figures
 
     out: dict[str, Any] = {}
@@ -257,17 +260,13 @@ def draw_figures(
     )
     if stats.claims_checked:
         out["claims"] = figures.claims_figure(stats.claims)
-    curve, notes = sample_efficiency_of(inputs, tabs, reps, seed)
-    if len(curve):
-        out["learning_curves"] = efficiency_figure(curve, tabs)
-    return {k: v for k, v in out.items() if v is not None}, curve, notes
+    return {k: v for k, v in out.items() if v is not None}
 
 
-def sample_efficiency_of(
-    inputs: ReportInputs, tabs: ReportTables, reps: int, seed: int
-) -> tuple[Any, list[str]]:
-    """The sample-efficiency table (:func:`priqn.analysis.curves.sample_efficiency`) of
-    every run's own policy (controls share their run's training: no curve of their own)."""
+def efficiency_of(inputs: ReportInputs, tabs: ReportTables, reps: int, seed: int) -> Efficiency:
+    """The sample-efficiency section (:func:`priqn.analysis.curves.efficiency`) of every
+    run's own policy (controls share their run's training: no curve of their own), rows in
+    Table II's order."""
     from priqn.analysis import curves
 
     cells = [
@@ -275,39 +274,20 @@ def sample_efficiency_of(
         for r in inputs.evaluation.runs
         if r.eval_dir == RunFolder.EVAL
     ]
-    points, notes = curves.curve_points(cells)
-    rank = {label: i for i, label in enumerate(tabs.order)}
-    points = points.sort_values("row", key=lambda s: s.map(rank), kind="mergesort")
-    return curves.sample_efficiency(points, reps, seed), notes
+    agents = {label: tabs.table2.configs[label][0] for label in tabs.order}
+    return curves.efficiency(cells, agents, reps, seed)
 
 
-def efficiency_figure(curve: Any, tabs: ReportTables) -> Any:
-    """The sample-efficiency figure: baselines and Pr-IQN variants in panels of at most 4
-    rows, IQN dotted in the panels without it, each row in its colour of every figure."""
-    from priqn.analysis import curves, figures, tables
-
-    rows = [label for label in tabs.order if label in set(curve["row"])]
-    agents = {label: tabs.table2.configs[label][0] for label in rows}
-    panel_rows = curves.panels(rows, curves.row_kinds(agents))
-    reference = tables.baseline_label(tabs.table2.configs)
-    reference = reference if reference in rows else None
-    return figures.sample_efficiency_figure(
-        curve, panel_rows, figures.row_colors(tabs.order), reference
-    )
-
-
-def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: Any) -> None:
-    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable, claims and
-    sample-efficiency CSVs."""
+def write_tables(folder: ReportFolder, tabs: ReportTables, stats: ReportStatistics) -> None:
+    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable and claims CSVs."""
     import pandas as pd
 
     from priqn.analysis import claims_report, tables
 
-    tdir = out / "tables"
     for name, table in (("table2", tabs.table2), ("table1", tabs.table1)):
-        atomic_write_text(tdir / f"{name}.md", tables.to_markdown(table))
-        atomic_write_text(tdir / f"{name}.tex", tables.to_latex(table))
-        atomic_write_text(tdir / f"{name}.csv", tables.to_csv(table))
+        folder.text(f"tables/{name}.md", tables.to_markdown(table))
+        folder.text(f"tables/{name}.tex", tables.to_latex(table))
+        folder.text(f"tables/{name}.csv", tables.to_csv(table))
     if stats.rliable:
         for name, part in (
             ("rliable_aggregates", "aggregates"),
@@ -315,20 +295,17 @@ def write_tables(out: Path, tabs: ReportTables, stats: ReportStatistics, curve: 
             ("performance_profiles", "profiles"),
         ):
             frame = pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
-            write_csv(tdir / f"{name}.csv", frame)
-    write_csv(tdir / "outcomes_by_command.csv", tabs.outcomes)
+            folder.table(name, frame)
+    folder.table("outcomes_by_command", tabs.outcomes)
     if tabs.generalisation:
         from priqn.analysis.generalisation import table_markdown
 
         for nets, table in tabs.generalisation:
             stem = f"generalisation_{nets.short_hash}"
-            atomic_write_text(tdir / f"{stem}.md", table_markdown(table))
-            write_csv(tdir / f"{stem}.csv", table)
+            folder.text(f"tables/{stem}.md", table_markdown(table))
+            folder.table(stem, table)
     if stats.claims_checked:
-        frame = claims_report.to_frame(stats.claims)
-        write_csv(tdir / "claims.csv", frame)
-    if len(curve):
-        write_csv(tdir / "sample_efficiency.csv", curve)
+        folder.table("claims", claims_report.to_frame(stats.claims))
 
 
 def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> list[str]:
@@ -565,6 +542,7 @@ def make_report(
     command: str | None = None,
     partial: bool = False,
     references: tuple[str | Path, ...] = (),
+    experiment: str | None = None,
 ) -> Path:
     """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
 
@@ -573,45 +551,55 @@ def make_report(
     and seeds Monte-Carlo permutation tests (recorded in the report). ``partial``: report
     the fully evaluated runs of a grid still running, and say which were left out.
     ``references``: reference-driver folders shown as unranked rows
-    (:mod:`priqn.analysis.reference`); none leaves the report as it was.
+    (:mod:`priqn.analysis.reference`); none leaves the report as it was. ``command``: the
+    one recorded (by default :func:`priqn.analysis.request.report_command`'s);
+    ``experiment``: the experiment's name for ``meta.json`` (None: no experiment's runs).
     """
-    from priqn.analysis import figures
+    from priqn.analysis.artifacts import ReportFolder
+    from priqn.analysis.figures import efficiency_figure
 
-    out, runs_root = Path(out_dir), Path(runs_dir)
-    inputs = load_inputs(runs_root, partial, min_seeds, tuple(references))
+    folder = ReportFolder.open(out_dir)
+    inputs = load_inputs(runs_dir, partial, min_seeds, tuple(references))
     tabs = build_tables(inputs)
     stats = compute_statistics(inputs, tabs.order, reps, seed)
-    figs, curve, curve_notes = draw_figures(inputs, tabs, stats, reps, seed)
-    inputs.notes.extend(curve_notes)
+    efficiency = efficiency_of(inputs, tabs, reps, seed)
+    inputs.notes.extend(efficiency.notes)
 
-    write_tables(out, tabs, stats, curve)
-    for name, fig in figs.items():
-        figures.save_figure(fig, out / "figures", name)
-    cmd = (
-        command
-        or f"priqn report {shlex.quote(str(runs_root))} --out {shlex.quote(str(out))} --seed {seed} --reps {reps}"
-    )
-    report = out / "report.md"
-    atomic_write_text(report, report_markdown(inputs, tabs, stats, len(curve) > 0, cmd, seed, reps))
-    meta = _meta(inputs, tabs, cmd, seed, reps, min_seeds)
-    atomic_write_json(out / "meta.json", meta)
+    write_tables(folder, tabs, stats)
+    for name, fig in draw_figures(inputs, tabs, stats).items():
+        folder.figure(name, fig)
+    if efficiency.drawn:
+        folder.table("sample_efficiency", efficiency.curve)
+        folder.figure("learning_curves", efficiency_figure(efficiency.curve, efficiency.agents))
+    if command is None:
+        request = ReportRequest(
+            Path(runs_dir),
+            Path(out_dir),
+            seed=seed,
+            reps=reps,
+            min_seeds=min_seeds,
+            partial=partial,
+            references=tuple(str(r) for r in references),
+        )
+        command = report_command(request, "grid")
+    text = report_markdown(inputs, tabs, stats, efficiency.drawn, command, seed, reps)
+    report = folder.text("report.md", text)
+    folder.meta("grid", command, experiment, _meta(inputs, tabs, seed, reps, min_seeds))
     return report
 
 
 def _meta(
     inputs: ReportInputs,
     tabs: ReportTables,
-    cmd: str,
     seed: int,
     reps: int,
     min_seeds: int | None,
 ) -> dict[str, Any]:
-    """``meta.json``: how the report was made and from which runs."""
+    """``meta.json``'s own fields of the grid report: how it was made, from which runs."""
     from priqn.analysis.stats import RUN_AXIS, TASK_AXIS
 
     evaluation = inputs.evaluation
     return {
-        "command": cmd,
         "seed": seed,
         "bootstrap_reps": reps,
         "min_seeds": min_seeds,
@@ -657,58 +645,3 @@ def _meta(
             else {}
         ),
     }
-
-
-def design_experiment(runs: str | Path, name: str | None = None) -> Any:
-    """The experiment with a ``[sequential]``, ``[[question]]`` or ``[calibration]`` design
-    whose runs live in ``runs``: the one named ``name``, else the experiment file named like
-    the folder (``results/headline`` -> ``headline``) if it has such a design; None otherwise."""
-    from priqn.experiment import load_experiment
-
-    folder = Path(runs)
-    if name is None:
-        try:
-            exp = load_experiment(folder.name, runs_dir=folder.parent)
-        except PriqnError:
-            return None
-        return exp if exp.designs or exp.calibration else None
-    exp = load_experiment(name, runs_dir=folder.parent)
-    if not exp.designs and exp.calibration is None:
-        raise PriqnError(
-            f"--experiment {name}: {exp.path} has no [sequential], [[question]] or "
-            "[calibration] design"
-        )
-    if exp.runs_dir.resolve() != folder.resolve():
-        raise PriqnError(
-            f"--experiment {name}: its cells live in {exp.runs_dir.name}/, not {folder.name}/"
-        )
-    return exp
-
-
-def write_experiment_report(exp: Any, out: str | Path, command: str | None = None) -> Path:
-    """The report of an experiment, by its kind: the one place a report's writer is chosen
-    (``priqn report`` on an experiment's runs, ``priqn sweep`` after its cells). A
-    ``[calibration]`` design's, a ``[sequential]`` table's (the one-question layout:
-    :mod:`priqn.analysis.sequential_report`), ``[[question]]`` tables'
-    (:mod:`priqn.analysis.questions_report`), else the grid's Tables I/II report
-    (:func:`make_report`, seeded by ``[experiment].report_seed``). ``command``: the one
-    recorded in ``meta.json``; by default ``priqn sweep <file>`` for a grid and, for a
-    design, the ``priqn report`` that regenerates it."""
-    if not exp.designs and exp.calibration is None:
-        return make_report(
-            exp.runs_dir,
-            out,
-            seed=exp.experiment.report_seed,
-            command=command or f"priqn sweep {exp.path}",
-        )
-    from priqn.analysis.sequential import relative_path
-
-    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
-    if exp.calibration is not None:
-        from priqn.analysis import calibration
-
-        return calibration.write_report(exp, out, command)
-    from priqn.analysis import questions_report, sequential_report
-
-    writer = sequential_report if exp.sequential is not None else questions_report
-    return writer.write_report(exp, out, command)

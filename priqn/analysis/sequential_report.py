@@ -1,14 +1,16 @@
-"""The report of a ``[sequential]`` table (the one-question layout), from its looks.
+"""The report of a ``[sequential]`` table (kind ``sequential``, the one-question layout),
+from its looks.
 
-:func:`write_report` writes, deterministically (the same committed cells give the same
-bytes): ``report.md`` (verdicts, each look, per-density success, the next cells, every
-cell), ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` / ``sample_efficiency.csv`` and
+:func:`write_report` writes through a :class:`~priqn.analysis.artifacts.ReportFolder`,
+deterministically (the same committed cells give the same bytes): ``report.md``
+(verdicts, each look, per-density success, the next cells, every cell),
+``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` / ``sample_efficiency.csv`` and
 ``figures/headline`` (per-seed success of each row), ``figures/looks`` (each comparison
-look by look) and ``figures/sample_efficiency`` (:mod:`priqn.analysis.curves`). The
-scores are :mod:`priqn.analysis.questions`' (as for any design), the decisions
+look by look) and ``figures/sample_efficiency`` (:func:`priqn.analysis.curves.efficiency`).
+The scores are :mod:`priqn.analysis.questions`' (as for any design), the decisions
 :mod:`priqn.analysis.sequential`'s; nothing here decides. ``[[question]]`` tables have
 their own layout, :mod:`priqn.analysis.questions_report`; the choice is
-:func:`priqn.analysis.report.write_experiment_report`'s.
+:func:`priqn.analysis.reports.choose_kind`'s.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ import pandas as pd
 
 from priqn.analysis import inference, questions
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
-from priqn.analysis.render import markdown_table, write_csv
+from priqn.analysis.render import markdown_table
+from priqn.analysis.request import ReportRequest, report_command
 from priqn.analysis.sequential import ComparisonLook, Look, Looks, relative_path, verdict
 from priqn.experiment import ComparisonSpec, SequentialSpec, cell_dir_name
 from priqn.run.folder import RunFolder
@@ -93,6 +96,14 @@ def looks_frame(result: Looks) -> pd.DataFrame:
     fields = [f.name for f in dataclasses.fields(ComparisonLook)]
     columns = ["look", *fields, "level_spent", "needed"]
     return pd.DataFrame(rows, columns=columns).astype({"decided_at": "Int64"})
+
+
+def row_verdict(design: SequentialSpec, result: Looks, comparison: ComparisonSpec) -> str:
+    """The verdict words (:func:`priqn.analysis.sequential.verdict`) as every report prints
+    them: a comparison's first row by its name, not as ``a`` (``iqn better``,
+    ``pr-iqn-qd-tp-eps0.2 violates more``)."""
+    words = verdict(design, result, comparison)
+    return comparison.a + words[1:] if words.startswith("a ") else words
 
 
 def figure(exp: Any, scores: pd.DataFrame) -> Any:
@@ -195,7 +206,7 @@ def looks_figure(designs: Sequence[tuple[SequentialSpec, Looks]], title: str) ->
         ax.set_xlim(0.4, K + 0.6)
         ax.set_xlabel("seeds per row at the look", fontsize=8)
         name = f"{design.name}: {c.name}" if design.name else c.name
-        ax.set_title(textwrap.fill(f"{name}: {verdict(design, result, c)}", 58), fontsize=8)
+        ax.set_title(textwrap.fill(f"{name}: {row_verdict(design, result, c)}", 58), fontsize=8)
         ax.tick_params(axis="y", labelsize=8)
     for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
@@ -260,38 +271,6 @@ def _looks_legend(fig: Any, title: str) -> None:
         frameon=False,
     )
     fig.tight_layout(rect=(0, 0, 1, top))
-
-
-def sample_efficiency(exp: Any, scores: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """The sample-efficiency table (:func:`priqn.analysis.curves.sample_efficiency`) of
-    the cells the report counts (``scores``), one curve per row group
-    (:attr:`priqn.experiment.PolicySpec.group_name`), and its notes."""
-    from priqn.analysis import curves
-
-    group = {p.name: p.group_name for p in exp.policies}
-    cells = [(group[r.policy], int(r.seed), Path(r.run_dir)) for r in scores.itertuples()]
-    points, notes = curves.curve_points(cells)
-    rank = {g: i for i, g in enumerate(dict.fromkeys(group.values()))}
-    points = points.sort_values("row", key=lambda s: s.map(rank), kind="mergesort")
-    return curves.sample_efficiency(points, CURVE_REPS, CURVE_SEED), notes
-
-
-def efficiency_figure(exp: Any, curve: pd.DataFrame) -> Any:
-    """The sample-efficiency figure: baselines and Pr-IQN variants in their own panels,
-    one colour per row group (file order), dotted where it is absent the IQN group whose
-    curve reaches furthest (the first in file order among equals: with IQN at 60k and at
-    240k, the one a Pr-IQN* 240k curve is compared with)."""
-    from priqn.analysis import curves
-    from priqn.analysis.figures import row_colors, sample_efficiency_figure
-
-    agents = {p.group_name: p.agent for p in exp.policies}
-    rows = [g for g in agents if g in set(curve["row"])]
-    reach = curve.groupby("row")["budget"].max()
-    iqn = [g for g in rows if agents[g] == "iqn"]
-    reference = max(iqn, key=lambda g: reach[g]) if iqn else None  # max keeps the first of ties
-    return sample_efficiency_figure(
-        curve, curves.panels(rows, curves.row_kinds(agents)), row_colors(list(agents)), reference
-    )
 
 
 def _needed(x: float) -> str:
@@ -419,7 +398,7 @@ def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
             decided += f" (look {row.decided_at})"
         lines.append(
             f"| {c.name} | {c.family} | {paper} | {est} | {seeds} | {decided} | "
-            f"**{verdict(exp.sequential, result, c)}** |"
+            f"**{row_verdict(exp.sequential, result, c)}** |"
         )
     return [
         *lines,
@@ -522,47 +501,46 @@ def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
 
 def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> Path:
     """Write the sequential experiment's report into ``out_dir``; returns ``report.md``.
+    ``command``: the one recorded (by default :func:`priqn.analysis.request.report_command`'s).
 
     Deterministic: the same committed cells give byte-identical files."""
-    from priqn.analysis.figures import save_figure
-    from priqn.io import atomic_write_json, atomic_write_text
+    from priqn.analysis import curves
+    from priqn.analysis.artifacts import ReportFolder
+    from priqn.analysis.figures import efficiency_figure
 
-    out = Path(out_dir)
+    folder = ReportFolder.open(out_dir)
     scores, result = questions.take_looks(exp, exp.sequential)
     scores = scores[list(SCORE_COLUMNS)]
-    command = command or f"priqn report {relative_path(exp.runs_dir)} --out {relative_path(out)}"
-    write_csv(out / "tables" / "scores.csv", scores)
-    write_csv(out / "tables" / "looks.csv", looks_frame(result))
-    write_csv(out / "tables" / "density.csv", density_frame(exp, scores))
-    save_figure(figure(exp, scores), out / "figures", "headline")
+    if command is None:
+        command = report_command(ReportRequest(exp.runs_dir, Path(out_dir), exp), "sequential")
+    folder.table("scores", scores)
+    folder.table("looks", looks_frame(result))
+    folder.table("density", density_frame(exp, scores))
+    folder.figure("headline", figure(exp, scores))
     monitoring = looks_figure(
         [(exp.sequential, result)], f"{exp.experiment.name}: each comparison look by look"
     )
     if monitoring is not None:
-        save_figure(monitoring, out / "figures", "looks")
-    curve, curve_notes = sample_efficiency(exp, scores)
-    if len(curve):
-        write_csv(out / "tables" / "sample_efficiency.csv", curve)
-        save_figure(efficiency_figure(exp, curve), out / "figures", "sample_efficiency")
-    report = out / "report.md"
-    atomic_write_text(report, report_markdown(exp, scores, result, command, len(curve) > 0))
-    atomic_write_json(
-        out / "meta.json",
-        {
-            "command": command,
-            "experiment": exp.path.name,
-            "looks": len(result.looks),
-            "decisions": result.decisions,
-            "verdicts": {
-                c.name: verdict(exp.sequential, result, c) for c in exp.sequential.comparisons
-            },
-            "finished": result.finished,
-            "cells": len(scores),
-            **(
-                {"curves": {"seed": CURVE_SEED, "reps": CURVE_REPS, "notes": curve_notes}}
-                if len(curve)
-                else {}
-            ),
+        folder.figure("looks", monitoring)
+    group = {p.name: p.group_name for p in exp.policies}
+    cells = [(group[r.policy], int(r.seed), Path(r.run_dir)) for r in scores.itertuples()]
+    agents = {p.group_name: p.agent for p in exp.policies}
+    efficiency = curves.efficiency(cells, agents, CURVE_REPS, CURVE_SEED)
+    if efficiency.drawn:
+        folder.table("sample_efficiency", efficiency.curve)
+        folder.figure("sample_efficiency", efficiency_figure(efficiency.curve, efficiency.agents))
+    text = report_markdown(exp, scores, result, command, efficiency.drawn)
+    report = folder.text("report.md", text)
+    fields = {
+        "looks": len(result.looks),
+        "decisions": result.decisions,
+        "verdicts": {
+            c.name: row_verdict(exp.sequential, result, c) for c in exp.sequential.comparisons
         },
-    )
+        "finished": result.finished,
+        "cells": len(scores),
+    }
+    if efficiency.drawn:
+        fields["curves"] = {"seed": CURVE_SEED, "reps": CURVE_REPS, "notes": efficiency.notes}
+    folder.meta("sequential", command, exp.experiment.name, fields)
     return report

@@ -347,7 +347,7 @@ def _run_sequential(exp: Any, report: bool, **kw: Any) -> int:
         if result.failed or result.interrupted:
             return _summarise(exp, result)
     if report:
-        from priqn.analysis.report import write_experiment_report
+        from priqn.analysis.reports import write_experiment_report
 
         path = write_experiment_report(exp, exp.report_dir)
         print(f"priqn sweep: report in {path}", file=sys.stderr)

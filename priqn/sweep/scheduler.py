@@ -370,7 +370,7 @@ def _write_summary(exp: Experiment, cells: list[Cell], result: SweepResult) -> N
 
 def _run_report(exp: Experiment, say: Callable[[str], None]) -> Path | None:
     try:
-        from priqn.analysis.report import write_experiment_report
+        from priqn.analysis.reports import write_experiment_report
     except ModuleNotFoundError as exc:
         say(f"priqn sweep: report skipped ({exc.name} is not installed)")
         return None

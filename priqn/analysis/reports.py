@@ -1,0 +1,157 @@
+"""Every kind of report, and the one place a report's kind is chosen.
+
+:data:`REPORTS` names each kind (the ``kind`` of its ``meta.json``, :mod:`priqn.analysis.artifacts`)
+with the module that writes it. ``priqn report`` and ``priqn sweep`` both go through
+:func:`write_report`: a :class:`~priqn.analysis.request.ReportRequest` (the runs folder,
+the output folder and the options) gets its kind from :func:`choose_kind`, its
+``meta.json`` command from :func:`~priqn.analysis.request.report_command` (the one builder
+of that string) and is written by the kind's writer::
+
+    --horizon N,...               horizon       priqn.analysis.horizon
+    an experiment's [calibration] calibration   priqn.analysis.calibration
+    its [sequential] table        sequential    priqn.analysis.sequential_report
+    its [[question]] tables       questions     priqn.analysis.questions_report
+    any other folder of runs      grid          priqn.analysis.report (Tables I/II, rliable)
+
+The experiment of a runs folder is the one named by ``--experiment``, else the experiment
+file named like the folder (``results/headline`` -> ``headline``), else none
+(:func:`experiment_of`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from priqn.analysis.request import ReportRequest, report_command
+from priqn.errors import PriqnError
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportKind:
+    """One kind of report: its name (``meta.json``'s ``kind``), what it shows, and its writer."""
+
+    name: str
+    summary: str
+    write: Callable[[ReportRequest, str], Path] | None
+    """``write(request, command)`` -> the report's Markdown; None for a kind another command
+    writes (``priqn mechanism``), not ``priqn report``."""
+
+
+def _grid(request: ReportRequest, command: str) -> Path:
+    from priqn.analysis.report import make_report
+
+    return make_report(
+        request.runs,
+        request.out,
+        seed=request.seed,
+        reps=request.reps,
+        min_seeds=request.min_seeds,
+        command=command,
+        partial=request.partial,
+        references=request.references,
+        experiment=request.experiment_name,
+    )
+
+
+def _sequential(request: ReportRequest, command: str) -> Path:
+    from priqn.analysis import sequential_report
+
+    return sequential_report.write_report(request.experiment, request.out, command)
+
+
+def _questions(request: ReportRequest, command: str) -> Path:
+    from priqn.analysis import questions_report
+
+    return questions_report.write_report(request.experiment, request.out, command)
+
+
+def _calibration(request: ReportRequest, command: str) -> Path:
+    from priqn.analysis import calibration
+
+    return calibration.write_report(request.experiment, request.out, command)
+
+
+def _horizon(request: ReportRequest, command: str) -> Path:
+    from priqn.analysis.horizon import write_horizon_report
+
+    return write_horizon_report(
+        request.runs, request.horizon, request.out, command, request.experiment_name
+    )
+
+
+REPORTS: dict[str, ReportKind] = {
+    kind.name: kind
+    for kind in (
+        ReportKind("grid", "Tables I and II, rliable statistics, the claims", _grid),
+        ReportKind("sequential", "a [sequential] table's looks and verdicts", _sequential),
+        ReportKind("questions", "[[question]] tables' looks and verdicts", _questions),
+        ReportKind("calibration", "the row whose outcome mix is nearest a target", _calibration),
+        ReportKind("horizon", "the runs at longer evaluation-only episode limits", _horizon),
+        # Written by `priqn mechanism` (priqn.tools), from replayed decisions, not by
+        # `priqn report`: named here so every meta.json's kind is one of REPORTS. Their
+        # writers (priqn.analysis.mechanism / standstill / collisions) take the replayed
+        # rows, not a ReportRequest.
+        ReportKind("mechanism", "safety removals and the safety head's calibration", None),
+        ReportKind("standstill", "where and why Pr-IQN stands still", None),
+        ReportKind("collisions", "who struck whom, and could it have been prevented", None),
+    )
+}
+"""Every kind of report, by the name its ``meta.json`` records."""
+
+
+def experiment_of(runs: str | Path, name: str | None = None) -> Any:
+    """The experiment whose runs live in ``runs``: the one named ``name`` (a one-line
+    error if its cells live elsewhere), else the experiment file named like the folder
+    (``results/headline`` -> ``headline``) if there is one; None otherwise."""
+    from priqn.experiment import load_experiment
+
+    folder = Path(runs)
+    if name is None:
+        try:
+            return load_experiment(folder.name, runs_dir=folder.parent)
+        except PriqnError:
+            return None
+    exp = load_experiment(name, runs_dir=folder.parent)
+    if Path(exp.runs_dir).resolve() != folder.resolve():
+        raise PriqnError(
+            f"--experiment {name}: its cells live in {Path(exp.runs_dir).name}/, not {folder.name}/"
+        )
+    if not exp.designs and exp.calibration is None:
+        raise PriqnError(
+            f"--experiment {name}: {exp.path} has no [sequential], [[question]] or "
+            "[calibration] design"
+        )
+    return exp
+
+
+def choose_kind(request: ReportRequest) -> str:
+    """The kind of report ``request`` gets (a name in :data:`REPORTS`)."""
+    exp = request.experiment
+    if request.horizon:
+        return "horizon"
+    if exp is None or (not exp.designs and exp.calibration is None):
+        return "grid"
+    if request.references:
+        raise PriqnError("--reference: not for an experiment's design report")
+    if exp.calibration is not None:
+        return "calibration"
+    return "sequential" if exp.sequential is not None else "questions"
+
+
+def write_report(request: ReportRequest) -> Path:
+    """Write ``request``'s report by its kind (:func:`choose_kind`), recording
+    :func:`report_command`; returns the report's Markdown file."""
+    kind = choose_kind(request)
+    write = REPORTS[kind].write
+    assert write is not None, kind  # choose_kind chooses priqn report's kinds only
+    return write(request, report_command(request, kind))
+
+
+def write_experiment_report(exp: Any, out: str | Path) -> Path:
+    """The report ``priqn sweep`` writes after an experiment's cells: :func:`write_report`
+    of its runs folder (a grid's statistics seeded by ``[experiment].report_seed``)."""
+    request = ReportRequest(Path(exp.runs_dir), Path(out), exp, seed=exp.experiment.report_seed)
+    return write_report(request)

@@ -1,0 +1,129 @@
+"""Shape of the reports (issue 60, "one pipeline"): one writer of report files, one
+meta.json schema, modules a reader can hold in mind.
+
+- Only :mod:`priqn.analysis.artifacts` writes files in ``priqn/analysis/`` (no
+  ``savefig``, ``atomic_write_*`` or ``write_csv`` call elsewhere), except a run's
+  training curve (:func:`priqn.analysis.figures.write_training_curve`, written during
+  training, no report's).
+- Every committed ``docs/results/**/meta.json`` has the schema's common keys.
+- No module in ``priqn/analysis/`` (or ``priqn/agents/``) is over :data:`MAX_MODULE_LINES`.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+
+import priqn
+from priqn.analysis.artifacts import META_SCHEMA
+from priqn.analysis.reports import REPORTS
+
+PACKAGE = Path(priqn.__file__).resolve().parent
+REPO = PACKAGE.parent
+
+WRITERS = frozenset(
+    {"savefig", "atomic_write_text", "atomic_write_bytes", "atomic_write_json", "write_csv"}
+)
+"""Calls that write a file; in ``priqn/analysis/`` only the artifacts module makes them."""
+
+ALLOWED_WRITERS: dict[str, str] = {
+    "priqn/analysis/artifacts.py": "the one writer of a report's files",
+    "priqn/analysis/figures.py:write_training_curve": "a run's learning_curve.png, in training",
+}
+"""Where a writing call is allowed: a whole module, or ``module:function``."""
+
+PENDING_WRITERS: dict[str, str] = {
+    "priqn/analysis/mechanism.py": "priqn mechanism's report, moving onto ReportFolder (issue 60)",
+    "priqn/analysis/standstill.py": "priqn mechanism's report, moving onto ReportFolder (issue 60)",
+    "priqn/analysis/collisions.py": "priqn mechanism's report, moving onto ReportFolder (issue 60)",
+    "priqn/analysis/decisions.py:DecisionCache": "the replay's cache of decision rows (not a "
+    "report file): to write through artifacts, or to leave analysis/",
+    "priqn/analysis/render.py:write_csv": "a CSV outside any report (DecisionCache, priqn probe "
+    "--csv): to move into artifacts once its callers import it from there",
+}
+"""Writing calls tolerated while another change of issue 60 moves them (a whole module, or
+``module:function``); remove an entry once its module has landed without them."""
+
+MAX_MODULE_LINES = 800
+"""Longest module in ``priqn/analysis/`` and ``priqn/agents/``."""
+
+META_KEYS = frozenset({"schema", "kind", "command", "experiment"})
+"""The keys every report's meta.json has (:meth:`priqn.analysis.artifacts.ReportFolder.meta`)."""
+
+
+def _called_name(call: ast.Call) -> str | None:
+    """The name a call is made by: ``f(...)`` -> ``f``, ``x.f(...)`` -> ``f``."""
+    func = call.func
+    if isinstance(func, ast.Name):
+        return func.id
+    return func.attr if isinstance(func, ast.Attribute) else None
+
+
+def _writing_calls(path: Path) -> list[str]:
+    """``module:function:name`` of every writing call (:data:`WRITERS`) in ``path``, the
+    function being the outermost ``def`` around it (``<module>`` at the top level)."""
+    rel = path.relative_to(REPO).as_posix()
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    found = []
+
+    def walk(node: ast.AST, where: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            inner = where
+            if where == "<module>" and isinstance(child, (ast.FunctionDef, ast.ClassDef)):
+                inner = child.name
+            if isinstance(child, ast.Call) and _called_name(child) in WRITERS:
+                found.append(f"{rel}:{inner}:{_called_name(child)}")
+            walk(child, inner)
+
+    walk(tree, "<module>")
+    return found
+
+
+def _listed(call: str, where: dict[str, str]) -> bool:
+    """Whether ``module:function:name`` falls under an entry of ``where``."""
+    module, function, _ = call.split(":")
+    return module in where or f"{module}:{function}" in where
+
+
+def test_only_the_artifacts_module_writes_report_files() -> None:
+    calls = [c for p in sorted((PACKAGE / "analysis").glob("*.py")) for c in _writing_calls(p)]
+    assert any(c.startswith("priqn/analysis/artifacts.py:") for c in calls)  # the walk finds them
+    stray = [
+        c for c in calls if not _listed(c, ALLOWED_WRITERS) and not _listed(c, PENDING_WRITERS)
+    ]
+    assert not stray, f"write report files through ReportFolder (analysis/artifacts.py): {stray}"
+
+
+def test_every_committed_meta_json_has_the_schema_keys() -> None:
+    metas = sorted((REPO / "docs" / "results").rglob("meta.json"))
+    assert metas
+    for path in metas:
+        meta = json.loads(path.read_text())
+        where = path.relative_to(REPO)
+        assert META_KEYS <= set(meta), f"{where}: lacks {sorted(META_KEYS - set(meta))}"
+        assert meta["schema"] == META_SCHEMA, where
+        assert meta["kind"] in REPORTS, where
+        assert meta["experiment"] is None or isinstance(meta["experiment"], str), where
+        assert not str(meta["experiment"]).endswith(".toml"), f"{where}: a name, not a file"
+
+
+def _long_modules(folder: str) -> dict[str, int]:
+    lengths = {
+        p.relative_to(REPO).as_posix(): len(p.read_text(encoding="utf-8").splitlines())
+        for p in sorted((PACKAGE / folder).glob("*.py"))
+    }
+    assert lengths  # the walk finds modules
+    return {name: n for name, n in lengths.items() if n > MAX_MODULE_LINES}
+
+
+def test_no_analysis_module_is_over_800_lines() -> None:
+    long = _long_modules("analysis")
+    assert not long, f"split these modules (at most {MAX_MODULE_LINES} lines): {long}"
+
+
+def test_no_agents_module_is_over_800_lines() -> None:
+    """Fails on a checkout where priqn/agents/preorder.py (982 lines at 7a20280) is not yet
+    split: that split is another change of issue 60."""
+    long = _long_modules("agents")
+    assert not long, f"split these modules (at most {MAX_MODULE_LINES} lines): {long}"
