@@ -165,8 +165,8 @@ def from_report(folder: Path, a: str, b: str, endpoint: str, budget: int) -> dic
             paper = paper_violations(folder, budget, a, b)
         verdict = meta["verdicts"][row["comparison"]]
         assert verdict == row["verdict"], f"{folder.name}: meta.json and comparisons.csv differ"
-        if verdict.startswith("a "):  # "a violates more": a is the row named first
-            verdict = next(k for k, v in ROWS.items() if v == a) + verdict[1:]
+        if verdict.startswith(f"{a} "):  # "pr-iqn-qd-tp-eps0.2 violates more": the prose name
+            verdict = next(k for k, v in ROWS.items() if v == a) + verdict[len(a) :]
         return {
             "estimate": (points(row["difference"]), points(row["lo"]), points(row["hi"])),
             "seeds": (int(row["seeds_a"]), int(row["seeds_b"])),
