@@ -156,7 +156,7 @@ class TrainLogger:
     def learning_curve(self, rows: Sequence[Mapping[str, Any]]) -> None:
         """learning_curve.png of ``rows`` (a copy of :attr:`rows`: drawn in the writer's
         thread while the loop adds more; matplotlib is used by no other thread then)."""
-        from priqn.analysis.figures import write_training_curve
+        from priqn.run.curve import write_training_curve
 
         write_training_curve(rows, self.run.learning_curve_path, self.run.name)
 

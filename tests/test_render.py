@@ -5,7 +5,8 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from priqn.analysis.render import csv_text, markdown_table, write_csv
+from priqn.analysis.artifacts import write_csv
+from priqn.analysis.render import csv_text, markdown_table
 
 
 def test_markdown_table_by_hand() -> None:

@@ -2,9 +2,9 @@
 meta.json schema, modules a reader can hold in mind.
 
 - Only :mod:`priqn.analysis.artifacts` writes files in ``priqn/analysis/`` (no
-  ``savefig``, ``atomic_write_*`` or ``write_csv`` call elsewhere), except a run's
-  training curve (:func:`priqn.analysis.figures.write_training_curve`, written during
-  training, no report's).
+  ``savefig``, ``atomic_write_*``, ``write_text`` or ``write_bytes`` call elsewhere): report folders through
+  ``ReportFolder``, a replay's cached rows through its ``write_csv`` / ``write_json``.
+  A run's training curve is drawn in :mod:`priqn.run.curve`, not here.
 - Every committed ``docs/results/**/meta.json`` has the schema's common keys.
 - No module in ``priqn/analysis/`` (or ``priqn/agents/``) is over :data:`MAX_MODULE_LINES`.
 """
@@ -23,24 +23,15 @@ PACKAGE = Path(priqn.__file__).resolve().parent
 REPO = PACKAGE.parent
 
 WRITERS = frozenset(
-    {"savefig", "atomic_write_text", "atomic_write_bytes", "atomic_write_json", "write_csv"}
-)
+    {"savefig", "atomic_write_text", "atomic_write_bytes", "atomic_write_json", "write_text",
+     "write_bytes"}
+)  # fmt: skip
 """Calls that write a file; in ``priqn/analysis/`` only the artifacts module makes them."""
 
 ALLOWED_WRITERS: dict[str, str] = {
     "priqn/analysis/artifacts.py": "the one writer of a report's files",
-    "priqn/analysis/figures.py:write_training_curve": "a run's learning_curve.png, in training",
 }
 """Where a writing call is allowed: a whole module, or ``module:function``."""
-
-PENDING_WRITERS: dict[str, str] = {
-    "priqn/analysis/decisions.py:DecisionCache": "the replay's cache of decision rows (not a "
-    "report file): to write through artifacts, or to leave analysis/",
-    "priqn/analysis/render.py:write_csv": "a CSV outside any report (DecisionCache, priqn probe "
-    "--csv): to move into artifacts once its callers import it from there",
-}
-"""Writing calls tolerated until they move into the artifacts module (``module:function``);
-remove an entry once its function writes through artifacts."""
 
 MAX_MODULE_LINES = 800
 """Longest module in ``priqn/analysis/`` and ``priqn/agents/``."""
@@ -86,9 +77,7 @@ def _listed(call: str, where: dict[str, str]) -> bool:
 def test_only_the_artifacts_module_writes_report_files() -> None:
     calls = [c for p in sorted((PACKAGE / "analysis").glob("*.py")) for c in _writing_calls(p)]
     assert any(c.startswith("priqn/analysis/artifacts.py:") for c in calls)  # the walk finds them
-    stray = [
-        c for c in calls if not _listed(c, ALLOWED_WRITERS) and not _listed(c, PENDING_WRITERS)
-    ]
+    stray = [c for c in calls if not _listed(c, ALLOWED_WRITERS)]
     assert not stray, f"write report files through ReportFolder (analysis/artifacts.py): {stray}"
 
 

@@ -68,7 +68,7 @@ class ReportFolder:
     def table(self, name: str, frame: Any, float_format: str | None = FLOAT_FORMAT) -> Path:
         """``tables/<name>.csv`` from a pandas DataFrame (no index, ``\\n`` line ends);
         returns its path."""
-        return self.text(f"tables/{name}.csv", csv_text(frame, float_format))
+        return write_csv(self.root / "tables" / f"{name}.csv", frame, float_format)
 
     def figure(self, name: str, fig: plt.Figure) -> list[Path]:
         """``figures/<name>.png`` (:data:`FIGURE_DPI`) and ``figures/<name>.pdf``; closes
@@ -108,3 +108,20 @@ class ReportFolder:
         path = self.root / "meta.json"
         atomic_write_json(path, {**common, **fields})
         return path
+
+
+def write_csv(path: str | Path, frame: Any, float_format: str | None = FLOAT_FORMAT) -> Path:
+    """``frame`` (a pandas DataFrame) as CSV at ``path`` (:func:`priqn.analysis.render.csv_text`:
+    no index, ``\\n`` line ends), atomically; also for a CSV outside any report folder (a
+    replay's decision rows, ``priqn probe --csv``), so analysis writes CSV one way."""
+    path = Path(path)
+    atomic_write_text(path, csv_text(frame, float_format))
+    return path
+
+
+def write_json(path: str | Path, record: Any) -> Path:
+    """``record`` as indented, key-sorted JSON at ``path``, atomically (a cache's record
+    beside its rows; a report's meta.json goes through :meth:`ReportFolder.meta`)."""
+    path = Path(path)
+    atomic_write_json(path, record)
+    return path

@@ -34,9 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from priqn.analysis.artifacts import ReportFolder
-from priqn.analysis.render import markdown_table, write_csv
-from priqn.io import atomic_write_json, read_json
+from priqn.analysis.artifacts import ReportFolder, write_csv, write_json
+from priqn.analysis.render import markdown_table
+from priqn.io import read_json
 
 # ----------------------------------------------------------------------------- schema
 
@@ -239,7 +239,7 @@ class DecisionCache:
             raise ValueError(f"{cell}: not {schema.kind} rows v{schema.version}: {wrong}")
         path = self.path(schema, cell, params)
         write_csv(path, frame, float_format=None)
-        atomic_write_json(path.with_suffix(".json"), self._record(schema, params))
+        write_json(path.with_suffix(".json"), self._record(schema, params))
         return path
 
     def rows(

@@ -3,18 +3,15 @@
 The report writers (:mod:`priqn.analysis.report`, ``sequential_report``,
 ``questions_report``, ``calibration``, ``horizon``, ``mechanism``, ``standstill``,
 ``generalisation``) choose their columns and format their cells; the shape of the text is
-decided here, so a committed CSV or table reads the same whichever report made it. A
-report's files are written by :class:`priqn.analysis.artifacts.ReportFolder`; the one file
-written here is a CSV outside any report (:func:`write_csv`, a tool's cache).
+decided here, so a committed CSV or table reads the same whichever report made it. Every
+file is written by :mod:`priqn.analysis.artifacts` (a report's through ``ReportFolder``, a
+CSV outside any report through its ``write_csv``); nothing here writes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from pathlib import Path
 from typing import Any
-
-from priqn.io import atomic_write_text
 
 FLOAT_FORMAT = "%.10g"
 """Floats in a report's CSV tables: 10 significant digits (enough to recompute every
@@ -27,13 +24,6 @@ def csv_text(frame: Any, float_format: str | None = FLOAT_FORMAT) -> str:
     """``frame`` (a pandas DataFrame) as CSV: no index, ``\\n`` line ends on every OS;
     ``float_format=None`` writes floats as pandas does by default (their repr)."""
     return frame.to_csv(index=False, float_format=float_format, lineterminator="\n")
-
-
-def write_csv(path: str | Path, frame: Any, float_format: str | None = FLOAT_FORMAT) -> None:
-    """A CSV outside any report folder (a tool's cache of replayed rows, ``priqn probe
-    --csv``): :func:`csv_text` of ``frame`` into ``path``, atomically. A report's tables
-    go through :meth:`priqn.analysis.artifacts.ReportFolder.table`."""
-    atomic_write_text(path, csv_text(frame, float_format))
 
 
 def markdown_table(

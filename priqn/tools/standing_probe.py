@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if args.csv is not None:
         import pandas as pd
 
-        from priqn.analysis.render import write_csv
+        from priqn.analysis.artifacts import write_csv
 
         write_csv(args.csv, pd.DataFrame(rows), float_format="%.3f")
     return 0
