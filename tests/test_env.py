@@ -515,6 +515,32 @@ def _episode_after(preload: bool) -> dict:
         env.close()
 
 
+def _generators_around_preload() -> tuple[bool, bool, bool]:
+    """Whether ``preload_nets`` left Python's and numpy's global generators as they were,
+    and created no env generator (worker side; before any reset, so nothing reseeds)."""
+    import random
+
+    import numpy as np
+
+    from priqn.env.intersection import EnvConfig, IntersectionEnv
+
+    random.seed(11)
+    np.random.seed(11)
+    py_before, np_before = random.getstate(), np.random.get_state()
+    env = IntersectionEnv(EnvConfig(obs_size_px=32))
+    try:
+        env.preload_nets()
+        np_after = np.random.get_state()
+        same_np = all(np.array_equal(a, b) for a, b in zip(np_before, np_after, strict=True))
+        return random.getstate() == py_before, same_np, env._np_random is None
+    finally:
+        env.close()
+
+
+def test_preloading_draws_no_random_number(worker) -> None:
+    assert run_in(worker, _generators_around_preload) == (True, True, True)
+
+
 def test_preloading_the_nets_changes_no_episode(worker) -> None:
     # Training and evaluation preload every worker's nets (and the sensors' compiled
     # loops) before the first reset: the same observations, rewards and generator after.
