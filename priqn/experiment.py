@@ -32,7 +32,7 @@ from priqn.agents.config import (
 )
 from priqn.config import from_dict, load_toml, parse_override, value_pairs
 from priqn.errors import PriqnError
-from priqn.objectives import OUTCOMES  # re-exported: priqn.experiment.OUTCOMES
+from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import snapshot_evaluation
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")

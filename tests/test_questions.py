@@ -21,8 +21,8 @@ from priqn.analysis import (
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
-from priqn.experiment import OUTCOMES
 from priqn.io import atomic_write_json, atomic_write_text
+from priqn.objectives import OUTCOMES
 from priqn.sweep import load_experiment
 
 DESIGN = """

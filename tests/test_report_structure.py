@@ -94,6 +94,19 @@ def test_every_committed_meta_json_has_the_schema_keys() -> None:
         assert not str(meta["experiment"]).endswith(".toml"), f"{where}: a name, not a file"
 
 
+def test_every_committed_report_file_belongs_to_a_regenerable_report() -> None:
+    """Every file under docs/results/ lies in a folder with a meta.json, so that
+    tests/test_results.py (which finds reports by their meta.json) regenerates it; a
+    report that cannot be regenerated from git belongs in docs/history/."""
+    results = REPO / "docs" / "results"
+    orphans = []
+    for path in sorted(p for p in results.rglob("*") if p.is_file()):
+        folders = [f for f in path.parents if f == results or results in f.parents]
+        if not any((f / "meta.json").is_file() for f in folders):
+            orphans.append(path.relative_to(REPO).as_posix())
+    assert not orphans, f"no meta.json in these files' report folders: {orphans[:5]}"
+
+
 def _long_modules(folder: str) -> dict[str, int]:
     lengths = {
         p.relative_to(REPO).as_posix(): len(p.read_text(encoding="utf-8").splitlines())

@@ -4,7 +4,7 @@ An experiment with a ``[calibration]`` table (:class:`priqn.experiment.Calibrati
 ``priqn/data/experiments/calibrate.toml``) trains one policy under several settings and
 chooses one by a rule fixed before its cells trained: a row's *mix* is, per evaluation
 density, the share of its hold-out episodes ending in each of
-:data:`~priqn.experiment.OUTCOMES` (one per episode), averaged over its training seeds
+:data:`~priqn.objectives.OUTCOMES` (one per episode), averaged over its training seeds
 (each seed's rate first); its *distance* is the L1 distance of those numbers to the
 target's; the chosen row has the smallest distance (a tie: the row first in the file).
 
@@ -29,7 +29,8 @@ from priqn.analysis.load import read_episodes
 from priqn.analysis.render import markdown_table
 from priqn.analysis.request import ReportRequest, report_command
 from priqn.errors import PriqnError
-from priqn.experiment import OUTCOMES, CalibrationSpec, Experiment, check_code
+from priqn.experiment import CalibrationSpec, Experiment, check_code
+from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import evaluated
 from priqn.run.folder import RunFolder
 
@@ -109,7 +110,7 @@ def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.
 def l1_by_outcome(
     have: dict[tuple[str, float], float], target: dict[tuple[str, float], float]
 ) -> dict[str, float]:
-    """Per outcome of :data:`~priqn.experiment.OUTCOMES`, the L1 distance of ``have`` to
+    """Per outcome of :data:`~priqn.objectives.OUTCOMES`, the L1 distance of ``have`` to
     ``target`` over the densities ``target`` gives (both ``(outcome, density) -> rate``;
     ``have`` has every key of ``target``). Their sum is a mix's distance."""
     return {o: sum(abs(have[k] - t) for k, t in target.items() if k[0] == o) for o in OUTCOMES}

@@ -22,7 +22,8 @@ from priqn.analysis import tables
 from priqn.analysis.load import SORT_COLUMNS, read_evaluation
 from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table
-from priqn.experiment import OUTCOMES, Experiment
+from priqn.experiment import Experiment
+from priqn.objectives import OUTCOMES
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder

@@ -29,8 +29,7 @@ from priqn.agents.config import SHIPPED_AGENTS
 from priqn.agents.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
 from priqn.analysis.render import csv_text
-from priqn.experiment import OUTCOMES
-from priqn.objectives import OBJECTIVES, names_in_columns
+from priqn.objectives import OBJECTIVES, OUTCOMES, names_in_columns
 
 AGENT_ORDER: tuple[str, ...] = tuple(SHIPPED_AGENTS)
 """Row order of agents (the paper's, as registered); unknown agents follow alphabetically."""
