@@ -219,6 +219,19 @@ def test_every_named_setting_builds_a_train_config() -> None:
         assert cfg.env.traffic == TRAFFIC_SETTINGS[name].behaviour()
 
 
+def test_a_run_config_names_its_own_setting() -> None:
+    """Every named setting's config is named back as itself, although ``tm-long`` has ``tm``'s
+    NPCs (it differs by episode length only); a config of no setting is ''."""
+    from priqn.env.traffic import setting_name
+    from priqn.run.train_config import resolve_config
+
+    for name in TRAFFIC_SETTINGS:
+        assert setting_name(resolve_config(values=traffic_values(name)).env) == name
+    odd = resolve_config(values=(("env.traffic.impatience", 0.5),))
+    assert setting_name(odd.env) == ""
+    assert setting_name(resolve_config().env) == "sumo"
+
+
 # ------------------------------------------------------------- the Traffic-Manager-like setting
 # ``tm``: no NPC gives way to the ego, but each brakes for an ego in its path ahead
 # (priqn/env/path_braking.py). The ego is moved exactly as above (front bumper at ``x``,

@@ -180,6 +180,24 @@ def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
     return TRAFFIC_SETTINGS[name].values()
 
 
+def setting_name(env_cfg: Any) -> str:
+    """The named traffic setting an env config plays ('' for none): the setting whose NPC
+    behaviour equals ``env_cfg.traffic`` and whose every other value ``env_cfg`` has, the one
+    with most values where several do (a ``tm`` run with 200-decision episodes is
+    ``tm-long``, not ``tm``)."""
+    import functools
+
+    def has(key: str, value: Any) -> bool:
+        return functools.reduce(getattr, key.split("."), env_cfg) == value
+
+    fits = [
+        (len(s.env), name)
+        for name, s in TRAFFIC_SETTINGS.items()
+        if s.behaviour() == env_cfg.traffic and all(has(k, v) for k, v in s.env)
+    ]
+    return max(fits, key=lambda fit: fit[0])[1] if fits else ""
+
+
 @dataclasses.dataclass(frozen=True)
 class Obstacle:
     """One static obstacle (a parked car) as placed in SUMO."""

@@ -94,9 +94,8 @@ def analyse(cells: Sequence[ReplayCell], out: Path, workers: int, command: str) 
 
 
 def _traffic_name(run: Path) -> str:
-    """The named traffic setting whose NPC behaviour a run's env has ('' for none)."""
-    from priqn.env.traffic import TRAFFIC_SETTINGS
+    """The named traffic setting a run played ('' for none)."""
+    from priqn.env.traffic import setting_name
     from priqn.run.folder import RunFolder
 
-    have = RunFolder(run).config().env.traffic
-    return next((n for n, s in TRAFFIC_SETTINGS.items() if s.behaviour() == have), "")
+    return setting_name(RunFolder(run).config().env)
