@@ -178,6 +178,18 @@ def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:
     assert "- near__seed0: not complete" in text
 
 
+def test_a_design_of_one_row_is_a_check_with_nothing_to_choose(tmp_path: Path) -> None:
+    """A fresh check of a chosen setting (calibrate-tm-check.toml) has one row: the report
+    gives its distance, not a choice."""
+    exp = _grid(tmp_path, rows=("far",))
+    design = exp.path.read_text()
+    head, tail = design.split('[[policy]]\nname = "near"')
+    exp.path.write_text(head + tail.split("\n\n", 1)[1])
+    text = calibration.write_report(load_experiment(exp.path), tmp_path / "r").read_text()
+    assert "**far: L1 2.500** (one row: a check of its setting, nothing to choose)." in text
+    assert "chosen: far" not in text
+
+
 def test_a_cell_from_an_unlisted_commit_is_refused(tmp_path: Path) -> None:
     exp = _grid(tmp_path, sha="d" * 40)
     with pytest.raises(PriqnError, match=r"trained at commit dddddddddddd, which .* does not list"):

@@ -333,6 +333,10 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     sureness, bootstrap = _sureness_lines(mixes, cal, order, folder)
     budget = exp.experiment.steps
     words = "chosen" if not missing else "provisionally nearest (cells missing)"
+    verdict = f"**{words}: {chosen}** (L1 {dist.l1.min():.3f})."
+    if len(order) == 1:  # a check of one setting on more seeds: nothing to choose
+        verdict = (f"**{chosen}: L1 {dist.l1.min():.3f}** (one row: a check of its setting, "
+                   f"nothing to choose{'; cells missing' if missing else ''}).")  # fmt: skip
     md = [
         f"# {exp.experiment.name}: calibration",
         "",
@@ -342,7 +346,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "mix (success, collision, off-road, timeout per density, each seed's rate averaged "
         "over its seeds) has the smallest L1 distance to the target's.",
         "",
-        f"**{words}: {chosen}** (L1 {dist.l1.min():.3f}).",
+        verdict,
         "",
         f"Budget: {budget:,} decisions per cell"
         + (f" ({budget / 2_000_000:.0%} of the paper's 2M)" if budget else "")
