@@ -361,7 +361,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "",
         "## Distance to the target",
         "",
-        _distance_table(dist, chosen, final=not missing),
+        _distance_table(dist, chosen if len(order) > 1 else "", final=not missing),
         "",
         *sureness,
     ]
