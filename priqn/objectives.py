@@ -256,7 +256,10 @@ COLLISION_KINDS: dict[str, str] = {
     "obstacle": "the ego hit a static obstacle",
     "rear-end": "one drove into the other's rear, both going the same way (striker says who)",
     "head-on": "front to front, opposite ways",
-    "ego-into-npc": "the ego's front into an NPC's side",
+    "ego-into-npc": (
+        "the ego drove into an NPC: its front into the NPC's side, or its side or rear into "
+        "an NPC that stood"
+    ),
     "ego-standing-in-path": (
         "an NPC drove into the ego standing or slow (< 2 m/s) in its path, "
         "which it could have stopped for"

@@ -88,6 +88,22 @@ def test_rear_end_and_ego_into_npc_and_obstacle() -> None:
     assert _classify(w)["collision_kind"] == "obstacle"
 
 
+def test_a_standing_npc_whose_front_the_turning_ego_sweeps_into_struck_nothing() -> None:
+    # An NPC stopped facing north, its front at (0, -0.85), just short of where the ego
+    # passes; the ego drives east at 3 m/s along y = 0, and its side (y = -0.9) reaches the
+    # NPC's front in the last step. By the bumpers alone the NPC's front touches the ego's
+    # side (the NPC would be the striker); but it stood, so the ego drove into it.
+    w = _window(lambda t: (-3.0 + 3 * DT * t, 0.0), 0.0, 3.0,
+                lambda t: (0.0, -0.85), np.pi / 2, 0.0, 11)  # fmt: skip
+    out = _classify(w)
+    assert out["collision_striker"] == "ego" and out["collision_kind"] == "ego-into-npc"
+    assert out["collision_npc_could_stop"] == "" and out["collision_tm_would_prevent"] == "False"
+    # The same NPC moving at 1 m/s (its front reaching (0, -0.85) at the last step) struck.
+    w = _window(lambda t: (-3.0 + 3 * DT * t, 0.0), 0.0, 3.0,
+                lambda t: (0.0, -0.85 - 1 * DT * (10 - t)), np.pi / 2, 1.0, 11)  # fmt: skip
+    assert _classify(w)["collision_striker"] == "npc"
+
+
 def test_point_to_box_distance_by_hand() -> None:
     # A 4 x 2 box at the origin heading east: (3, 0) is 1 m beyond its front, (0, 2) 1 m
     # beside it, (3, 2) sqrt(2) from its corner, (1, 0.5) inside.

@@ -32,9 +32,14 @@ def _flag(values: pd.Series) -> pd.Series:
 
 def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
     """Per :data:`GROUP`: ``collisions`` (count), ``seeds``, the share of each kind, the share
-    struck by the NPC and the share a TM-like NPC would have prevented."""
+    struck by the NPC and the share a TM-like NPC would have prevented; after each traffic
+    and row's densities, a row ``density`` "all" pooling them (every collision counts once)."""
     rows: list[dict[str, Any]] = []
-    for key, part in collisions.groupby(list(GROUP), sort=True):
+    pooled = collisions.assign(density="all")
+    parts = [*collisions.groupby(list(GROUP), sort=True), *pooled.groupby(list(GROUP))]
+    order = {key[:2]: i for i, (key, _) in enumerate(parts)}
+    parts.sort(key=lambda kp: (order[kp[0][:2]], kp[0][2] == "all"))
+    for key, part in parts:
         row = dict(zip(GROUP, key, strict=True))
         row["collisions"] = len(part)
         row["seeds"] = part["train_seed"].nunique()
@@ -99,7 +104,7 @@ def write_report(collisions: pd.DataFrame, out: str | Path, command: str) -> Pat
                 [
                     r["traffic"],
                     r["label"],
-                    f"{r['density']:g}",
+                    r["density"] if r["density"] == "all" else f"{r['density']:g}",
                     str(r["collisions"]),
                     str(r["seeds"]),
                     *(pct(r[k]) for k in COLLISION_KINDS),

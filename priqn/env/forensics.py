@@ -5,7 +5,9 @@ every actor near it (the context-subscription reads, ids included). At a collisi
 :func:`classify` looks back over them:
 
 - **who struck whom** — the vehicle whose front bumper touches the other's box is the
-  striker (``ego``, ``npc``, or ``both`` when both fronts do);
+  striker (``ego``, ``npc``, or ``both`` when both fronts do); an NPC or obstacle that
+  stood (:data:`STANDING_MPS`) struck nothing: the ego did, with its side or rear where
+  its front does not touch (a turning ego sweeping into an NPC that stopped for it);
 - **could the NPC have stopped** — the first step of the window at which the ego's box
   stood where the NPC's box would later be (the ego *entered the NPC's path*, as the NPC
   then drove it), the NPC's distance along its own track from there to that place, and its
@@ -34,6 +36,9 @@ SLOW_MPS = 2.0
 """Below this the ego is 'standing or slow' [m/s]."""
 FRONT_CONTACT_M = 0.3
 """A front bumper within this of the other's box touches it [m]."""
+STANDING_MPS = 0.1
+"""An NPC or obstacle at most this fast at the collision stood: it struck nothing, the ego
+drove into it (with its side or rear, where its front does not touch) [m/s]."""
 SAME_DIRECTION_DEG = 30.0
 """Headings closer than this make a collision between a front and a rear a rear-end [deg]."""
 OPPOSITE_DEG = 150.0
@@ -138,6 +143,8 @@ def classify(
         (npc_gap <= FRONT_CONTACT_M, ego_gap <= FRONT_CONTACT_M),
         "npc" if npc_gap < ego_gap else "ego",  # neither front touches: the nearer one
     )
+    if float(var[libsumo.VAR_SPEED]) <= STANDING_MPS:
+        striker = "ego"  # a standing NPC's front touches the ego: the ego swept into it
     is_npc = vid.startswith(npc_prefix)
     out = {
         "collision_striker": striker,
