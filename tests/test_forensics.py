@@ -102,6 +102,11 @@ def test_a_standing_npc_whose_front_the_turning_ego_sweeps_into_struck_nothing()
     w = _window(lambda t: (-3.0 + 3 * DT * t, 0.0), 0.0, 3.0,
                 lambda t: (0.0, -0.85 - 1 * DT * (10 - t)), np.pi / 2, 1.0, 11)  # fmt: skip
     assert _classify(w)["collision_striker"] == "npc"
+    # A standing NPC facing east behind the ego, its front 0.05 m into the ego's rear: by the
+    # bumpers a rear-end the NPC struck; it stood, so the ego's rear went into it.
+    w = _window(lambda t: (0.0, 0.0), 0.0, 0.5, lambda t: (-2.2, 0.0), 0.0, 0.0, 11)
+    out = _classify(w)
+    assert out["collision_striker"] == "ego" and out["collision_kind"] == "ego-into-npc"
 
 
 def test_point_to_box_distance_by_hand() -> None:

@@ -143,8 +143,10 @@ def classify(
         (npc_gap <= FRONT_CONTACT_M, ego_gap <= FRONT_CONTACT_M),
         "npc" if npc_gap < ego_gap else "ego",  # neither front touches: the nearer one
     )
-    if float(var[libsumo.VAR_SPEED]) <= STANDING_MPS:
-        striker = "ego"  # a standing NPC's front touches the ego: the ego swept into it
+    stood = float(var[libsumo.VAR_SPEED]) <= STANDING_MPS
+    swept = stood and striker == "npc"  # only its front touches: the ego's side or rear did it
+    if stood:
+        striker = "ego"  # it did not move in the last step (SUMO's Euler update): the ego did
     is_npc = vid.startswith(npc_prefix)
     out = {
         "collision_striker": striker,
@@ -158,6 +160,8 @@ def classify(
     npc_struck = striker in ("npc", "both")
     if not is_npc:
         kind = "obstacle"
+    elif swept:
+        kind = "ego-into-npc"
     elif striker == "both" and turn > OPPOSITE_DEG:
         kind = "head-on"
     elif turn < SAME_DIRECTION_DEG and striker != "both":
