@@ -332,11 +332,13 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     folder.figure("calibration", figure(mean, cal, order))
     sureness, bootstrap = _sureness_lines(mixes, cal, order, folder)
     budget = exp.experiment.steps
-    words = "chosen" if not missing else "provisionally nearest (cells missing)"
-    verdict = f"**{words}: {chosen}** (L1 {dist.l1.min():.3f})."
-    if len(order) == 1:  # a check of one setting on more seeds: nothing to choose
+    one_row = len(order) == 1  # a check of one setting on more seeds: nothing to choose
+    if one_row:
         verdict = (f"**{chosen}: L1 {dist.l1.min():.3f}** (one row: a check of its setting, "
                    f"nothing to choose{'; cells missing' if missing else ''}).")  # fmt: skip
+    else:
+        words = "chosen" if not missing else "provisionally nearest (cells missing)"
+        verdict = f"**{words}: {chosen}** (L1 {dist.l1.min():.3f})."
     md = [
         f"# {exp.experiment.name}: calibration",
         "",
@@ -361,7 +363,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "",
         "## Distance to the target",
         "",
-        _distance_table(dist, chosen if len(order) > 1 else "", final=not missing),
+        _distance_table(dist, "" if one_row else chosen, final=not missing),
         "",
         *sureness,
     ]

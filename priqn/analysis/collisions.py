@@ -35,10 +35,11 @@ def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
     struck by the NPC and the share a TM-like NPC would have prevented; after each traffic
     and row's densities, a row ``density`` "all" pooling them (every collision counts once)."""
     rows: list[dict[str, Any]] = []
-    pooled = collisions.assign(density="all")
-    parts = [*collisions.groupby(list(GROUP), sort=True), *pooled.groupby(list(GROUP))]
-    order = {key[:2]: i for i, (key, _) in enumerate(parts)}
-    parts.sort(key=lambda kp: (order[kp[0][:2]], kp[0][2] == "all"))
+    parts = [
+        ((*key, density), part)
+        for key, group in collisions.groupby(list(GROUP[:2]), sort=True)
+        for density, part in [*group.groupby("density", sort=True), ("all", group)]
+    ]
     for key, part in parts:
         row = dict(zip(GROUP, key, strict=True))
         row["collisions"] = len(part)

@@ -27,6 +27,7 @@ docs/environment.md says which CARLA behaviour each knob stands in for.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from types import ModuleType
 from typing import Any
@@ -185,7 +186,6 @@ def setting_name(env_cfg: Any) -> str:
     behaviour equals ``env_cfg.traffic`` and whose every other value ``env_cfg`` has, the one
     with most values where several do (a ``tm`` run with 200-decision episodes is
     ``tm-long``, not ``tm``)."""
-    import functools
 
     def has(key: str, value: Any) -> bool:
         return functools.reduce(getattr, key.split("."), env_cfg) == value
