@@ -299,7 +299,7 @@ def readme_bullets() -> list[str]:
 def operating_point(bullet: str) -> tuple[int, str] | None:
     """(decisions, traffic) a README bullet opens with, e.g. (60000, 'rude')."""
     budget = re.search(r"(\d{2,3}),000 decisions \((\d+) % of", bullet)
-    traffic = re.search(r"`(\w+)` traffic", bullet)
+    traffic = re.search(r"`([\w-]+)` traffic", bullet)
     if not (budget and traffic):
         return None
     decisions = int(budget[1]) * 1000
