@@ -413,7 +413,164 @@ def test_look_ahead_grows_with_speed_up_to_its_cap() -> None:
 def test_path_braking_knob_errors_are_one_line() -> None:
     with pytest.raises(ValueError, match=r"traffic.path_reaction_time_s: expected >= 0"):
         TrafficBehaviour(path_reaction_time_s=-0.1)
+    with pytest.raises(ValueError, match=r"traffic.path_margin_m: expected >= 0"):
+        TrafficBehaviour(path_margin_m=-0.5)
     with pytest.raises(
         ValueError, match=r"path_look_ahead_max_m: expected >= path_look_ahead_min_m"
     ):
         TrafficBehaviour(path_look_ahead_min_m=10.0, path_look_ahead_max_m=5.0)
+
+
+# ------------------------------------------------ an NPC straddling two lanes (issue 62)
+
+
+@pytest.fixture(scope="module")
+def two_lanes(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A priority junction at (0, 0): the main road west-east has two lanes each way, the
+    minor road goes north. From the west, the left lane (y −1.6) turns left only and the
+    right lane (y −4.8) goes straight, so an NPC going straight from the left lane must
+    change lanes before the junction."""
+    d = tmp_path_factory.mktemp("two_lanes")
+    (d / "t.nod.xml").write_text(
+        '<nodes><node id="W" x="-150" y="0" type="dead_end"/>'
+        '<node id="E" x="150" y="0" type="dead_end"/>'
+        '<node id="N" x="0" y="150" type="dead_end"/>'
+        '<node id="C" x="0" y="0" type="priority"/></nodes>'
+    )
+    edges = [("WC", "W", "C", 2), ("CW", "C", "W", 2), ("CE", "C", "E", 2), ("EC", "E", "C", 2)]
+    edges += [("CN", "C", "N", 1), ("NC", "N", "C", 1)]
+    (d / "t.edg.xml").write_text(
+        "<edges>"
+        + "".join(
+            f'<edge id="{i}" from="{a}" to="{b}" priority="{n}" numLanes="{n}" speed="13.89"/>'
+            for i, a, b, n in edges
+        )
+        + "</edges>"
+    )
+    (d / "t.con.xml").write_text(
+        '<connections><connection from="WC" to="CE" fromLane="0" toLane="0"/>'
+        '<connection from="WC" to="CE" fromLane="0" toLane="1"/>'
+        '<connection from="WC" to="CN" fromLane="1" toLane="0"/></connections>'
+    )
+    net = d / "t.net.xml"
+    subprocess.run(
+        [sumo.binary("netconvert"), "-n", str(d / "t.nod.xml"), "-e", str(d / "t.edg.xml"),
+         "-x", str(d / "t.con.xml"), "-o", str(net), "--offset.disable-normalization", "true",
+         "--no-warnings", "true"],
+        check=True, capture_output=True, env=sumo.subprocess_env(),
+    )  # fmt: skip
+    return net
+
+
+TURN_DEG = 10.0
+"""The standing ego's heading, left of east: it has begun its left turn, so its rear
+reaches into the right lane."""
+
+
+def _drive_straddling(net: str, setting: str, **knobs: Any) -> dict:
+    """The ego stands at the junction in the left lane, turned ``TURN_DEG`` to the left; one
+    NPC of traffic ``setting`` (``knobs`` over it) comes from 60 m behind it in the same lane,
+    going straight (so it must move to the right lane). Per step: the NPC's lateral position
+    in its lane, its speed, the stage's hazard distance for it, whether its box overlaps the
+    ego's, and its front's x [m]."""
+    import libsumo as sim
+
+    from priqn.env import geometry, reads
+    from priqn.env.path_braking import NpcPaths
+    from priqn.env.traffic import NPC_TYPE
+    from priqn.sim.roadmap import RoadMap
+    from priqn.sim.sumo import simulation_args
+
+    behaviour = dataclasses.replace(TRAFFIC_SETTINGS[setting].behaviour(), **knobs)
+    sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
+    try:
+        sim.route.add("ego_route", ["WC", "CN"])
+        sim.vehicle.add("ego", "ego_route", departPos="100", departLane="1", departSpeed="0")
+        sim.vehicle.setSpeedMode("ego", 0)
+        sim.vehicle.setLaneChangeMode("ego", 0)
+        traffic = Traffic(
+            sim, TrafficSpec(lateral_offset_m=(0.0, 0.0)), [["WC", "CE"]], density=0.05,
+            rng=np.random.default_rng(0), behaviour=behaviour, ego_id="ego",
+            paths=NpcPaths(RoadMap.load(net)), step_s=0.1,
+        )  # fmt: skip
+        traffic.setup()
+        sim.simulationStep()  # inserts the ego
+        reads.subscribe_actors(sim, "ego", 65.0)
+        heading = np.radians(TURN_DEG)
+        front = np.array([-1.0, EGO_LANE_Y_M])  # just past the stop line (x −7.2)
+        centre = front - EGO_LENGTH_M / 2 * np.array([np.cos(heading), np.sin(heading)])
+        angle = float(geometry.sumo_from_center(centre, heading, EGO_LENGTH_M)[1])
+        ego_box = geometry.Boxes.make([centre], heading, EGO_LENGTH_M, EGO_WIDTH_M)
+        npc = f"{NPC_PREFIX}0"
+        sim.vehicle.add(npc, "priqn_route.0", typeID=NPC_TYPE, departLane="1",
+                        departPos="89", departSpeed="max")  # fmt: skip
+        rows = []
+        for _ in range(200):
+            stage = traffic.path_braking
+            stage.check(reads.read_actors(sim, "ego"), tuple(centre), float(heading),
+                        EGO_LENGTH_M, EGO_WIDTH_M)  # fmt: skip
+            hazard = stage.hazard_m.get(npc)
+            sim.vehicle.moveToXY("ego", "", -1, float(front[0]), float(front[1]), angle, 3)
+            sim.simulationStep()
+            if npc not in sim.vehicle.getIDList():
+                continue
+            length, npc_front = sim.vehicle.getLength(npc), np.array(sim.vehicle.getPosition(npc))
+            c, h = geometry.center_from_sumo(npc_front, sim.vehicle.getAngle(npc), length)
+            box = geometry.Boxes.make([c], h, length, sim.vehicle.getWidth(npc))
+            rows.append((sim.vehicle.getLateralLanePosition(npc), sim.vehicle.getSpeed(npc),
+                         hazard, bool(geometry.obb_overlap(ego_box, box)[0]), npc_front[0]))  # fmt: skip
+        return {"rows": rows}
+    finally:
+        sim.close()
+
+
+def test_tm_npc_straddling_two_lanes_misses_the_ego_on_the_lane_centre(two_lanes, worker) -> None:
+    # `tm` as the calibration and paper-point-tm measured it: SUMO moves the NPC only as far
+    # as the lane boundary (1.55 m left of the right lane's centre), the stage looks along
+    # the right lane's centre line, where the ego's rear does not reach, and the NPC drives
+    # through the junction into the ego's rear without braking.
+    rows = worker.submit(_drive_straddling, str(two_lanes), "tm").result(timeout=240)["rows"]
+    assert any(lat > 1.0 for lat, *_ in rows)  # it straddles
+    assert any(r[3] for r in rows)
+    assert all(r[2] is None for r in rows)  # the stage never saw the ego
+
+
+def _straddle(worker: Any, net: Path, setting: str, **knobs: Any) -> list:
+    return worker.submit(_drive_straddling, str(net), setting, **knobs).result(timeout=240)["rows"]
+
+
+def test_tm_npc_looking_along_its_own_offset_stops_for_the_ego(two_lanes, worker) -> None:
+    # path_follows_offset: the same NPC looks along its own lateral position, sees the
+    # ego's rear in its path and stops 2 m short of it; no collision.
+    rows = _straddle(worker, two_lanes, "tm", path_follows_offset=True)
+    assert not any(r[3] for r in rows)
+    seen = [r for r in rows if r[2] is not None]
+    assert seen and min(r[1] for r in seen) == 0.0
+    assert min(r[2] for r in seen) == pytest.approx(2.0, abs=0.5)
+
+
+def test_tm_strict_keeps_its_margin_clear_of_the_ego(two_lanes, worker) -> None:
+    # tm-strict adds a 0.5 m margin around the ego's box: the same NPC stops about 0.5 m
+    # further back than with the offset alone (the ego's rear face, turned 10°, is met
+    # about 0.5 / cos 10° = 0.51 m sooner along the path), and nothing touches.
+    offset = _straddle(worker, two_lanes, "tm", path_follows_offset=True)
+    strict = _straddle(worker, two_lanes, "tm-strict")
+    assert not any(r[3] for r in strict)
+    stop_x = [
+        next(r[4] for r in rows if r[2] is not None and r[1] == 0.0) for rows in (offset, strict)
+    ]
+    assert stop_x[0] - stop_x[1] == pytest.approx(0.5, abs=0.15)
+
+
+def test_a_path_shifted_to_the_left_by_hand() -> None:
+    from priqn.env.path_braking import LanePath
+
+    # A path east along y = 0, then north from (10, 0): 1 m to the left is y = 1 going
+    # east, x = 9 going north.
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
+    path = LanePath(xy, np.array([0.0, 10.0, 20.0]), 1.0)
+    points, ahead = path.ahead(0.0, 20.0, 5.0, lateral_m=1.0)
+    np.testing.assert_allclose(ahead, [0.0, 5.0, 10.0, 15.0, 20.0])
+    np.testing.assert_allclose(points[:2], [[0.0, 1.0], [5.0, 1.0]])
+    np.testing.assert_allclose(points[3:], [[9.0, 5.0], [9.0, 10.0]])
+    np.testing.assert_array_equal(path.ahead(0.0, 20.0, 5.0)[0][:, 1], [0.0, 0.0, 0.0, 5.0, 10.0])

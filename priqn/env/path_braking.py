@@ -28,6 +28,14 @@ the TM's stage on top of SUMO's drivers, once per SUMO step:
    the speed mode's deceleration bound lifted; its safe speed, car-following included,
    still applies). When the ego has left its path, SUMO drives the NPC again.
 
+The path is the lane's centre line unless ``path_follows_offset``: then it is shifted to the
+NPC's own lateral position in its lane (SUMO's sublane model: a random offset that fades
+before the junction, or a lane change under way). On the centre line, an NPC that straddles
+two lanes (SUMO moves a vehicle only as far as it must to be in its target lane) looks
+along the new lane's centre and can miss an ego its body will sweep. ``path_margin_m``
+grows the ego's box further: an NPC pulling past a standing ego in a sublane lane change
+turns its body off its path, and its corners reach beyond half its width.
+
 The NPC-to-NPC behaviour stays SUMO's (its junction model orders NPCs by priority, where
 the TM orders its own vehicles first-come-first-served at unsignalised junctions).
 docs/environment.md lists every knob with its CARLA counterpart.
@@ -67,18 +75,23 @@ class LanePath:
     arc lengths along :attr:`xy` (the two differ on some nets)."""
 
     def ahead(
-        self, lane_pos_m: float, reach_m: float, step_m: float
+        self, lane_pos_m: float, reach_m: float, step_m: float, lateral_m: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
         """Points every ``step_m`` from lane position ``lane_pos_m`` for ``reach_m``
-        (clipped to the path's end): ``float64 [Q, 2]`` points and their distance ahead
-        ``[Q]`` [m]."""
+        (clipped to the path's end), ``lateral_m`` to the left of the centre line (0: on it):
+        ``float64 [Q, 2]`` points and their distance ahead ``[Q]`` [m]."""
         s0 = lane_pos_m * self.pos_scale
         ahead_m = np.arange(0.0, max(min(reach_m, self.s_m[-1] - s0), 0.0) + 1e-9, step_m)
         s = s0 + ahead_m
         xy = np.stack(
             [np.interp(s, self.s_m, self.xy[:, 0]), np.interp(s, self.s_m, self.xy[:, 1])]
-        )
-        return xy.T, ahead_m
+        ).T
+        if lateral_m:
+            seg = np.clip(np.searchsorted(self.s_m, s, side="right") - 1, 0, len(self.s_m) - 2)
+            tangent = self.xy[seg + 1] - self.xy[seg]
+            tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-9)[:, None]
+            xy = xy + lateral_m * np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        return xy, ahead_m
 
 
 class NpcPaths:
@@ -212,7 +225,8 @@ class PathBraking:
             speed = float(var[libsumo.VAR_SPEED])
             half_w = 0.5 * float(var[libsumo.VAR_WIDTH])
             reach = self.look_ahead_m(speed)
-            if np.hypot(x - ego_xy[0], y - ego_xy[1]) > reach + half_diag + half_w:
+            near_m = reach + half_diag + half_w + b.path_margin_m
+            if np.hypot(x - ego_xy[0], y - ego_xy[1]) > near_m:
                 continue
             d = self._hazard_m(vid, reach, half_w, ego_xy, cos_h, sin_h, ego_length_m, ego_width_m)
             if d is not None:
@@ -256,8 +270,9 @@ class PathBraking:
         path = self.paths.find(lane_id, int(index) if index.isdigit() else 0, edge_id, exit_edge)
         if path is None:
             return None
-        half_len = 0.5 * ego_length_m + npc_half_width_m
-        half_wid = 0.5 * ego_width_m + npc_half_width_m
+        margin = self.behaviour.path_margin_m
+        half_len = 0.5 * ego_length_m + npc_half_width_m + margin
+        half_wid = 0.5 * ego_width_m + npc_half_width_m + margin
 
         def first_inside(xy: np.ndarray) -> np.ndarray:
             dx, dy = xy[:, 0] - ego_xy[0], xy[:, 1] - ego_xy[1]
@@ -267,7 +282,10 @@ class PathBraking:
             return np.flatnonzero(inside)
 
         lane_pos = sim.vehicle.getLanePosition(vid)
-        xy, ahead_m = path.ahead(lane_pos, reach_m, SAMPLE_STEP_M)
+        lateral = (
+            sim.vehicle.getLateralLanePosition(vid) if self.behaviour.path_follows_offset else 0.0
+        )
+        xy, ahead_m = path.ahead(lane_pos, reach_m, SAMPLE_STEP_M, lateral)
         hit = first_inside(xy)
         if not len(hit):
             return None
@@ -275,7 +293,9 @@ class PathBraking:
             return 0.0
         # Between the last point outside and the first inside, to REFINE_STEP_M.
         lo = float(ahead_m[hit[0] - 1])
-        xy, fine_m = path.ahead(lane_pos + lo / path.pos_scale, SAMPLE_STEP_M, REFINE_STEP_M)
+        xy, fine_m = path.ahead(
+            lane_pos + lo / path.pos_scale, SAMPLE_STEP_M, REFINE_STEP_M, lateral
+        )
         fine = first_inside(xy)
         return lo + float(fine_m[fine[0]]) if len(fine) else float(ahead_m[hit[0]])
 

@@ -93,6 +93,14 @@ class TrafficBehaviour:
     [s]; every check acts on the next SUMO step (0.1 s), like the TM's one-tick latency."""
     path_stop_gap_m: float = 2.0
     """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``)."""
+    path_follows_offset: bool = False
+    """Look along the path at the NPC's own lateral position in its lane (its sublane offset,
+    or a lane change under way), not along the lane's centre line. False, as ``tm`` was
+    measured: an NPC straddling two lanes can miss an ego its body will sweep
+    (docs/environment.md)."""
+    path_margin_m: float = 0.0
+    """Clearance an NPC keeps from the ego beyond touching [m]: the ego's box is grown by
+    it, besides half the NPC's width, in the path test. 0, as ``tm`` was measured."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.yield_to_ego_prob <= 1.0:
@@ -105,7 +113,7 @@ class TrafficBehaviour:
                 f"traffic.impatience: expected a value in [0, 1], got {self.impatience}"
             )
         for name in ("path_look_ahead_min_m", "path_look_ahead_s", "path_reaction_time_s",
-                     "path_stop_gap_m"):  # fmt: skip
+                     "path_stop_gap_m", "path_margin_m"):  # fmt: skip
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"traffic.{name}: expected >= 0, got {getattr(self, name)}")
         if not self.path_look_ahead_max_m >= self.path_look_ahead_min_m:
@@ -153,9 +161,13 @@ TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
     ),
     "tm-finite": TrafficSetting("tm, no top-up: the reset's NPCs only", _TM + _FINITE),
     "tm-long": TrafficSetting("tm, training episodes of 200 decisions (100 s)", _TM + _LONG),
+    "tm-strict": TrafficSetting(
+        "tm, each NPC looking along its own lateral position and keeping 0.5 m clear of the ego",
+        _TM + (("traffic.path_follows_offset", True), ("traffic.path_margin_m", 0.5)),
+    ),
 }
-"""Named traffic settings (issue 48's calibration candidates, issue 62's ``tm``;
-docs/environment.md)."""
+"""Named traffic settings (issue 48's calibration candidates, issue 62's ``tm`` family;
+``tm-strict`` mends what ``tm`` missed, after its cells were measured; docs/environment.md)."""
 
 
 def traffic_names(text: str, where: str = "--traffic") -> list[str]:
