@@ -50,3 +50,22 @@ def test_the_report_prints_the_pooled_row(tmp_path) -> None:
     text = write_report(_collisions(), tmp_path / "r", "priqn mechanism x --collisions").read_text()
     assert "| tm | IQN | all | 4 | 2 |" in text
     assert "| tm | IQN | 1 | 2 | 2 |" in text
+
+
+def test_a_replay_under_other_traffic_reports_what_it_prevented(tmp_path) -> None:
+    # The four collisions replayed under `tm-strict`: the cut-in and the obstacle collide
+    # again, the rear-end and the standing ego do not. So 2 of 4 prevented (50 %), and the
+    # kinds table describes the 2 that still collide: one at each density.
+    frame = _collisions()
+    frame.insert(2, "replay_traffic", "tm-strict")
+    frame["replayed_collision"] = [True, False, False, True]
+    text = write_report(frame, tmp_path / "r", "cmd", replay_traffic="tm-strict").read_text()
+    assert "| tm | IQN | 4 | 2 | 50 % |" in text
+    assert "2 of 4 still end in a collision" in text
+    assert "| tm | IQN | all | 2 | 2 |" in text
+    prevented = pd.read_csv(tmp_path / "r" / "tables" / "prevented.csv")
+    assert prevented.loc[0, "prevented"] == 0.5
+    # None collides again: the report says so, without a kinds table.
+    frame["replayed_collision"] = False
+    text = write_report(frame, tmp_path / "r2", "cmd", replay_traffic="tm-strict").read_text()
+    assert "0 of 4 still end in a collision" in text and "| tm | IQN | all |" not in text

@@ -52,27 +52,107 @@ def kind_table(collisions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def write_report(collisions: pd.DataFrame, out: str | Path, command: str) -> Path:
+def prevented_table(collisions: pd.DataFrame) -> pd.DataFrame:
+    """Of collisions replayed under another traffic (``replay_traffic``): per own traffic and
+    row, ``scenes`` (collisions of the evaluation), ``again`` (scenes that collide in the
+    replay too) and ``prevented`` (the share that no longer does)."""
+    again = collisions["replayed_collision"].astype(str) == "True"
+    rows = []
+    for (traffic, label), part in collisions.groupby(["traffic", "label"], sort=True):
+        n, k = len(part), int(again[part.index].sum())
+        rows.append({"traffic": traffic, "label": label, "scenes": n, "again": k,
+                     "prevented": (n - k) / n})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f} %"
+
+
+def _prevented_text(collisions: pd.DataFrame, prevented: pd.DataFrame, traffic: str) -> list[str]:
+    """The report's lines on a replay under ``traffic``: how many still collide, per row."""
+    again = int((collisions["replayed_collision"].astype(str) == "True").sum())
+    rows = [
+        [r["traffic"], r["label"], str(r["scenes"]), str(r["again"]), _pct(r["prevented"])]
+        for r in prevented.to_dict("records")
+    ]
+    return [
+        f"Every collision scene of the evaluations replayed under `{traffic}` traffic, with "
+        "the same policy and seeds (its later decisions may change with the traffic: the same "
+        f"scenes, not the same episodes). {again} of {len(collisions)} still end in a collision.",
+        "",
+        markdown_table(
+            ["own traffic", "row", "collisions", f"still under {traffic}", "prevented"], rows
+        ),
+        "",
+        f"The kinds below are those of the replays that still collide under `{traffic}`.",
+    ]
+
+
+def _kinds_markdown(table: pd.DataFrame) -> str:
+    """:func:`kind_table` as a markdown table, shares in whole percent."""
+    header = ["traffic", "row", "density", "collisions", "seeds", *COLLISION_KINDS]
+    rows = [
+        [
+            r["traffic"],
+            r["label"],
+            r["density"] if r["density"] == "all" else f"{r['density']:g}",
+            str(r["collisions"]),
+            str(r["seeds"]),
+            *(_pct(r[k]) for k in COLLISION_KINDS),
+            _pct(r["npc_struck"]),
+            _pct(r["tm_would_prevent"]),
+        ]
+        for r in table.to_dict("records")
+    ]
+    return markdown_table([*header, "NPC struck", "TM-like NPC would prevent"], rows)
+
+
+def write_report(
+    collisions: pd.DataFrame, out: str | Path, command: str, replay_traffic: str | None = None
+) -> Path:
     """The report folder ``out``: ``tables/collisions.csv`` (every collision),
     ``tables/collisions_by_kind.csv`` and ``report.md`` (the table), ``meta.json``
-    (``command``: the one that makes it); returns report.md."""
+    (``command``: the one that makes it); returns report.md. ``replay_traffic``: the
+    collisions were replayed under that traffic setting (``--traffic``): the report also says
+    which share of each row's collisions it prevented (``tables/prevented.csv``), and the
+    kinds table describes the replays that still collide."""
     folder = ReportFolder.open(out)
     folder.table("collisions", collisions)
     fields = {
         "collisions": len(collisions),
         "cells_with_collisions": sorted(set(collisions.get("cell", []))),
     }
+    if replay_traffic is not None:
+        fields["replay_traffic"] = replay_traffic
     folder.meta("collisions", command, None, fields)
     if collisions.empty:
         return folder.text("report.md", "# Collisions\n\nNo collision to describe.\n")
-    table = kind_table(collisions)
-
-    def pct(x: float) -> str:
-        return f"{100 * x:.0f} %"
-
     replayed = collisions["replayed_collision"].astype(str)
-    again = int((replayed == "True").sum())
-    replays = int(replayed.isin(["True", "False"]).sum())
+    if replay_traffic is None:
+        again, replays = (
+            int((replayed == "True").sum()),
+            int(replayed.isin(["True", "False"]).sum()),
+        )
+        source = [
+            f"Made by `{command}`. Replayed: {replays} collisions of evaluations made before the forensics existed; "
+            f"{again} ended in a collision again."
+            if replays
+            else f"Made by `{command}`. Read from the evaluations' own records (no replay)."
+        ]
+        described = collisions
+    else:
+        prevented = prevented_table(collisions)
+        folder.table("prevented", prevented)
+        source = [
+            f"Made by `{command}`.",
+            "",
+            *_prevented_text(collisions, prevented, replay_traffic),
+        ]
+        described = collisions[replayed == "True"]
+    if described.empty:
+        return folder.text("report.md", "\n".join(["# Collisions (descriptive)", "", *source, ""]))
+    table = kind_table(described)
     text = [
         "# Collisions, by kind (descriptive)",
         "",
@@ -83,38 +163,9 @@ def write_report(collisions: pd.DataFrame, out: str | Path, command: str) -> Pat
         "",
         *(f"- `{k}`: {v}" for k, v in COLLISION_KINDS.items()),
         "",
-        (
-            f"Made by `{command}`. Replayed: {replays} collisions of evaluations made before the forensics existed; "
-            f"{again} ended in a collision again."
-            if replays
-            else f"Made by `{command}`. Read from the evaluations' own records (no replay)."
-        ),
+        *source,
         "",
-        markdown_table(
-            [
-                "traffic",
-                "row",
-                "density",
-                "collisions",
-                "seeds",
-                *COLLISION_KINDS,
-                "NPC struck",
-                "TM-like NPC would prevent",
-            ],
-            [
-                [
-                    r["traffic"],
-                    r["label"],
-                    r["density"] if r["density"] == "all" else f"{r['density']:g}",
-                    str(r["collisions"]),
-                    str(r["seeds"]),
-                    *(pct(r[k]) for k in COLLISION_KINDS),
-                    pct(r["npc_struck"]),
-                    pct(r["tm_would_prevent"]),
-                ]
-                for r in table.to_dict("records")
-            ],
-        ),
+        _kinds_markdown(table),
         "",
     ]
     folder.table("collisions_by_kind", table)

@@ -8,6 +8,10 @@ env is deterministic per seed, so each ends as it did; ``replayed_collision`` sa
 and reads the forensics from the replay. An evaluation that already has them is read,
 not replayed.
 
+``--traffic NAME`` replays every collision scene under another named traffic setting
+instead: which of them that traffic's NPCs would have prevented (with the same policy,
+whose later decisions may change with the traffic: the same scenes, not the same episodes).
+
 Writes the report folder ``DIR`` (:func:`priqn.analysis.collisions.write_report`):
 ``tables/collisions.csv`` (one row per collision), ``tables/collisions_by_kind.csv`` and
 ``report.md`` (per row and density: the share of each kind, and the share a
@@ -17,6 +21,7 @@ Traffic-Manager-like NPC would have prevented), ``meta.json``.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -30,13 +35,20 @@ SCENE_KEYS: tuple[str, ...] = ("eval_run", "net", "density", "episode")
 """The columns that name an evaluation scene."""
 
 
-def collision_rows(cell: ReplayCell, workers: int = 1, progress: Any = None) -> list[dict]:
+def collision_rows(
+    cell: ReplayCell, workers: int = 1, progress: Any = None, traffic: str | None = None
+) -> list[dict]:
     """One row per collision of ``cell``'s evaluation: its scene, the row's label and seed,
-    the traffic, and the forensics (read, or replayed where the table lacks them)."""
+    the traffic, and the forensics (read, or replayed where the table lacks them).
+
+    ``traffic``: replay every collision scene under that named setting's NPCs instead
+    (:data:`priqn.env.traffic.TRAFFIC_SETTINGS`; the evaluation's episode limit stays):
+    ``replayed_collision`` says whether the scene still ends in a collision there, and the
+    forensics are the replay's (empty where it does not)."""
     episodes = resolve_outcomes(cell.episodes)
     hits = episodes[episodes["collision"].astype(bool)]
     base = {"cell": cell.name}
-    if all(c in hits.columns for c in COLLISION_COLUMNS):
+    if traffic is None and all(c in hits.columns for c in COLLISION_COLUMNS):
         return [{**base, **_identity(r), **{c: r[c] for c in COLLISION_COLUMNS},
                  "replayed_collision": ""} for r in hits.to_dict("records")]  # fmt: skip
     from priqn.evaluation.protocol import make_scenes
@@ -52,6 +64,10 @@ def collision_rows(cell: ReplayCell, workers: int = 1, progress: Any = None) -> 
         return []
     policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
     env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
+    if traffic is not None:
+        from priqn.env.traffic import TRAFFIC_SETTINGS
+
+        env_cfg = dataclasses.replace(env_cfg, traffic=TRAFFIC_SETTINGS[traffic].behaviour())
     rows = []
     played = replayed_episodes(
         policy, env_cfg, scenes, cell.eval_config.seed, workers=workers, quantiles=False
@@ -73,9 +89,12 @@ def _identity(row: dict) -> dict:
     return {k: row.get(k, "") for k in keep}
 
 
-def analyse(cells: Sequence[ReplayCell], out: Path, workers: int, command: str) -> Path:
+def analyse(
+    cells: Sequence[ReplayCell], out: Path, workers: int, command: str, traffic: str | None = None
+) -> Path:
     """Every cell's collisions and their table into the report folder ``out``
-    (``command``: the one that makes it, for ``meta.json``); returns its report.md."""
+    (``command``: the one that makes it, for ``meta.json``; ``traffic``: replay them under
+    that named setting, :func:`collision_rows`); returns its report.md."""
     import pandas as pd
     from tqdm.auto import tqdm
 
@@ -85,12 +104,14 @@ def analyse(cells: Sequence[ReplayCell], out: Path, workers: int, command: str) 
     rows: list[dict] = []
     with tqdm(total=total, desc="collisions", unit="ep", disable=None) as bar:
         for cell in cells:
-            rows += collision_rows(cell, workers, bar)
-    traffic = {c.name: _traffic_name(c.path) for c in cells}
+            rows += collision_rows(cell, workers, bar, traffic)
+    own = {c.name: _traffic_name(c.path) for c in cells}
     frame = pd.DataFrame(rows)
     if not frame.empty:
-        frame.insert(1, "traffic", frame["cell"].map(traffic))
-    return write_report(frame, out, command)
+        frame.insert(1, "traffic", frame["cell"].map(own))
+        if traffic is not None:
+            frame.insert(2, "replay_traffic", traffic)
+    return write_report(frame, out, command, replay_traffic=traffic)
 
 
 def _traffic_name(run: Path) -> str:

@@ -267,6 +267,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "have stopped; replayed where the evaluation predates the record, any agent)",
     )
     parser.add_argument(
+        "--traffic",
+        default=None,
+        metavar="NAME",
+        help="with --collisions: replay every collision scene under this named traffic "
+        "setting instead of the run's own (e.g. tm-strict): which would it have prevented",
+    )
+    parser.add_argument(
         "--decisions",
         default="",
         metavar="DIR",
@@ -292,6 +299,8 @@ def command_line(args: argparse.Namespace) -> str:
     options = [("--snapshot", args.snapshot, defaults.snapshot)]
     if args.collisions:
         words.append("--collisions")
+        if args.traffic is not None:
+            words += ["--traffic", args.traffic]
     elif args.standstill:
         words.append("--standstill")
         options += [("--target", args.target, DEFAULT_TARGET),
@@ -330,6 +339,12 @@ def run(args: argparse.Namespace) -> int:
         raise PriqnError("--standstill and --collisions: pick one")
     if args.target != DEFAULT_TARGET and not args.standstill:
         raise PriqnError("--target: only with --standstill")
+    if args.traffic is not None:
+        from priqn.env.traffic import traffic_values
+
+        if not args.collisions:
+            raise PriqnError("--traffic: only with --collisions")
+        traffic_values(args.traffic)  # an unknown name: one line listing the valid ones
     cfg = MechanismConfig(
         episodes=args.episodes,
         top=args.top,
@@ -352,7 +367,7 @@ def run(args: argparse.Namespace) -> int:
         from priqn.tools import collisions
 
         cells = [load_cell(p, cfg.snapshot) for p in find_runs(args.runs)]
-        print(collisions.analyse(cells, out, cfg.workers, command))
+        print(collisions.analyse(cells, out, cfg.workers, command, args.traffic))
         return 0
     print(analyse(args.runs, out, cfg, command))
     return 0
