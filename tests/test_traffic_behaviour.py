@@ -39,32 +39,46 @@ EGO_LANE_Y_M = -1.6
 """Centre of the eastbound lane (3.2 m lanes, right-hand traffic)."""
 
 
-@pytest.fixture(scope="module")
-def tjunction(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("handmade")
+def _junction_net(
+    d: Path, minor: tuple[str, float], edges: list[tuple[str, str, str, int, int]],
+    connections: str = "",
+) -> Path:  # fmt: skip
+    """A priority junction C at (0, 0) with arms W (x −150), E (x 150) and the ``minor`` one
+    (name, y) on the y axis; ``edges``: (id, from, to, priority, lanes); ``connections``: the
+    ``<connection>`` elements of a netconvert ``.con.xml`` (none: netconvert's own)."""
+    name, y = minor
     (d / "t.nod.xml").write_text(
         '<nodes><node id="W" x="-150" y="0" type="dead_end"/>'
         '<node id="E" x="150" y="0" type="dead_end"/>'
-        '<node id="S" x="0" y="-150" type="dead_end"/>'
+        f'<node id="{name}" x="0" y="{y:g}" type="dead_end"/>'
         '<node id="C" x="0" y="0" type="priority"/></nodes>'
     )
-    edges = [("WC", "W", "C", 2), ("CW", "C", "W", 2), ("EC", "E", "C", 2)]
-    edges += [("CE", "C", "E", 2), ("SC", "S", "C", 1), ("CS", "C", "S", 1)]
     (d / "t.edg.xml").write_text(
         "<edges>"
         + "".join(
-            f'<edge id="{i}" from="{a}" to="{b}" priority="{p}" numLanes="1" speed="13.89"/>'
-            for i, a, b, p in edges
+            f'<edge id="{i}" from="{a}" to="{b}" priority="{p}" numLanes="{n}" speed="13.89"/>'
+            for i, a, b, p, n in edges
         )
         + "</edges>"
     )
+    args = ["-n", str(d / "t.nod.xml"), "-e", str(d / "t.edg.xml")]
+    if connections:
+        (d / "t.con.xml").write_text(f"<connections>{connections}</connections>")
+        args += ["-x", str(d / "t.con.xml")]
     net = d / "t.net.xml"
     subprocess.run(
-        [sumo.binary("netconvert"), "-n", str(d / "t.nod.xml"), "-e", str(d / "t.edg.xml"),
-         "-o", str(net), "--offset.disable-normalization", "true", "--no-warnings", "true"],
+        [sumo.binary("netconvert"), *args, "-o", str(net), "--offset.disable-normalization",
+         "true", "--no-warnings", "true"],
         check=True, capture_output=True, env=sumo.subprocess_env(),
     )  # fmt: skip
     return net
+
+
+@pytest.fixture(scope="module")
+def tjunction(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    edges = [("WC", "W", "C", 2, 1), ("CW", "C", "W", 2, 1), ("EC", "E", "C", 2, 1)]
+    edges += [("CE", "C", "E", 2, 1), ("SC", "S", "C", 1, 1), ("CS", "C", "S", 1, 1)]
+    return _junction_net(tmp_path_factory.mktemp("handmade"), ("S", -150), edges)
 
 
 @pytest.fixture(scope="module")
@@ -241,6 +255,32 @@ EGO_LENGTH_M, EGO_WIDTH_M = 5.0, 1.8
 """SUMO's default car, which the hand-built ego is."""
 
 
+def _stage_scene(
+    sim: Any, net: str, behaviour: TrafficBehaviour, ego_edges: list[str],
+    npc_edges: list[str], **ego_depart: str,
+) -> Traffic:  # fmt: skip
+    """In a started simulation: the standing ego on ``ego_edges`` (``ego_depart``: its
+    ``vehicle.add`` options), moved by the caller; the traffic of ``behaviour`` with one NPC
+    route and the net's paths for its stage; the ego inserted and subscribed to."""
+    from priqn.env import reads
+    from priqn.env.path_braking import NpcPaths
+    from priqn.sim.roadmap import RoadMap
+
+    sim.route.add("ego_route", ego_edges)
+    sim.vehicle.add("ego", "ego_route", departSpeed="0", **ego_depart)
+    sim.vehicle.setSpeedMode("ego", 0)
+    sim.vehicle.setLaneChangeMode("ego", 0)
+    traffic = Traffic(
+        sim, TrafficSpec(lateral_offset_m=(0.0, 0.0)), [npc_edges], density=0.05,
+        rng=np.random.default_rng(0), behaviour=behaviour, ego_id="ego",
+        paths=NpcPaths(RoadMap.load(net)), step_s=0.1,
+    )  # fmt: skip
+    traffic.setup()
+    sim.simulationStep()  # inserts the ego
+    reads.subscribe_actors(sim, "ego", 65.0)
+    return traffic
+
+
 def _drive_stage(
     net: str, setting: str, ego_xs: list[float], npc_route: str, npc_at: int, npc_pos: float,
     reaction_s: float = 0.0,
@@ -254,8 +294,6 @@ def _drive_stage(
     import libsumo as sim
 
     from priqn.env import geometry, reads
-    from priqn.env.path_braking import NpcPaths
-    from priqn.sim.roadmap import RoadMap
     from priqn.sim.sumo import simulation_args
 
     behaviour = dataclasses.replace(
@@ -263,19 +301,11 @@ def _drive_stage(
     )
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
-        sim.route.add("ego_route", ["WC", "CE"])
-        sim.vehicle.add("ego", "ego_route", departPos=f"{ego_xs[0] + 150.0:.2f}", departSpeed="0")
-        sim.vehicle.setSpeedMode("ego", 0)
-        sim.vehicle.setLaneChangeMode("ego", 0)
         routes = {"left": ["SC", "CW"], "right": ["SC", "CE"], "behind": ["WC", "CE"]}
-        traffic = Traffic(
-            sim, TrafficSpec(lateral_offset_m=(0.0, 0.0)), [routes[npc_route]], density=0.05,
-            rng=np.random.default_rng(0), behaviour=behaviour, ego_id="ego",
-            paths=NpcPaths(RoadMap.load(net)), step_s=0.1,
+        traffic = _stage_scene(
+            sim, net, behaviour, ["WC", "CE"], routes[npc_route],
+            departPos=f"{ego_xs[0] + 150.0:.2f}",
         )  # fmt: skip
-        traffic.setup()
-        sim.simulationStep()  # inserts the ego
-        reads.subscribe_actors(sim, "ego", 65.0)
         npc, rows = f"{NPC_PREFIX}0", []
         prev_x = ego_xs[0]
         for k, x in enumerate(ego_xs):
@@ -430,36 +460,14 @@ def two_lanes(tmp_path_factory: pytest.TempPathFactory) -> Path:
     minor road goes north. From the west, the left lane (y −1.6) turns left only and the
     right lane (y −4.8) goes straight, so an NPC going straight from the left lane must
     change lanes before the junction."""
-    d = tmp_path_factory.mktemp("two_lanes")
-    (d / "t.nod.xml").write_text(
-        '<nodes><node id="W" x="-150" y="0" type="dead_end"/>'
-        '<node id="E" x="150" y="0" type="dead_end"/>'
-        '<node id="N" x="0" y="150" type="dead_end"/>'
-        '<node id="C" x="0" y="0" type="priority"/></nodes>'
-    )
-    edges = [("WC", "W", "C", 2), ("CW", "C", "W", 2), ("CE", "C", "E", 2), ("EC", "E", "C", 2)]
-    edges += [("CN", "C", "N", 1), ("NC", "N", "C", 1)]
-    (d / "t.edg.xml").write_text(
-        "<edges>"
-        + "".join(
-            f'<edge id="{i}" from="{a}" to="{b}" priority="{n}" numLanes="{n}" speed="13.89"/>'
-            for i, a, b, n in edges
-        )
-        + "</edges>"
-    )
-    (d / "t.con.xml").write_text(
-        '<connections><connection from="WC" to="CE" fromLane="0" toLane="0"/>'
+    edges = [("WC", "W", "C", 2, 2), ("CW", "C", "W", 2, 2), ("CE", "C", "E", 2, 2)]
+    edges += [("EC", "E", "C", 2, 2), ("CN", "C", "N", 1, 1), ("NC", "N", "C", 1, 1)]
+    connections = (
+        '<connection from="WC" to="CE" fromLane="0" toLane="0"/>'
         '<connection from="WC" to="CE" fromLane="0" toLane="1"/>'
-        '<connection from="WC" to="CN" fromLane="1" toLane="0"/></connections>'
+        '<connection from="WC" to="CN" fromLane="1" toLane="0"/>'
     )
-    net = d / "t.net.xml"
-    subprocess.run(
-        [sumo.binary("netconvert"), "-n", str(d / "t.nod.xml"), "-e", str(d / "t.edg.xml"),
-         "-x", str(d / "t.con.xml"), "-o", str(net), "--offset.disable-normalization", "true",
-         "--no-warnings", "true"],
-        check=True, capture_output=True, env=sumo.subprocess_env(),
-    )  # fmt: skip
-    return net
+    return _junction_net(tmp_path_factory.mktemp("two_lanes"), ("N", 150), edges, connections)
 
 
 TURN_DEG = 10.0
@@ -476,26 +484,15 @@ def _drive_straddling(net: str, setting: str, **knobs: Any) -> dict:
     import libsumo as sim
 
     from priqn.env import geometry, reads
-    from priqn.env.path_braking import NpcPaths
     from priqn.env.traffic import NPC_TYPE
-    from priqn.sim.roadmap import RoadMap
     from priqn.sim.sumo import simulation_args
 
     behaviour = dataclasses.replace(TRAFFIC_SETTINGS[setting].behaviour(), **knobs)
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
-        sim.route.add("ego_route", ["WC", "CN"])
-        sim.vehicle.add("ego", "ego_route", departPos="100", departLane="1", departSpeed="0")
-        sim.vehicle.setSpeedMode("ego", 0)
-        sim.vehicle.setLaneChangeMode("ego", 0)
-        traffic = Traffic(
-            sim, TrafficSpec(lateral_offset_m=(0.0, 0.0)), [["WC", "CE"]], density=0.05,
-            rng=np.random.default_rng(0), behaviour=behaviour, ego_id="ego",
-            paths=NpcPaths(RoadMap.load(net)), step_s=0.1,
-        )  # fmt: skip
-        traffic.setup()
-        sim.simulationStep()  # inserts the ego
-        reads.subscribe_actors(sim, "ego", 65.0)
+        traffic = _stage_scene(
+            sim, net, behaviour, ["WC", "CN"], ["WC", "CE"], departPos="100", departLane="1"
+        )
         heading = np.radians(TURN_DEG)
         front = np.array([-1.0, EGO_LANE_Y_M])  # just past the stop line (x −7.2)
         centre = front - EGO_LENGTH_M / 2 * np.array([np.cos(heading), np.sin(heading)])
