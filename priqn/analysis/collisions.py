@@ -130,10 +130,8 @@ def write_report(
         return folder.text("report.md", "# Collisions\n\nNo collision to describe.\n")
     replayed = collisions["replayed_collision"].astype(str)
     if replay_traffic is None:
-        again, replays = (
-            int((replayed == "True").sum()),
-            int(replayed.isin(["True", "False"]).sum()),
-        )
+        again = int((replayed == "True").sum())
+        replays = int(replayed.isin(["True", "False"]).sum())
         source = [
             f"Made by `{command}`. Replayed: {replays} collisions of evaluations made before the forensics existed; "
             f"{again} ended in a collision again."
