@@ -69,9 +69,10 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f} %"
 
 
-def _prevented_text(collisions: pd.DataFrame, prevented: pd.DataFrame, traffic: str) -> list[str]:
-    """The report's lines on a replay under ``traffic``: how many still collide, per row."""
-    again = int((collisions["replayed_collision"].astype(str) == "True").sum())
+def _prevented_text(prevented: pd.DataFrame, traffic: str) -> list[str]:
+    """The report's lines on a replay under ``traffic`` (:func:`prevented_table`): how many
+    still collide, in all and per row."""
+    again, scenes = int(prevented["again"].sum()), int(prevented["scenes"].sum())
     rows = [
         [r["traffic"], r["label"], str(r["scenes"]), str(r["again"]), _pct(r["prevented"])]
         for r in prevented.to_dict("records")
@@ -79,7 +80,7 @@ def _prevented_text(collisions: pd.DataFrame, prevented: pd.DataFrame, traffic: 
     return [
         f"Every collision scene of the evaluations replayed under `{traffic}` traffic, with "
         "the same policy and seeds (its later decisions may change with the traffic: the same "
-        f"scenes, not the same episodes). {again} of {len(collisions)} still end in a collision.",
+        f"scenes, not the same episodes). {again} of {scenes} still end in a collision.",
         "",
         markdown_table(
             ["own traffic", "row", "collisions", f"still under {traffic}", "prevented"], rows
@@ -145,7 +146,7 @@ def write_report(
         source = [
             f"Made by `{command}`.",
             "",
-            *_prevented_text(collisions, prevented, replay_traffic),
+            *_prevented_text(prevented, replay_traffic),
         ]
         described = collisions[replayed == "True"]
     if described.empty:
