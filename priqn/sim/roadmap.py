@@ -676,7 +676,11 @@ def _command(turn_deg: float) -> str:
 
 
 def _lane_chain(net, conn, path: Path) -> list:
-    """Lanes of one connection: from-lane, internal lanes (via), to-lane."""
+    """Lanes of one connection: from-lane, internal lanes (via), to-lane.
+
+    An internal lane's own ``via`` is not followed, so a left turn that waits at an internal
+    junction keeps its first internal lane only (a known deviation, kept: docs/scenarios.md,
+    "Reading a net"; :func:`_npc_chains` follows both)."""
     chain = [conn.getFromLane()]
     via_id = conn.getViaLaneID()
     target = conn.getToLane()
