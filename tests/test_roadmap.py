@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from matplotlib.path import Path as MplPath
 
+from priqn.env.geometry import Boxes, MapRaster, off_road
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_bytes
 from priqn.sim import netgen
@@ -316,6 +317,11 @@ def test_reference_lines_skip_a_waiting_left_turns_second_internal_lane():
             assert len(internal) == 2 and internal[1] not in r.lane_ids and r.command == "left"
             skipped_xy = rm.lanes[internal[1]].centre_xy
             deviation_m[(ref, r.name)] = _distance_to_polyline_m(skipped_xy, r.reference_xy).max()
+            # The chord stays on the road: an ego box centred on the line and along it, from
+            # the start to the goal (the line runs on past the road map's window), never leaves it.
+            drive = (r.s_m >= r.start_s_m) & (r.s_m <= r.goal_s_m)
+            boxes = Boxes.make(r.reference_xy[drive], r.heading_rad[drive], 4.5, 1.8)
+            assert not off_road(MapRaster.from_roadmap(rm), boxes).any(), r.name
     assert len(deviation_m) == 13, sorted(deviation_m)
     assert sum(ref.startswith("holdout/") for ref, _ in deviation_m) == 3
     assert 2.0 < min(deviation_m.values()) and max(deviation_m.values()) < 4.1
