@@ -21,11 +21,14 @@ and sub-command exist); an ALL-CAPS placeholder given to a typed option
 from __future__ import annotations
 
 import argparse
+import ast
 import contextlib
 import io
 import itertools
 import re
 import shlex
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -389,3 +392,22 @@ def test_holm_family_sizes_in_the_docs_match_the_claims_table() -> None:
     assert f"family ({paper} comparisons) and within ours ({ours})" in results
     statistics = " ".join((ROOT / "docs/statistics.md").read_text(encoding="utf-8").split())
     assert f"{paper + ours} primary comparisons ({paper} + {ours})" in statistics
+
+
+def test_readme_example_drives_a_committed_run(tmp_path: Path) -> None:
+    """The README's example that loads a committed run and drives one hold-out episode runs
+    as printed (in its own process: libsumo holds one simulation per process) and prints
+    the episode's outcome."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"<!-- example: drive -->\n```python\n(.*?)```", readme, re.S)
+    assert block, "README.md: the '<!-- example: drive -->' python block is missing"
+    script = tmp_path / "drive.py"
+    script.write_text(block[1], encoding="utf-8")
+    out = subprocess.run(
+        [sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    shown = ast.literal_eval(out.stdout.strip().splitlines()[-1])
+    assert set(shown) == {"success", "collision", "off_road", "timeout", "episode_steps"}
+    assert sum(bool(shown[k]) for k in ("success", "collision", "off_road", "timeout")) == 1
+    assert shown["episode_steps"] >= 1

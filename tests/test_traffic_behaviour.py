@@ -413,6 +413,27 @@ def test_tm_npc_that_arrives_first_does_not_wait_for_the_approaching_ego(tjuncti
     assert all(r[4] is None for r in rows[: entered[0][0]])
 
 
+def test_tm_carla_npc_does_not_brake_for_an_ego_30_m_ahead_and_tm_does(tjunction, worker) -> None:
+    # The standing-ego case above under both look-aheads. At about 11 m/s `tm` looks 50 m
+    # ahead (2.5 + 4.35 x 11, capped), so it is braking for the ego by the time the ego is
+    # 30 m along its path; `tm-carla` looks 2.5 + (0.36 x 11)^2 = 18.2 m ahead, so at 30 m it
+    # has not seen the ego and still drives at its own speed. It sees the ego about 18 m
+    # ahead, beyond its comfortable stopping distance (11^2 / (2 x 4.5) = 13.4 m, + 2 m gap),
+    # and still stops short of it.
+    tm = _stage(worker, str(tjunction), "tm", _stand(STANDING_X_M), "left", 0, 40.0)["rows"]
+    at_30 = next(r for r in tm if r[4] is not None and r[4] <= 30.0)
+    top = max(r[3] for r in tm if r[3] is not None)
+    assert top > 10.5 and at_30[3] < top - 1.0  # braking at 30 m under `tm`
+    out = _stage(worker, str(tjunction), "tm-carla", _stand(STANDING_X_M), "left", 0, 40.0)
+    rows = out["rows"]
+    seen = [r for r in rows if r[4] is not None]
+    assert seen and 15.0 < seen[0][4] <= 2.5 + (0.36 * seen[0][3]) ** 2 + 0.5
+    assert seen[0][3] > 10.5  # nothing braked it before: not at 30 m, nor at 20 m
+    assert not any(r[5] for r in rows)  # no collision
+    assert rows[-1][3] == 0.0 and seen[-1][4] == pytest.approx(2.0, abs=0.5)
+    assert max(_decels(rows)) <= out["decel"] + 1e-6
+
+
 def test_path_braking_defaults_leave_sumo_and_rude_without_a_stage() -> None:
     assert TrafficBehaviour().path_braking is False
     for name, setting in TRAFFIC_SETTINGS.items():
@@ -438,6 +459,17 @@ def test_look_ahead_grows_with_speed_up_to_its_cap() -> None:
     assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
     assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 4.35 * 5.0)
     assert stage.look_ahead_m(20.0) == pytest.approx(50.0)
+    # CARLA's form (`tm-carla`): 2.5 m + (0.36 x v)^2, at least the 2 m lead distance.
+    carla = TrafficBehaviour(path_braking=True, path_look_ahead_form="carla")
+    stage = PathBraking(None, None, carla, 0.1, 9.0, "npc.")
+    assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
+    assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 1.8**2)  # 5.74 m
+    assert stage.look_ahead_m(11.0) == pytest.approx(2.5 + 3.96**2)  # 18.18 m
+    assert stage.look_ahead_m(30.0) == pytest.approx(50.0)  # the cap: 2.5 + 10.8^2 = 119 m
+    floor = dataclasses.replace(carla, path_look_ahead_min_m=0.5, path_stop_gap_m=3.0)
+    stage = PathBraking(None, None, floor, 0.1, 9.0, "npc.")
+    assert stage.look_ahead_m(0.0) == pytest.approx(3.0)  # max(3.0, 0.5)
+    assert stage.look_ahead_m(5.0) == pytest.approx(3.74)  # max(3.0, 0.5 + 3.24)
 
 
 def test_path_braking_knob_errors_are_one_line() -> None:
@@ -449,6 +481,12 @@ def test_path_braking_knob_errors_are_one_line() -> None:
         ValueError, match=r"path_look_ahead_max_m: expected >= path_look_ahead_min_m"
     ):
         TrafficBehaviour(path_look_ahead_min_m=10.0, path_look_ahead_max_m=5.0)
+    with pytest.raises(
+        ValueError, match=r"traffic.path_look_ahead_form: expected one of linear, carla, got 'x'"
+    ):
+        TrafficBehaviour(path_look_ahead_form="x")
+    with pytest.raises(ValueError, match=r"traffic.path_look_ahead_vel_factor: expected >= 0"):
+        TrafficBehaviour(path_look_ahead_vel_factor=-0.1)
 
 
 # ------------------------------------------------ an NPC straddling two lanes (issue 62)

@@ -3,7 +3,11 @@
 CARLA's Traffic Manager (TM), which drove the paper's NPCs, does not know the ego (it is
 not registered with the TM), so it gives the ego no right of way. But every tick its
 *collision stage* extends each TM vehicle's box along the vehicle's own path ahead, by a
-length that grows with its speed (the "geodesic boundary": 2.5 m + 4.35 s x speed), and
+length that grows with its speed (the "geodesic boundary": 2.5 m + (0.36 x speed)^2 in
+current CARLA releases, ``CollisionStage::GetBoundingBoxExtention``; 2 m + 1.73 s x speed,
+capped at 50 m, in CARLA 0.9.10; ``tm`` was measured with
+2.5 m + 4.35 s x speed, see
+:attr:`priqn.env.traffic.TrafficBehaviour.path_look_ahead_form`), and
 when any vehicle's box overlaps that boundary, the ego included
 (``ignore_vehicles_percentage`` defaults to 0), its motion planner brakes for it. So a TM
 NPC drives into the junction by its own right of way, but does not drive into an ego that
@@ -15,7 +19,10 @@ the TM's stage on top of SUMO's drivers, once per SUMO step:
 
 1. Each NPC near the ego looks along its own lane chain (approach lane, internal junction
    lanes, exit lane: :class:`NpcPaths`) from its front bumper, for
-   ``min(path_look_ahead_max_m, path_look_ahead_min_m + path_look_ahead_s * speed)``.
+   :meth:`PathBraking.look_ahead_m` (``path_look_ahead_form``: ``"linear"``,
+   ``min(path_look_ahead_max_m, path_look_ahead_min_m + path_look_ahead_s * speed)``, or
+   ``"carla"``, ``path_look_ahead_min_m + (path_look_ahead_vel_factor * speed)**2``, at least
+   ``path_stop_gap_m``, at most ``path_look_ahead_max_m``).
 2. The ego is in that path when a point of the path lies inside the ego's box grown by
    half the NPC's width (the NPC's front sweeping the path would touch the ego there).
    The distance along the path to the first such point is the *hazard distance* ``d``.
@@ -36,8 +43,9 @@ along the new lane's centre and can miss an ego its body will sweep. ``path_marg
 grows the ego's box further: an NPC pulling past a standing ego in a sublane lane change
 turns its body off its path, and its corners reach beyond half its width.
 
-The NPC-to-NPC behaviour stays SUMO's (its junction model orders NPCs by priority, where
-the TM orders its own vehicles first-come-first-served at unsignalised junctions).
+The NPC-to-NPC behaviour stays SUMO's (its junction model orders NPCs by priority; the TM
+orders its vehicles first-come-first-served at stop signs only, and at unsigned junctions
+only its collision stage's negotiation orders them).
 docs/environment.md lists every knob with its CARLA counterpart.
 """
 
@@ -195,11 +203,16 @@ class PathBraking:
         self._exit_edge: dict[str, str] = {}
 
     def look_ahead_m(self, speed_mps: float) -> float:
-        """How far along its path an NPC at ``speed_mps`` looks for the ego [m]."""
+        """How far along its path an NPC at ``speed_mps`` looks for the ego [m]: the
+        behaviour's ``path_look_ahead_form`` (``"linear"``, as ``tm`` was measured, or
+        ``"carla"``, CARLA's current TM), at most ``path_look_ahead_max_m``."""
         b = self.behaviour
-        return min(
-            b.path_look_ahead_max_m, b.path_look_ahead_min_m + b.path_look_ahead_s * speed_mps
-        )
+        if b.path_look_ahead_form == "carla":
+            grown = b.path_look_ahead_min_m + (b.path_look_ahead_vel_factor * speed_mps) ** 2
+            reach = max(b.path_stop_gap_m, grown)
+        else:
+            reach = b.path_look_ahead_min_m + b.path_look_ahead_s * speed_mps
+        return min(b.path_look_ahead_max_m, reach)
 
     def check(
         self,

@@ -52,6 +52,10 @@ IGNORE_IDS_PARAM = "junctionModel.ignoreIDs"
 """SUMO vehicle parameter: foes (space-separated ids) its junction model ignores."""
 
 
+LOOK_AHEAD_FORMS = ("linear", "carla")
+"""Values of :attr:`TrafficBehaviour.path_look_ahead_form`."""
+
+
 @dataclasses.dataclass(frozen=True)
 class TrafficBehaviour:
     """How the NPCs drive with respect to the ego (``EnvConfig.traffic``, docs/environment.md).
@@ -82,17 +86,32 @@ class TrafficBehaviour:
     brakes for the ego when the ego's box overlaps its own path ahead, within a look-ahead
     that grows with its speed, after ``path_reaction_time_s``, at no more than its vType's
     ``emergencyDecel``. Off: SUMO's drivers alone."""
+    path_look_ahead_form: str = "linear"
+    """How the look-ahead grows with the NPC's speed v [m/s]: ``"linear"``,
+    ``min(path_look_ahead_max_m, path_look_ahead_min_m + path_look_ahead_s * v)``, as ``tm``
+    was measured (no CARLA release uses it: 2.5 m + 4.35 s x v); ``"carla"``, CARLA's TM in
+    current releases (``CollisionStage::GetBoundingBoxExtention`` and ``GetGeodesicBoundary``):
+    ``path_look_ahead_min_m + (path_look_ahead_vel_factor * v)**2``, at least
+    ``path_stop_gap_m`` (the lead distance), at most ``path_look_ahead_max_m``
+    (:meth:`priqn.env.path_braking.PathBraking.look_ahead_m`, docs/environment.md)."""
     path_look_ahead_min_m: float = 2.5
     """Look-ahead along the path at standstill [m] (TM ``BOUNDARY_EXTENSION_MINIMUM``)."""
     path_look_ahead_s: float = 4.35
-    """Look-ahead added per m/s of the NPC's speed [s] (TM ``BOUNDARY_EXTENSION_RATE``)."""
+    """``"linear"`` form: look-ahead added per m/s of the NPC's speed [s] (TM
+    ``BOUNDARY_EXTENSION_RATE``, which CARLA declares in ``Constants.h`` but does not use)."""
+    path_look_ahead_vel_factor: float = 0.36
+    """``"carla"`` form: the factor whose product with the speed is squared [s/m^0.5], so that
+    ``(0.36 * v)**2`` is in metres for v in m/s (TM ``VEL_EXT_FACTOR``)."""
     path_look_ahead_max_m: float = 50.0
-    """Longest look-ahead [m] (TM ``BOUNDARY_EXTENSION_MAXIMUM`` of CARLA 0.9.10)."""
+    """Longest look-ahead [m] (TM ``BOUNDARY_EXTENSION_MAXIMUM`` of CARLA 0.9.10; later
+    releases have no cap, and the ``"carla"`` form stays below it at the NPCs' speeds)."""
     path_reaction_time_s: float = 0.0
     """Delay from the check that first sees the ego in the path to the first braking check
-    [s]; every check acts on the next SUMO step (0.1 s), like the TM's one-tick latency."""
+    [s]. Even at 0 a check acts on the next SUMO step (0.1 s), as SUMO's own drivers do;
+    CARLA's TM acts on the tick that sees the hazard, so ours lags it by one SUMO step."""
     path_stop_gap_m: float = 2.0
-    """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``)."""
+    """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``; the
+    ``"carla"`` look-ahead form's floor, the TM's distance to the leading vehicle, 2 m)."""
     path_follows_offset: bool = False
     """Look along the path at the NPC's own lateral position in its lane (its sublane offset,
     or a lane change under way), not along the lane's centre line. False, as ``tm`` was
@@ -112,8 +131,13 @@ class TrafficBehaviour:
             raise ValueError(
                 f"traffic.impatience: expected a value in [0, 1], got {self.impatience}"
             )
-        for name in ("path_look_ahead_min_m", "path_look_ahead_s", "path_reaction_time_s",
-                     "path_stop_gap_m", "path_margin_m"):  # fmt: skip
+        if self.path_look_ahead_form not in LOOK_AHEAD_FORMS:
+            raise ValueError(
+                f"traffic.path_look_ahead_form: expected one of {', '.join(LOOK_AHEAD_FORMS)}, "
+                f"got {self.path_look_ahead_form!r}"
+            )
+        for name in ("path_look_ahead_min_m", "path_look_ahead_s", "path_look_ahead_vel_factor",
+                     "path_reaction_time_s", "path_stop_gap_m", "path_margin_m"):  # fmt: skip
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"traffic.{name}: expected >= 0, got {getattr(self, name)}")
         if not self.path_look_ahead_max_m >= self.path_look_ahead_min_m:
@@ -147,6 +171,7 @@ _RUDE = (("traffic.yield_to_ego_prob", 0.0),)
 _TM = _RUDE + (("traffic.path_braking", True),)
 _FINITE = (("traffic.top_up", False),)
 _LONG = (("max_episode_steps", 200),)
+_TM_CARLA = _TM + (("traffic.path_look_ahead_form", "carla"),)
 TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
     "sumo": TrafficSetting("SUMO's drivers: every NPC gives way to the ego (the default)"),
     "rude": TrafficSetting("no NPC gives way to the ego at the junction", _RUDE),
@@ -161,13 +186,21 @@ TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
     ),
     "tm-finite": TrafficSetting("tm, no top-up: the reset's NPCs only", _TM + _FINITE),
     "tm-long": TrafficSetting("tm, training episodes of 200 decisions (100 s)", _TM + _LONG),
+    "tm-carla": TrafficSetting(
+        "tm with the look-ahead of CARLA's current Traffic Manager: 2.5 m + (0.36 x speed)^2",
+        _TM_CARLA,
+    ),
+    "tm-carla-long": TrafficSetting(
+        "tm-carla, training episodes of 200 decisions (100 s)", _TM_CARLA + _LONG
+    ),
     "tm-strict": TrafficSetting(
         "tm, each NPC looking along its own lateral position and keeping 0.5 m clear of the ego",
         _TM + (("traffic.path_follows_offset", True), ("traffic.path_margin_m", 0.5)),
     ),
 }
 """Named traffic settings (issue 48's calibration candidates, issue 62's ``tm`` family;
-``tm-strict`` mends what ``tm`` missed, after its cells were measured; docs/environment.md)."""
+``tm-carla`` looks ahead as CARLA's TM does, and ``tm-strict`` mends what ``tm`` missed, both
+added after ``tm``'s cells were measured; docs/environment.md)."""
 
 
 def traffic_names(text: str, where: str = "--traffic") -> list[str]:
