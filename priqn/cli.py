@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from priqn import __version__
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "scenario": ("priqn.sim.cli", "generate SUMO nets from scenario families; draw a net"),
@@ -91,7 +91,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     command, rest = argv[0], argv[1:]
     if command not in COMMANDS:
-        top.error(f"unknown command {command!r} (choose from {', '.join(COMMANDS)})")
+        top.error(
+            f"unknown command {command!r} (choose from {', '.join(COMMANDS)})"
+            + did_you_mean(command, COMMANDS)
+        )
     try:
         parser, module = command_parser(command)
         args = parser.parse_args(rest)

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 
 import tomli_w
 
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 
 T = TypeVar("T")
 
@@ -97,10 +97,20 @@ def from_dict(cls: type[T], data: Mapping[str, Any], where: str) -> T:
     if unknown:
         raise PriqnError(
             f"{where}: unknown key {unknown[0]!r} (valid: {', '.join(sorted(fields))})"
+            + did_you_mean(unknown[0], fields)
         )
     kwargs = {}
     for name, value in data.items():
-        kwargs[name] = _coerce(value, hints[name], f"{where}.{name}" if where else name)
+        tp, label = hints[name], field_label(where, name)
+        if dataclasses.is_dataclass(tp) and not (
+            isinstance(value, Mapping) or dataclasses.is_dataclass(value)
+        ):
+            hint = fields[name].metadata.get(NAMED_HINT)
+            raise PriqnError(
+                f"{label}: expected a table of {name}.* fields, got {value!r}"
+                + (f"; {hint.format(value=value)}" if hint else "")
+            )
+        kwargs[name] = _coerce(value, tp, label)
     missing = [
         n
         for n, f in fields.items()
@@ -115,7 +125,34 @@ def from_dict(cls: type[T], data: Mapping[str, Any], where: str) -> T:
     except (ValueError, TypeError) as exc:
         if isinstance(exc, PriqnError):
             raise
-        raise PriqnError(f"{where}: {exc}") from exc
+        raise PriqnError(_check_message(where, str(exc), fields)) from exc
+
+
+def _check_message(where: str, text: str, fields: Iterable[str]) -> str:
+    """A dataclass's own check ``text`` (``"family: unknown pool ..."``) as one line
+    naming ``where``; after a flag, one that begins with a field's name is named as that
+    field (``--set env.family: unknown pool ...``, not ``--set env: family: ...``)."""
+    name, sep, rest = text.partition(":")
+    if sep and where.startswith("-") and name in set(fields):
+        return f"{field_label(where, name)}:{rest}"
+    return f"{where}: {text}"
+
+
+NAMED_HINT = "named_hint"
+"""Field metadata key: on a table field that a named setting fills (``EnvConfig.traffic``:
+``--traffic NAME``), the hint an error adds when the field is given a bare value instead
+(``{value}`` is that value)."""
+
+
+def field_label(where: str, name: str) -> str:
+    """How an error names field ``name`` of the table ``where``: ``--set learner.lr``
+    after a flag, ``train_paper.toml.learner.lr`` after a file, ``name`` alone without
+    ``where``."""
+    if not where:
+        return name
+    if where.startswith("-") and " " not in where:  # a flag: '--set' -> '--set learner'
+        return f"{where} {name}"
+    return f"{where}.{name}"
 
 
 ConfigValues = Mapping[str, Any] | Iterable[tuple[str, Any]]
@@ -233,10 +270,15 @@ def _set_value(data: dict[str, Any], key: str, value: Any, where: str) -> None:
     parts = key.split(".")
     for part in parts[:-1]:
         if not isinstance(node.get(part), dict):
-            raise PriqnError(f"{where}: {key!r} is not a config field")
+            tables = [k for k, v in node.items() if isinstance(v, dict)]
+            raise PriqnError(f"{where}: {key!r} is not a config field{did_you_mean(part, tables)}")
         node = node[part]
     if parts[-1] not in node:
-        raise PriqnError(f"{where}: unknown key {key!r} (valid here: {', '.join(sorted(node))})")
+        prefix = key[: -len(parts[-1])]  # the last name alone is matched: not the table's
+        near = did_you_mean(parts[-1], node, prefix)
+        raise PriqnError(
+            f"{where}: unknown key {key!r} (valid here: {', '.join(sorted(node))}){near}"
+        )
     node[parts[-1]] = value
 
 

@@ -31,7 +31,7 @@ from priqn.agents.config import (
     resolve_spec,
 )
 from priqn.config import from_dict, load_toml, parse_override, value_pairs
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import snapshot_evaluation
 
@@ -176,6 +176,7 @@ def _check_traffic(name: str | None) -> None:
     if name is not None and name not in TRAFFIC_SETTINGS:
         raise ValueError(
             f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
+            + did_you_mean(name, TRAFFIC_SETTINGS)
         )
 
 
@@ -511,7 +512,8 @@ def resolve_experiment_path(name_or_path: str | os.PathLike) -> Path:
                 return d / f"{p.name}.toml"
         known = sorted({q.stem for d in dirs for q in d.glob("*.toml")})
         raise PriqnError(
-            f"{p}: no such experiment file (known in ./experiments/ and shipped: {', '.join(known) or 'none'})"
+            f"{p}: no such experiment file (known in ./experiments/ and shipped: "
+            f"{', '.join(known) or 'none'})" + did_you_mean(p.name, known)
         )
     raise PriqnError(f"{p}: file not found")
 

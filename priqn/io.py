@@ -198,6 +198,58 @@ def ensure_dir(path: str | os.PathLike) -> Path:
     return folder
 
 
+def missing_folders(path: str | os.PathLike) -> list[Path]:
+    """``path`` and its parents that do not exist yet, innermost first: the folders that
+    making ``path`` would create (:func:`remove_empty_folders` takes them away again)."""
+    folder = Path(path).absolute()
+    return [p for p in (folder, *folder.parents) if not p.exists() and not p.is_symlink()]
+
+
+def remove_empty_folders(folders: Sequence[Path]) -> None:
+    """Remove each of ``folders`` (innermost first, as :func:`missing_folders` lists them)
+    that holds no file, with its empty sub-folders; one holding a file stays, and so does
+    anything that cannot be removed. Only for folders this process made."""
+    for folder in folders:
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        for sub, _, _ in sorted(os.walk(folder), key=lambda w: -len(Path(w[0]).parts)):
+            with contextlib.suppress(OSError):
+                os.rmdir(sub)  # fails, and so stays, unless empty
+
+
+@contextlib.contextmanager
+def removed_on_failure(path: str | os.PathLike) -> Iterator[None]:
+    """The folders the block makes for ``path`` (it, its parents) are removed again when
+    it raises and leaves them empty: a refused command leaves no empty output folder."""
+    made = missing_folders(path)
+    try:
+        yield
+    except BaseException:
+        remove_empty_folders(made)
+        raise
+
+
+def check_writable(path: str | os.PathLike, where: str) -> Path:
+    """``path`` as a file that :func:`atomic_open` can write later: its folder made (or
+    there) and a temporary file made in it now, then all of it removed again, so a long
+    command refuses an output it could not write before it starts, and leaves nothing.
+    A one-line :class:`PriqnError` names ``where`` (the flag) and the path."""
+    target = Path(path)
+    if target.is_dir():
+        raise PriqnError(f"{where} {target}: a folder; expected a file to write")
+    made = missing_folders(target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise PriqnError(f"{where} {_as_user_error(exc, target)}") from None
+    finally:
+        remove_empty_folders(made)
+    return target
+
+
 def _as_user_error(exc: OSError, target: Path) -> PriqnError:
     if exc.errno == errno.ENOSPC:
         return PriqnError(f"{target}: no space left on device; free some space and retry")

@@ -11,7 +11,7 @@ import importlib
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 
 
 def import_path(spec: str, where: str) -> Any:
@@ -51,7 +51,7 @@ def import_plugin(
         known = [*shipped, *sorted(entry_points)]
         raise PriqnError(
             f"{where}: unknown {what} {name!r} ({listed}: {', '.join(known)}; "
-            f"or 'package.module:NAME' naming a {expected})"
+            f"or 'package.module:NAME' naming a {expected})" + did_you_mean(name, known)
         )
     try:
         return entry_points[name].load()

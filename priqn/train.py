@@ -36,6 +36,7 @@ from priqn.config import describe, flatten, to_dict
 from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_values
 from priqn.env.vector import restore_episodes
 from priqn.errors import PriqnError
+from priqn.io import missing_folders
 from priqn.objectives import subset_columns
 from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.run.checkpointer import (
@@ -51,7 +52,12 @@ from priqn.run.episodes import episode_values, final_info
 from priqn.run.folder import RunFolder, Status
 from priqn.run.metrics import MetricsFile, metric_columns, metrics_row, read_metrics
 from priqn.run.provenance import thread_limits
-from priqn.run.session import mark_resume_exact, same_cpu_as_before, start_session
+from priqn.run.session import (
+    mark_resume_exact,
+    same_cpu_as_before,
+    start_session,
+    undo_failed_start,
+)
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
     NETS,
@@ -200,7 +206,8 @@ def train(
     """Train ``cfg`` into ``run_dir``; ``resume`` continues from its latest checkpoint.
 
     Returns the run folder. meta.json says ``running`` while training, ``complete``
-    when the budget is spent, ``failed`` (with the error) otherwise. ``background_writes``
+    when the budget is spent, ``failed`` (with the error) otherwise; a new run that fails
+    before training wrote a file leaves no folder (:func:`undo_failed_start`). ``background_writes``
     False writes checkpoints and snapshots in the loop (the same files; ``priqn bench
     loop`` times both).
     """
@@ -211,19 +218,25 @@ def train(
     was_complete = resume and run.recorded_status() == Status.COMPLETE
     # Everything that can refuse the run comes before its folder is touched.
     origin = provenance.gather(cfg)
+    select_device(cfg.device)  # CUDA asked for where there is none: one line
     _check_replay_storage(cfg)
     # The session's one agent, for the run's objectives.
     agent = build_agent(cfg)
+    # What only the env workers find (a junction the nets lack, SUMO failing to start)
+    # comes after: a new run that fails so is taken back, folder and all (undo_failed_start).
+    made = [] if resume else missing_folders(run.path)
     start_session(run, cfg, resume, force, origin, policy_labels(cfg, agent))
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
     failed_status = Status.COMPLETE if was_complete else Status.FAILED
     try:
         _train_loop(cfg, run, agent, resume, background_writes)
-    except KeyboardInterrupt:
-        run.update_meta(status=failed_status, error="interrupted (continue with --resume)")
-        raise
     except BaseException as exc:
+        if undo_failed_start(run, made):
+            raise
+        if isinstance(exc, KeyboardInterrupt):
+            run.update_meta(status=failed_status, error="interrupted (continue with --resume)")
+            raise
         try:
             run.update_meta(status=failed_status, error=f"{type(exc).__name__}: {exc}")
         except Exception:  # noqa: BLE001 - e.g. the disk is full; the original error matters
@@ -889,6 +902,8 @@ def run(args: argparse.Namespace) -> int:
             cfg = dataclasses.replace(cfg, device=args.device)
         train(cfg, run_dir, resume=True)
     else:
+        if args.seed is not None and args.seed < 0:
+            raise PriqnError(f"--seed {args.seed}: expected an integer >= 0")
         cfg = resolve_config(
             preset=args.preset,
             agent=args.agent,

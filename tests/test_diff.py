@@ -130,10 +130,12 @@ def test_a_run_short_of_the_budget_is_compared_as_far_as_it_got(
     assert [p.same for p in found] == [True, None, None, None]
     assert found[1].text.endswith("B has trained 60 of the 120 decisions")
     assert verdict(found) == (
-        "no difference in the parts compared (not compared: metrics, weights)"
+        "no difference in the parts compared, but not proven the same training "
+        "(not compared: metrics, weights)"
     )
     out = diff_cli(str(trained), str(b))
-    assert out.returncode == 0 and "the runs are the same training" not in out.stdout
+    assert out.returncode == 3 and "the runs are the same training" not in out.stdout
+    assert out.stdout.splitlines()[-1].endswith("(not compared: metrics, weights)")
 
 
 def test_bad_input_is_one_line(trained: Path, tmp_path: Path) -> None:

@@ -32,7 +32,7 @@ import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 from priqn.plugins import import_path
 
 if TYPE_CHECKING:
@@ -284,4 +284,7 @@ def lookup(registry: dict[str, Any], name: str, what: str) -> Any:
         return registry[name]
     if ":" in name:
         return import_path(name, what)
-    raise PriqnError(f"unknown {what} {name!r} (valid: {', '.join(sorted(registry))})")
+    raise PriqnError(
+        f"unknown {what} {name!r} (valid: {', '.join(sorted(registry))})"
+        + did_you_mean(name, registry)
+    )

@@ -27,6 +27,7 @@ from typing import Any
 
 from priqn.analysis.request import ReportRequest, report_command
 from priqn.errors import PriqnError
+from priqn.io import removed_on_failure
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,11 +144,13 @@ def choose_kind(request: ReportRequest) -> str:
 
 def write_report(request: ReportRequest) -> Path:
     """Write ``request``'s report by its kind (:func:`choose_kind`), recording
-    :func:`report_command`; returns the report's Markdown file."""
+    :func:`report_command`; returns the report's Markdown file. A report refused (no runs,
+    an unevaluated one, ...) leaves no empty output folder it made."""
     kind = choose_kind(request)
     write = REPORTS[kind].write
     assert write is not None, kind  # choose_kind chooses priqn report's kinds only
-    return write(request, report_command(request, kind))
+    with removed_on_failure(request.out):
+        return write(request, report_command(request, kind))
 
 
 def write_experiment_report(exp: Any, out: str | Path) -> Path:

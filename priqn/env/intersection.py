@@ -38,13 +38,14 @@ import numpy as np
 from gymnasium import spaces
 
 from priqn.checks import check_density
+from priqn.config import NAMED_HINT
 from priqn.env import forensics, geometry, measures, planner, reads, sensors
 from priqn.env import rewards as R
 from priqn.env.objective_terms import DecisionContext, EnvObjectives
 from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
 from priqn.env.traffic import NPC_PREFIX, Traffic, TrafficBehaviour
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 from priqn.objectives import OBJECTIVES
 from priqn.sim.roadmap import COMMANDS, EgoRoute, wrap_rad
 from priqn.sim.session import SumoSession
@@ -119,10 +120,17 @@ class EnvConfig:
     obstacle_clearance_m: float = 25.0
     """Obstacles stand at least this far from the junction and ahead of the ego's start [m]."""
     sensor_query_range_m: float = 65.0
-    """Radius around the ego within which actors are read from SUMO each step [m]."""
+    """Radius around the ego within which actors are read from SUMO each step [m]; > 0.
+    Path braking (the ``tm`` traffic settings, :mod:`priqn.env.path_braking`) reads its NPCs
+    from this same read: it looks up to ``traffic.path_look_ahead_max_m`` (50 m) plus half
+    the ego's diagonal, half an NPC's width and ``traffic.path_margin_m``, about 54 m, so a
+    range below that silently shortens the ``tm`` NPCs' look-ahead too."""
     reward: R.RewardConfig = dataclasses.field(default_factory=R.RewardConfig)
     """Reward term parameters."""
-    traffic: TrafficBehaviour = dataclasses.field(default_factory=TrafficBehaviour)
+    traffic: TrafficBehaviour = dataclasses.field(
+        default_factory=TrafficBehaviour,
+        metadata={NAMED_HINT: "to pick a named setting use --traffic {value}"},
+    )
     """How the NPCs treat the ego: giving way at the junction, top-up, impatience (the
     defaults are SUMO's polite drivers; named settings: ``priqn train --traffic``)."""
     objectives: tuple[str, ...] = OBJECTIVES
@@ -162,14 +170,22 @@ class EnvConfig:
                 f"ego_driver: {self.ego_driver!r} is not one of {', '.join(EGO_DRIVERS)}"
             )
         if self.family not in FAMILIES:
-            raise ValueError(f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})")
+            raise ValueError(
+                f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})"
+                + did_you_mean(self.family, FAMILIES)
+            )
 
     def _check_observation(self) -> None:
-        """Observation and render sizes, the BEV's range and channels."""
+        """Observation and render sizes, the range actors are read in, the BEV's range and
+        channels."""
         if self.obs_size_px < 16:
             raise ValueError(f"obs_size_px: expected >= 16, got {self.obs_size_px}")
         if self.render_size_px and self.render_size_px < 16:
             raise ValueError(f"render_size_px: expected 0 or >= 16, got {self.render_size_px}")
+        if not self.sensor_query_range_m > 0:
+            raise ValueError(
+                f"sensor_query_range_m: expected a radius > 0 m, got {self.sensor_query_range_m}"
+            )
         if not self.bev_range_m > 0 or not 0 <= self.bev_behind_m <= self.bev_range_m:
             raise ValueError(
                 f"bev_range_m / bev_behind_m: expected bev_range_m > 0 and 0 <= bev_behind_m "
@@ -178,7 +194,9 @@ class EnvConfig:
         for c in self.bev_channels:
             if c not in sensors.BEV_CHANNELS:
                 raise ValueError(
-                    f"bev_channels: unknown channel {c!r} (valid: {', '.join(sensors.BEV_CHANNELS)})"
+                    f"bev_channels: unknown channel {c!r} "
+                    f"(valid: {', '.join(sensors.BEV_CHANNELS)})"
+                    + did_you_mean(c, sensors.BEV_CHANNELS)
                 )
 
     def _check_scenes(self) -> None:

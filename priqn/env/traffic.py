@@ -36,7 +36,7 @@ import numpy as np
 
 from priqn.checks import check_density
 from priqn.env.path_braking import NpcPaths, PathBraking
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 from priqn.sim.roadmap import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
 
@@ -222,6 +222,7 @@ def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
     if name not in TRAFFIC_SETTINGS:
         raise PriqnError(
             f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
+            + did_you_mean(name, TRAFFIC_SETTINGS)
         )
     return TRAFFIC_SETTINGS[name].values()
 

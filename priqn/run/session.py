@@ -14,13 +14,19 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from priqn.config import config_differences, dumps_toml, to_dict
 from priqn.errors import PriqnError
-from priqn.io import atomic_write_json, atomic_write_text, remove_stale_temp_files
+from priqn.io import (
+    atomic_write_json,
+    atomic_write_text,
+    remove_empty_folders,
+    remove_stale_temp_files,
+)
 from priqn.run.folder import Provenance, RunFolder, Status
 
 
@@ -133,6 +139,27 @@ def _new_meta(run: RunFolder, cfg: Any, force: bool) -> dict[str, Any]:
         "seeds": derive_seeds(cfg.seed),
         "sessions": [],
     }
+
+
+START_FILES = (RunFolder.CONFIG, RunFolder.META, RunFolder.NETS_MANIFEST)
+"""What :func:`start_session` writes into a run folder (before training writes anything)."""
+
+
+def undo_failed_start(run: RunFolder, made: Sequence[Path]) -> bool:
+    """Take back a new run that failed before training wrote a file (an env worker that
+    could not start, a junction the nets lack, ...): the files :func:`start_session` wrote
+    and the folders ``made`` for it (:func:`priqn.io.missing_folders`, before it), so the
+    same command can simply be run again. True if it did; a folder holding anything else
+    (training got further) stays, its meta.json saying why it failed."""
+    try:
+        if not made or any(p.name not in START_FILES for p in run.path.iterdir()):
+            return False
+        for name in START_FILES:
+            (run.path / name).unlink(missing_ok=True)
+    except OSError:  # unreadable, or a file that cannot go: leave it marked failed
+        return False
+    remove_empty_folders(made)
+    return not run.path.exists()
 
 
 def remove_run(run: RunFolder) -> None:

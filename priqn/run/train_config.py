@@ -31,7 +31,7 @@ from priqn.agents.frames import REPLAY_STORAGES
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import ConfigValues, apply_values, from_dict, load_toml, to_dict, value_pairs
 from priqn.env.intersection import EnvConfig
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 from priqn.objectives import objective_names
 
 PRESETS_DIR = Path(__file__).resolve().parents[1] / "presets"
@@ -188,6 +188,8 @@ class TrainConfig:
     """Checkpointing."""
 
     def __post_init__(self) -> None:
+        if self.seed < 0:  # numpy's SeedSequence takes non-negative integers only
+            raise ValueError(f"seed: expected an integer >= 0, got {self.seed}")
         if self.total_steps < 1 or self.num_envs < 1:
             raise ValueError("total_steps and num_envs: expected positive integers")
         if self.device not in ("auto", "cpu", "cuda") and not self.device.startswith("cuda:"):
@@ -295,7 +297,10 @@ def resolve_config(
     (``(dotted key, value)`` pairs in order: a traffic setting, a grid row's options), then
     the ``--set`` ``overrides`` strings, all checked together (:func:`priqn.config.apply_values`)."""
     if preset not in PRESETS:
-        raise PriqnError(f"--preset: unknown preset {preset!r} (valid: {', '.join(PRESETS)})")
+        raise PriqnError(
+            f"--preset: unknown preset {preset!r} (valid: {', '.join(PRESETS)})"
+            + did_you_mean(preset, PRESETS)
+        )
     preset_path = PRESETS_DIR / f"train_{preset}.toml"
     data = to_dict(TrainConfig())
     data = _deep_merge(data, load_toml(preset_path))
@@ -314,7 +319,7 @@ def resolve_config(
         else:
             raise PriqnError(
                 f"--net: unknown net {net!r} (valid: {', '.join(NETS)}, a .net.xml file or a "
-                "folder of them)"
+                "folder of them)" + did_you_mean(net, NETS)
             )
     for key, value in (("seed", seed), ("total_steps", steps), ("num_envs", num_envs)):
         if value is not None:
@@ -401,7 +406,9 @@ def select_device(name: str) -> Any:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
-        raise PriqnError(f"device: {name!r} requested but CUDA is not available here")
+        raise PriqnError(
+            f"device: {name!r} requested but CUDA is not available here (expected auto or cpu)"
+        )
     return torch.device(name)
 
 

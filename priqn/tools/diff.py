@@ -15,9 +15,11 @@ Two runs are the same training up to ``N`` decisions when
 - **episodes** (where both evaluated that policy): the same ``episodes.csv`` rows, all
   columns but the run's name.
 
-``N`` is the smaller budget unless ``--upto`` says otherwise. Exit status 0 when every
-part compared is equal, 1 when one differs (each part names its first difference), 2 on
-bad input.
+``N`` is the smaller budget unless ``--upto`` says otherwise. Exit status
+(:func:`exit_status`): 0 when config, metrics and weights were all compared and are equal
+(and the episodes, where both evaluated), 1 when a part differs (each part names its first
+difference), 2 on bad input, 3 when nothing differs but config, metrics or weights could
+not be compared (a run short of ``N``, a policy not kept there): not proven the same.
 """
 
 from __future__ import annotations
@@ -38,6 +40,13 @@ IGNORED_METRICS = ("wall_s",)
 
 IGNORED_EPISODES = ("run",)
 """episodes.csv columns that name the run rather than describe its episodes."""
+
+REQUIRED_PARTS = ("config", "metrics", "weights")
+"""The parts that must be compared (and equal) to call two runs the same training; the
+episodes are compared where both runs evaluated the policy."""
+
+SAME, DIFFERENT, NOT_COMPARED = 0, 1, 3
+"""Exit statuses of ``priqn diff`` (2 is the CLI's own, a bad input)."""
 
 
 @dataclass(frozen=True)
@@ -244,7 +253,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Are two runs the same training, bit for bit? Config (but for the budget), "
         "metrics.csv rows, the policy's weights and, where both evaluated it, the "
-        "episodes, up to the smaller budget. Exit 0 if equal, 1 if not."
+        "episodes, up to the smaller budget. Exit status 0 when config, metrics and weights "
+        "were compared and are equal (episodes too, where both evaluated), 1 when a part "
+        "differs, 2 on bad input, 3 when a part could not be compared and none differs."
     )
     parser.add_argument("run_a", metavar="RUN_A", help="a run folder")
     parser.add_argument("run_b", metavar="RUN_B", help="another run folder")
@@ -267,7 +278,17 @@ def run(args: argparse.Namespace) -> int:
         mark = {True: "same", False: "DIFFERS", None: "not compared"}[part.same]
         print(f"  {part.name:<9} {mark:<13} {part.text}")
     print(f"up to {upto:,} decisions, {verdict(parts)}")
-    return 1 if any(p.same is False for p in parts) else 0
+    return exit_status(parts)
+
+
+def exit_status(parts: list[Part]) -> int:
+    """:data:`DIFFERENT` when a part differs, else :data:`NOT_COMPARED` when one of
+    :data:`REQUIRED_PARTS` could not be compared, else :data:`SAME`."""
+    if any(p.same is False for p in parts):
+        return DIFFERENT
+    if any(p.same is None for p in parts if p.name in REQUIRED_PARTS):
+        return NOT_COMPARED
+    return SAME
 
 
 def verdict(parts: list[Part]) -> str:
@@ -275,7 +296,10 @@ def verdict(parts: list[Part]) -> str:
     and weights equal), or showed no difference in the parts that could be compared."""
     if any(p.same is False for p in parts):
         return "the runs differ"
-    missing = [p.name for p in parts if p.same is None and p.name != "episodes"]
+    missing = [p.name for p in parts if p.same is None and p.name in REQUIRED_PARTS]
     if not missing:
         return "the runs are the same training"
-    return f"no difference in the parts compared (not compared: {', '.join(missing)})"
+    return (
+        f"no difference in the parts compared, but not proven the same training "
+        f"(not compared: {', '.join(missing)})"
+    )

@@ -58,6 +58,7 @@ from priqn.analysis.mechanism import (
 )
 from priqn.analysis.standstill import DEFAULT_TARGET
 from priqn.errors import PriqnError
+from priqn.io import removed_on_failure
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 from priqn.tools.cells import ReplayCell, load_cell, replay_scenes, replayed_episodes
@@ -156,7 +157,9 @@ def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) ->
     policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
     agent = policy.agent
     if agent.subsets is None or agent.spec.reward_rule != "per-objective":
-        raise PriqnError(f"{cell.path}: a {agent.name} run; the mechanism needs a Pr-IQN run")
+        raise PriqnError(
+            f"{cell.path}: the run's agent is {agent.name}; the mechanism needs a Pr-IQN run"
+        )
     levels = tuple(agent.subsets.preorder.objectives)
     for name, what in ((cfg.top, "--top"), (cfg.lower, "--lower")):
         if name not in levels:
@@ -355,6 +358,12 @@ def run(args: argparse.Namespace) -> int:
         snapshot=args.snapshot,
         decisions=args.decisions,
     )
+    with removed_on_failure(args.out):  # refused (an IQN run, ...): no empty --out left
+        return _write(args, cfg)
+
+
+def _write(args: argparse.Namespace, cfg: MechanismConfig) -> int:
+    """The report ``args`` asks for, into ``args.out``."""
     command = command_line(args)
     out = ReportFolder.open(
         args.out

@@ -51,11 +51,14 @@ def run(args: argparse.Namespace) -> int:
     from priqn.checks import check_density
     from priqn.env.traffic import traffic_names
     from priqn.errors import PriqnError
+    from priqn.io import check_writable
 
     names = traffic_names(args.traffic)
     check_density(args.density, "--density")
     if args.episodes < 1:
         raise PriqnError("--episodes: expected >= 1")
+    if args.csv is not None:  # before any episode, not after all of them
+        check_writable(args.csv, "--csv")
     ctx = multiprocessing.get_context("spawn")
     rows: list[dict[str, Any]] = []
     with concurrent.futures.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
@@ -99,8 +102,10 @@ def summary(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
 
 
 def probe(spec: dict[str, Any]) -> list[dict[str, Any]]:
-    """One setting's episodes (runs in a spawned process): one row per episode."""
+    """One setting's episodes (runs in a spawned process, its progress bar on the
+    inherited stderr): one row per episode."""
     import numpy as np
+    from tqdm import tqdm
 
     from priqn.config import apply_values
     from priqn.env.intersection import EnvConfig, IntersectionEnv
@@ -113,6 +118,7 @@ def probe(spec: dict[str, Any]) -> list[dict[str, Any]]:
     cruise = int(np.argmin(np.abs(table[:, 0] - CRUISE_MPS) + np.abs(table[:, 1])))
     stop = int(np.argmin(np.abs(table[:, 0]) + np.abs(table[:, 1])))
     rows = []
+    bar = tqdm(total=spec["episodes"], desc=f"probe {spec['traffic']}", unit="ep", disable=None)
     try:
         for i in range(spec["episodes"]):
             env.reset(seed=spec["seed"] + i, options={"density": spec["density"]})
@@ -135,6 +141,8 @@ def probe(spec: dict[str, Any]) -> list[dict[str, Any]]:
                 "stood_s": stood * cfg.decision_interval_s if hit else 0.0,
                 "decisions": steps,
             })  # fmt: skip
+            bar.update(1)
     finally:
+        bar.close()
         env.close()
     return rows
