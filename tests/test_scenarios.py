@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ from priqn.sim.scenario import (
 )
 
 TRAINING = ("tjunction", "fourway")
-FAMILIES = ("tjunction", "fourway", "holdout")
+FAMILIES = ("tjunction", "fourway", "holdout", "out-of-range")
 
 
 def _one_line(exc: pytest.ExceptionInfo) -> str:
@@ -74,7 +75,7 @@ def test_committed_families_load_and_have_the_paper_split():
     hold = load_family("holdout")
     assert sorted(hold.kind) == ["fourway", "fourway", "tjunction"]
     seeds = [load_family(n).seed for n in FAMILIES]
-    assert len(set(seeds)) == len(seeds), "hold-out must use its own seed stream"
+    assert len(set(seeds)) == len(seeds), "each evaluation family must use its own seed stream"
 
 
 def test_traffic_spec_fields_are_ranges():
@@ -167,7 +168,7 @@ def test_mixed_kind_draws_both_kinds(tmp_path):
 def test_regenerating_gives_byte_identical_files(tmp_path, family):
     fam = load_family(family)
     committed = load_manifest(family)
-    ids = [n["id"] for n in committed["nets"]][:3]  # every hold-out net; 3 per training pool
+    ids = [n["id"] for n in committed["nets"]][:3]  # every hold-out net; 3 per other family
     out = netgen.generate_family(fam, tmp_path, net_ids=ids)
     fresh = load_manifest(family, tmp_path)
     for new, old in zip(fresh["nets"], committed["nets"][: len(ids)], strict=True):
@@ -240,6 +241,80 @@ def test_holdout_is_disjoint_from_training():
         assert tuple(net["params"]["arm_angles_deg"]) not in layouts
     all_params = [n["params"] for n in train]
     assert len({repr(p) for p in all_params}) == len(all_params)
+
+
+def test_out_of_range_family_is_disjoint_and_outside_the_training_ranges():
+    """Every out-of-range net is new (no training or hold-out net's parameters, files or arm
+    layout) and lies outside the training ranges in lane width and junction radius; half
+    the nets have 3 lanes per direction; its 2^(4-1) design is balanced (its header)."""
+    others = [n for f in ("tjunction", "fourway", "holdout") for n in load_manifest(f)["nets"]]
+    oor = load_manifest("out-of-range")["nets"]
+    assert len(oor) == 8
+    assert [n["kind"] for n in oor].count("tjunction") == 4
+    assert [n["kind"] for n in oor].count("fourway") == 4
+    train = load_family("tjunction").geometry
+    assert train == load_family("fourway").geometry == load_family("holdout").geometry
+    other_files = {sha for n in others for sha in n["files"].values()}
+    layouts = {tuple(n["params"]["arm_angles_deg"]) for n in others}
+    levels = []
+    for net in oor:
+        p = net["params"]
+        assert not set(net["files"].values()) & other_files
+        assert tuple(p["arm_angles_deg"]) not in layouts
+        wide = p["lane_width_m"] > train.lane_width_m[1]
+        assert wide or p["lane_width_m"] < train.lane_width_m[0], net["id"]
+        large = p["junction_radius_m"] > train.junction_radius_m[1]
+        assert large or p["junction_radius_m"] < train.junction_radius_m[0], net["id"]
+        three = set(p["lanes_per_direction"]) == {3}
+        assert three or max(p["lanes_per_direction"]) <= train.lanes_per_direction[1]
+        levels.append((net["kind"] == "fourway", wide, large, three))
+    # Each level of each feature on 4 nets, each pair of levels of two features on 2.
+    for i in range(4):
+        assert sum(lv[i] for lv in levels) == 4
+        for j in range(i + 1, 4):
+            assert Counter((lv[i], lv[j]) for lv in levels) == dict.fromkeys(
+                [(False, False), (False, True), (True, False), (True, True)], 2
+            )
+    assert {n["params"]["junction_type"] for n in oor} == {"priority", "right_before_left"}
+
+
+def test_net_geometry_changes_one_net_and_is_checked(tmp_path):
+    text = (
+        'seed = 7\nn_nets = 2\nkind = "fourway"\n[geometry]\nlane_width_m = [3.0, 3.6]\n'
+        "[[net_geometry]]\nlane_width_m = [2.6, 2.9]\n[[net_geometry]]\n"
+    )
+    fam = load_family(_write(tmp_path, "two", text))
+    assert fam.geometry_of(0).lane_width_m == (2.6, 2.9)
+    assert fam.geometry_of(1) == fam.geometry
+    plan = netgen.family_plan(fam)
+    assert 2.6 <= plan[0]["params"]["lane_width_m"] <= 2.9
+    assert 3.0 <= plan[1]["params"]["lane_width_m"] <= 3.6
+    # Without net_geometry the draws are as before (the committed nets stay byte for byte:
+    # test_regenerating_gives_byte_identical_files); the override changes only its field.
+    plain = netgen.family_plan(dataclasses.replace(fam, net_geometry=()))
+    assert plain[1] == plan[1]
+    assert {k: v for k, v in plain[0]["params"].items() if k != "lane_width_m"} == {
+        k: v for k, v in plan[0]["params"].items() if k != "lane_width_m"
+    }
+    netgen.generate_family(fam, tmp_path / "nets")
+    manifest = load_manifest("two", tmp_path / "nets")
+    assert manifest["net_geometry"] == [{"lane_width_m": [2.6, 2.9]}, {}]
+    assert "net_geometry" not in load_manifest("holdout")
+
+
+@pytest.mark.parametrize(
+    ("tables", "pattern"),
+    [
+        ("[[net_geometry]]\n", r"fam\.toml: net_geometry: needs one table per net: got 1 for n_nets=2"),
+        ("[[net_geometry]]\nlane_width_m = [3.0]\n[[net_geometry]]\n", r"fam\.toml: net_geometry\[0\]: lane_width_m: expected a range"),
+        ("[[net_geometry]]\n[[net_geometry]]\nlane_widht_m = [3.0, 3.2]\n", r"net_geometry\[1\]: unknown key 'lane_widht_m'"),
+        ("[[net_geometry]]\n[[net_geometry]]\narm_angle_jitter_deg = 30.0\n", r"net_geometry\[1\]: .*arm_angle_jitter_deg: 30\.0 lets arms come 30 deg close"),
+    ],
+)  # fmt: skip
+def test_bad_net_geometry_is_one_line(tmp_path, tables, pattern):
+    with pytest.raises(PriqnError, match=pattern) as exc:
+        load_family(_write(tmp_path, "fam", GOOD + tables))
+    _one_line(exc)
 
 
 def test_manifest_hash_is_sha256_of_sorted_file_lines():

@@ -20,6 +20,7 @@ from priqn.agents.labels import CONFIG_COLUMNS, PolicyLabel, at_budget, budget_t
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import (
     episode_columns,
+    is_family_evaluation,
     is_nets_evaluation,
     limit_of,
     snapshot_budget,
@@ -130,7 +131,9 @@ def list_evaluations(
         names = [
             c
             for c in control_evaluations(folder)
-            if is_nets_evaluation(c) == nets and not limit_of(c)  # limits: priqn report --horizon
+            if is_nets_evaluation(c) == nets
+            and not limit_of(c)  # limits: priqn report --horizon
+            and not is_family_evaluation(c)  # other families (eval-family-<name>/): apart
         ]
         for control in names if nets else ["", *names]:
             eval_dir = evaluation_dir(folder, control)

@@ -45,7 +45,9 @@ from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder, Status
 
 
-def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> Path:
+def evaluate_run(
+    run_dir: str | Path, cfg: EvalConfig, force: bool = False, own_family: str | None = None
+) -> Path:
     """Evaluate the trained run in ``run_dir``; returns ``run_dir/eval/episodes.csv``.
 
     The run must be complete (``meta.json`` status). A finished evaluation with the
@@ -53,7 +55,9 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
     With ``cfg.nets`` the run is evaluated on those nets instead, into
     ``eval-nets-<hash>/`` (:func:`~priqn.evaluation.protocol.evaluation_name`); every net
     is checked first (:func:`~priqn.evaluation.targets.evaluation_nets`), so a net that
-    cannot be used stops before any episode.
+    cannot be used stops before any episode. On a ``cfg.family`` other than the run's own
+    hold-out family (``own_family``; None: the run's ``evaluation.family``) it goes to
+    ``eval-family-<name>/``; ``eval/`` is only ever the run's own family.
     """
     run = RunFolder(run_dir)
     if not run.path.is_dir():
@@ -68,7 +72,9 @@ def evaluate_run(run_dir: str | Path, cfg: EvalConfig, force: bool = False) -> P
         )
 
     net_ids, holdout_hash, nets = evaluation_target(cfg, run.config().env.commands)
-    eval_dir = eval_dir_of(run, cfg, holdout_hash if nets else "")
+    if own_family is None:
+        own_family = run.config().evaluation.family
+    eval_dir = eval_dir_of(run, cfg, holdout_hash if nets else "", own_family)
     episodes_path = eval_dir / RunFolder.EVAL_EPISODES
     old = None if force else earlier_evaluation(eval_dir, holdout_hash, to_dict(cfg))
     if old is not None and old.get("status") == Status.COMPLETE and episodes_path.is_file():
@@ -165,7 +171,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--acting-eps", type=float, help="near-greedy tolerance ε [per-state std] (default 0.2)"
     )
     parser.add_argument(
-        "--family", help="scenario family of the hold-out nets (default holdout; into eval/)"
+        "--family",
+        help="scenario family of the evaluation nets (default holdout, into eval/; another "
+        "family than the run's own hold-out family goes into eval-family-<name>/ beside eval/)",
     )
     parser.add_argument(
         "--nets",

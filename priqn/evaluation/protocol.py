@@ -15,8 +15,9 @@ not depend on how many workers ran it or in which order.
 An evaluation's folder is named by what it evaluates (:func:`evaluation_name`):
 ``eval/`` (the run's own acting on the hold-out family), ``eval-near-greedy[-eps<ε>]/``
 (the acting-randomness control), ``eval-nets-<hash>/`` (your own nets),
-``eval-at<N>/`` (a kept snapshot); the analysis reads these names back
-(:func:`snapshot_budget`, :func:`is_nets_evaluation`, :func:`control_config`).
+``eval-family-<name>/`` (another scenario family, e.g. ``out-of-range``), ``eval-at<N>/``
+(a kept snapshot); the analysis reads these names back (:func:`snapshot_budget`,
+:func:`is_nets_evaluation`, :func:`is_family_evaluation`, :func:`control_config`).
 """
 
 from __future__ import annotations
@@ -81,7 +82,9 @@ class EvalConfig:
     """How a trained run is evaluated (recorded in ``eval/meta.json``)."""
 
     family: str = "holdout"
-    """Scenario family of the evaluation nets (never a training pool)."""
+    """Scenario family of the evaluation nets (never a training pool). A family other than
+    the run's own hold-out family (its ``evaluation.family``) is written to
+    ``eval-family-<name>/`` beside ``eval/`` (:func:`evaluation_name`), never into ``eval/``."""
     densities: tuple[float, ...] = (0.5, 0.75, 1.0)
     """Requested traffic densities (active actors / maximum actors)."""
     eval_runs: int = 3
@@ -232,6 +235,10 @@ NETS_PREFIX = "nets-"
 """Evaluations on your own nets are ``eval-nets-<hash>[-<control>]/`` (:func:`evaluation_name`)."""
 NETS_HASH_CHARS = 8
 """Hex digits of the nets hash in an evaluation folder's name."""
+FAMILY_PREFIX = "family-"
+"""Evaluations on another scenario family than the run's own hold-out family are
+``eval-family-<name>[-<control>]/`` (:func:`evaluation_name`)."""
+_FAMILY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 
 
 def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
@@ -252,7 +259,9 @@ def eval_config_changes(old: dict[str, Any], new: dict[str, Any]) -> str:
     return ", ".join(f"{k} {a!r} -> {b!r}" for k, a, b in diff)
 
 
-def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
+def evaluation_name(
+    cfg: EvalConfig, nets_hash: str = "", own_family: str = EvalConfig.family
+) -> str:
     """Name of the evaluation ``cfg`` makes: "" (the run's own, ``eval/``), ``near-greedy``
     (a control at the default ε, ``eval-near-greedy/``) or ``near-greedy-eps<ε>``.
 
@@ -260,7 +269,11 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
     (:func:`~priqn.evaluation.targets.nets_hash`), then the control's name if any (``nets-1a2b3c4d-near-greedy``): an evaluation on other nets
     never shares a folder with the hold-out one. With ``cfg.snapshot`` N: ``at<N>`` first
     (``at60000``, ``at60000-near-greedy``). With ``cfg.episode_limit`` N: ``limit<N>`` before
-    the control (``limit600``, ``at60000-limit600-near-greedy``).
+    the control (``limit600``, ``at60000-limit600-near-greedy``). With ``cfg.family`` other
+    than ``own_family`` (the run's hold-out family, ``holdout`` unless its
+    ``evaluation.family`` says otherwise): ``family-<name>`` after the snapshot
+    (``family-out-of-range``, ``at60000-family-out-of-range-near-greedy``); on its own
+    family the name is unchanged, so ``eval/`` stays the run's hold-out evaluation.
     """
     if cfg.nets and not nets_hash:
         raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
@@ -274,7 +287,15 @@ def evaluation_name(cfg: EvalConfig, nets_hash: str = "") -> str:
     snapshot = snapshot_evaluation(cfg.snapshot) if cfg.snapshot else ""
     limit = f"{LIMIT_PREFIX}{cfg.episode_limit}" if cfg.episode_limit else ""
     nets = f"{NETS_PREFIX}{nets_hash[:NETS_HASH_CHARS]}" if cfg.nets else ""
-    return "-".join(p for p in (snapshot, nets, limit, control) if p)
+    family = ""
+    if not cfg.nets and cfg.family != own_family:
+        if not _FAMILY_NAME.fullmatch(cfg.family):
+            raise PriqnError(
+                f"family {cfg.family!r}: expected a scenario family's name (letters, digits, "
+                "'_', '.', '-'), not a path"
+            )
+        family = f"{FAMILY_PREFIX}{cfg.family}"
+    return "-".join(p for p in (snapshot, nets, family, limit, control) if p)
 
 
 def limit_of(name: str) -> int:
@@ -287,6 +308,12 @@ def limit_of(name: str) -> int:
 def is_nets_evaluation(name: str) -> bool:
     """Whether ``eval-<name>/`` is an evaluation on other nets (not part of Table II)."""
     return snapshot_budget(name)[1].startswith(NETS_PREFIX)
+
+
+def is_family_evaluation(name: str) -> bool:
+    """Whether ``eval-<name>/`` is an evaluation on another scenario family than the run's
+    own hold-out family (not part of Table II)."""
+    return snapshot_budget(name)[1].startswith(FAMILY_PREFIX)
 
 
 def snapshot_budget(name: str) -> tuple[int, str]:
@@ -317,6 +344,9 @@ def control_config(cfg: EvalConfig, name: str) -> EvalConfig:
         raise PriqnError(f"control {name!r}: {exc}") from None
 
 
-def eval_dir_of(run: RunFolder, cfg: EvalConfig, nets_hash: str = "") -> Path:
-    """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/`` (:func:`evaluation_name`)."""
-    return evaluation_dir(run, evaluation_name(cfg, nets_hash))
+def eval_dir_of(
+    run: RunFolder, cfg: EvalConfig, nets_hash: str = "", own_family: str = EvalConfig.family
+) -> Path:
+    """The run's evaluation folder for ``cfg``: ``eval/`` or ``eval-<name>/``
+    (:func:`evaluation_name`; ``own_family``: the run's hold-out family)."""
+    return evaluation_dir(run, evaluation_name(cfg, nets_hash, own_family))

@@ -57,9 +57,12 @@ _ARMS = {"tjunction": (0, 1, 2), "fourway": (0, 1, 2, 3)}
 _HEADER = re.compile(rb"<!-- generated on \S+ by ")
 
 
-def draw_params(kind: str, family: ScenarioFamily, rng: np.random.Generator) -> dict[str, Any]:
-    """Draw one net's parameters (a JSON-able dict) from the family's geometry ranges."""
-    g = family.geometry
+def draw_params(
+    kind: str, family: ScenarioFamily, rng: np.random.Generator, index: int = 0
+) -> dict[str, Any]:
+    """Draw net ``index``'s parameters (a JSON-able dict) from the family's geometry ranges
+    for that net (:meth:`~priqn.sim.scenario.ScenarioFamily.geometry_of`)."""
+    g = family.geometry_of(index)
     arms = _ARMS[kind]
     rotation = float(rng.uniform(*g.rotation_deg))
     jitter = rng.uniform(-g.arm_angle_jitter_deg, g.arm_angle_jitter_deg, size=len(arms))
@@ -96,7 +99,7 @@ def family_plan(family: ScenarioFamily) -> list[dict[str, Any]]:
             kind = ("tjunction", "fourway")[int(rng.integers(2))]
         else:
             kind = family.kind
-        params = draw_params(kind, family, rng)
+        params = draw_params(kind, family, rng, i)
         net_id = f"{kind}_{counts.get(kind, 0):02d}"
         counts[kind] = counts.get(kind, 0) + 1
         plan.append({"id": net_id, "kind": kind, "seed": [family.seed, i], "params": params})
@@ -210,7 +213,7 @@ def generate_family(
 
 def manifest_dict(family: ScenarioFamily, nets: list[dict[str, Any]]) -> dict[str, Any]:
     """The manifest written beside a family's nets (no timestamps: it is reproducible)."""
-    return {
+    manifest = {
         "family": family.name,
         "description": family.description,
         "seed": family.seed,
@@ -221,6 +224,9 @@ def manifest_dict(family: ScenarioFamily, nets: list[dict[str, Any]]) -> dict[st
         "traffic": to_dict(family.traffic),
         "nets": nets,
     }
+    if family.net_geometry:  # only then: the manifests of families without it stay as they were
+        manifest["net_geometry"] = to_dict(family.net_geometry)
+    return manifest
 
 
 def sha256_bytes(data: bytes) -> str:

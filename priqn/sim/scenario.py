@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from priqn import paths
-from priqn.config import from_dict, load_toml
+from priqn.config import from_dict, load_toml, to_dict
 from priqn.errors import PriqnError
 
 KINDS: tuple[str, ...] = ("tjunction", "fourway")
@@ -159,6 +159,12 @@ class ScenarioFamily:
     """Geometry ranges."""
     traffic: TrafficSpec = dataclasses.field(default_factory=TrafficSpec)
     """Traffic settings."""
+    net_geometry: tuple[dict[str, Any], ...] = ()
+    """Per-net changes to ``geometry``: empty (every net drawn from ``geometry``), or one
+    table per net in net order (``[[net_geometry]]``), whose keys replace ``geometry``'s
+    for that net only, e.g. ``lane_width_m = [2.6, 2.9]`` for one net and ``[3.9, 4.3]`` for
+    the next (an empty table keeps ``geometry``). Each net's geometry is checked like
+    ``geometry`` (:meth:`geometry_of`)."""
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -179,6 +185,27 @@ class ScenarioFamily:
             for k in self.kind:
                 if k not in KINDS:
                     raise ValueError(f"kind: unknown kind {k!r} (valid: {', '.join(KINDS)})")
+        if self.net_geometry:
+            if len(self.net_geometry) != self.n_nets:
+                raise ValueError(
+                    f"net_geometry: needs one table per net: got {len(self.net_geometry)} "
+                    f"for n_nets={self.n_nets}"
+                )
+            for i in range(self.n_nets):
+                self.geometry_of(i)  # checked like [geometry]
+
+    def geometry_of(self, i: int) -> GeometrySpec:
+        """The geometry ranges net ``i`` is drawn from: ``geometry`` with ``net_geometry[i]``'s
+        keys replaced (``geometry`` itself when there is no ``net_geometry``)."""
+        if not self.net_geometry:
+            return self.geometry
+        where = f"net_geometry[{i}]"
+        try:
+            return from_dict(
+                GeometrySpec, {**to_dict(self.geometry), **self.net_geometry[i]}, where
+            )
+        except PriqnError as exc:
+            raise ValueError(str(exc)) from None
 
 
 def family_toml(name_or_path: str | Path) -> Path:

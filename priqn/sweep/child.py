@@ -40,10 +40,11 @@ def train_and_evaluate(cell: Cell) -> None:
             # Nothing to resume (new, or killed before its first checkpoint): start over.
             train(cfg, cell.run_dir, force=cell.run_dir.exists())
     eval_cfg = build_eval_config(cell)
+    own = eval_cfg.family  # the experiment's [evaluate] family is the cell's own: eval/
     for name in ("", *cell.controls):  # each returns at once if already complete
-        evaluate_run(cell.run_dir, control_config(eval_cfg, name))
+        evaluate_run(cell.run_dir, control_config(eval_cfg, name), own_family=own)
     for budget in cell.snapshots:  # each kept snapshot the cell counts (its keep_at)
-        evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, snapshot=budget))
+        evaluate_run(cell.run_dir, dataclasses.replace(eval_cfg, snapshot=budget), own_family=own)
 
 
 def _cell_main(spec_json: str) -> int:
