@@ -22,6 +22,7 @@ from priqn.evaluation.protocol import (
     episode_columns,
     is_family_evaluation,
     is_nets_evaluation,
+    is_traffic_evaluation,
     limit_of,
     snapshot_budget,
 )
@@ -134,6 +135,7 @@ def list_evaluations(
             if is_nets_evaluation(c) == nets
             and not limit_of(c)  # limits: priqn report --horizon
             and not is_family_evaluation(c)  # other families (eval-family-<name>/): apart
+            and not is_traffic_evaluation(c)  # other traffic (eval-traffic-<name>/): apart
         ]
         for control in names if nets else ["", *names]:
             eval_dir = evaluation_dir(folder, control)

@@ -200,6 +200,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "eval/ (left out of Table II; the policy's training is untouched)",
     )
     parser.add_argument(
+        "--traffic",
+        metavar="NAME",
+        help="play another named traffic setting's NPCs on the same scenes (e.g. tm-carla), "
+        "into eval-traffic-<name>/ beside eval/; the episode limit stays the run's",
+    )
+    parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="any EvalConfig field"
     )
     parser.add_argument("--force", action="store_true", help="discard earlier evaluations")
@@ -238,6 +244,11 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         values.append(("acting", args.acting))
     if args.family is not None:
         values.append(("family", args.family))
+    if args.traffic is not None:
+        from priqn.env.traffic import traffic_values
+
+        traffic_values(args.traffic)  # an unknown name: one line, before any episode
+        values.append(("traffic", args.traffic))
     if args.snapshot is not None:
         if args.snapshot <= 0:
             raise PriqnError(

@@ -15,9 +15,11 @@ not depend on how many workers ran it or in which order.
 An evaluation's folder is named by what it evaluates (:func:`evaluation_name`):
 ``eval/`` (the run's own acting on the hold-out family), ``eval-near-greedy[-eps<ε>]/``
 (the acting-randomness control), ``eval-nets-<hash>/`` (your own nets),
-``eval-family-<name>/`` (another scenario family, e.g. ``out-of-range``), ``eval-at<N>/``
+``eval-family-<name>/`` (another scenario family, e.g. ``out-of-range``),
+``eval-traffic-<name>/`` (another traffic setting's NPCs, e.g. ``tm-carla``), ``eval-at<N>/``
 (a kept snapshot); the analysis reads these names back (:func:`snapshot_budget`,
-:func:`is_nets_evaluation`, :func:`is_family_evaluation`, :func:`control_config`).
+:func:`is_nets_evaluation`, :func:`is_family_evaluation`, :func:`is_traffic_evaluation`,
+:func:`control_config`).
 """
 
 from __future__ import annotations
@@ -129,6 +131,12 @@ class EvalConfig:
     snapshot: int = 0
     """Evaluate the policy the run kept at this many decisions (``checkpoint.keep_at``)
     instead of its final one, into ``eval-at<N>/`` beside ``eval/`` (0: the final policy)."""
+    traffic: str = ""
+    """A named traffic setting (:data:`priqn.env.traffic.TRAFFIC_SETTINGS`) whose NPC
+    behaviour (``env.traffic``) the evaluation plays instead of the run's own, on the same
+    scenes, into ``eval-traffic-<name>/`` beside ``eval/`` ('' = the run's own traffic). Only
+    the NPCs change: the episode limit stays the run's, or the evaluation's
+    (``max_episode_steps``, ``episode_limit``)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.nets, str):  # one path (--set nets=my_nets/)
@@ -239,6 +247,9 @@ FAMILY_PREFIX = "family-"
 """Evaluations on another scenario family than the run's own hold-out family are
 ``eval-family-<name>[-<control>]/`` (:func:`evaluation_name`)."""
 _FAMILY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+TRAFFIC_PREFIX = "traffic-"
+"""Evaluations under another traffic setting's NPCs than the run's own are
+``eval-traffic-<name>[-<control>]/`` (:func:`evaluation_name`)."""
 
 
 def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
@@ -273,7 +284,8 @@ def evaluation_name(
     than ``own_family`` (the run's hold-out family, ``holdout`` unless its
     ``evaluation.family`` says otherwise): ``family-<name>`` after the snapshot
     (``family-out-of-range``, ``at60000-family-out-of-range-near-greedy``); on its own
-    family the name is unchanged, so ``eval/`` stays the run's hold-out evaluation.
+    family the name is unchanged, so ``eval/`` stays the run's hold-out evaluation. With
+    ``cfg.traffic``: ``traffic-<name>`` after the family (``traffic-tm-carla``).
     """
     if cfg.nets and not nets_hash:
         raise ValueError("evaluation_name: an evaluation on cfg.nets needs their nets_hash")
@@ -295,7 +307,12 @@ def evaluation_name(
                 "'_', '.', '-'), not a path"
             )
         family = f"{FAMILY_PREFIX}{cfg.family}"
-    return "-".join(p for p in (snapshot, nets, family, limit, control) if p)
+    traffic = ""
+    if cfg.traffic:
+        if not _FAMILY_NAME.fullmatch(cfg.traffic):
+            raise PriqnError(f"traffic {cfg.traffic!r}: expected a named traffic setting")
+        traffic = f"{TRAFFIC_PREFIX}{cfg.traffic}"
+    return "-".join(p for p in (snapshot, nets, family, traffic, limit, control) if p)
 
 
 def limit_of(name: str) -> int:
@@ -308,6 +325,12 @@ def limit_of(name: str) -> int:
 def is_nets_evaluation(name: str) -> bool:
     """Whether ``eval-<name>/`` is an evaluation on other nets (not part of Table II)."""
     return snapshot_budget(name)[1].startswith(NETS_PREFIX)
+
+
+def is_traffic_evaluation(name: str) -> bool:
+    """Whether ``eval-<name>/`` played another traffic setting's NPCs than the run's own
+    (``traffic-<setting>`` in its name; not part of Table II)."""
+    return f"-{TRAFFIC_PREFIX}" in f"-{name}"
 
 
 def is_family_evaluation(name: str) -> bool:

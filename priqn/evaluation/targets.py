@@ -101,12 +101,18 @@ def evaluation_target(
 def evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None) -> Any:
     """``env_config`` (a run's EnvConfig) set to play ``cfg``'s scenes: on the checked files
     of ``nets`` by their absolute paths, else on the hold-out family (also for a run trained
-    on its own nets or junction); ``cfg.episode_limit``, else ``cfg.max_episode_steps``, if set."""
+    on its own nets or junction); ``cfg.traffic``'s NPCs instead of the run's, if set;
+    ``cfg.episode_limit``, else ``cfg.max_episode_steps``, if set."""
     if nets is not None:
         files = tuple(n["path"] for n in nets["nets"])
         env_cfg = dataclasses.replace(env_config, nets=files, junction=cfg.junction)
     else:
         env_cfg = dataclasses.replace(env_config, family=cfg.family, nets=(), junction="")
+    if cfg.traffic:
+        from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_values
+
+        traffic_values(cfg.traffic)  # an unknown name: one line listing the valid ones
+        env_cfg = dataclasses.replace(env_cfg, traffic=TRAFFIC_SETTINGS[cfg.traffic].behaviour())
     limit = cfg.episode_limit or cfg.max_episode_steps
     if limit:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=limit)
