@@ -364,7 +364,60 @@ def _budget_lines(budgets: pd.DataFrame) -> list[str]:
     ]  # fmt: skip
     heads = ["group", "budget", "training seeds", "success", "violations", "timeouts"]
     lines += markdown_table(heads, rows).split("\n")
-    return [*lines, "", "![outcomes by budget](figures/outcomes_by_budget.png)", ""]
+    return [
+        *lines,
+        "",
+        "![outcomes by budget](figures/outcomes_by_budget.png)",
+        "",
+        "Each training seed at every budget it reaches, one line per seed (a seed that waits "
+        "shows as a high timeout line):",
+        "",
+        "![each seed by budget](figures/budget_seeds.png)",
+        "",
+    ]
+
+
+SEED_ENDPOINTS = {"success": "success", "violation": "violations", "timeout": "timeouts"}
+"""The per-seed budget figure's rows: outcome-rate column -> its label."""
+
+
+def budget_seeds_figure(budgets: pd.DataFrame) -> Any:
+    """Each training seed's success, violations and timeouts at every budget its cells
+    reach: one column of panels per group, one row per endpoint, one line per seed (its
+    number at its right end), the group's mean over those seeds dashed."""
+    import matplotlib.pyplot as plt
+
+    groups = sorted(set(budgets["group"]))
+    xs = sorted(set(budgets["budget"]))
+    fig, axes = plt.subplots(
+        len(SEED_ENDPOINTS), len(groups), figsize=(3.6 * len(groups), 7.2),
+        sharex=True, sharey=True, squeeze=False,
+    )  # fmt: skip
+    for col, group in enumerate(groups):
+        mine = budgets[budgets["group"] == group]
+        for row, (column, label) in enumerate(SEED_ENDPOINTS.items()):
+            ax = axes[row][col]
+            for seed, seed_rows in mine.groupby("train_seed"):
+                seed_rows = seed_rows.sort_values("budget")
+                pos = [xs.index(b) for b in seed_rows["budget"]]
+                ax.plot(pos, seed_rows[column], marker="o", ms=3, lw=1, alpha=0.7)
+                ax.annotate(str(seed), (pos[-1], seed_rows[column].iloc[-1]), fontsize=6,
+                            xytext=(3, 0), textcoords="offset points", va="center")  # fmt: skip
+            means = mine.groupby("budget")[column].mean()
+            ax.plot([xs.index(b) for b in means.index], means, "k--", lw=1.5, label="mean")
+            ax.set_ylim(-0.02, 1.02)
+            ax.grid(alpha=0.3)
+            if row == 0:
+                ax.set_title(group, fontsize=9)
+            if col == 0:
+                ax.set_ylabel(f"{label} (share of episodes)", fontsize=8)
+            if row == len(SEED_ENDPOINTS) - 1:
+                ax.set_xticks(range(len(xs)), [budget_text(b) for b in xs], fontsize=8)
+                ax.set_xlabel("decisions trained", fontsize=8)
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.suptitle("Each training seed by budget (descriptive)", fontsize=10)
+    fig.tight_layout()
+    return fig
 
 
 def budget_outcomes_figure(budgets: pd.DataFrame) -> Any:
@@ -581,6 +634,7 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
         folder.figure("looks", monitoring)
     if len(t.budgets):
         folder.figure("outcomes_by_budget", budget_outcomes_figure(t.budgets))
+        folder.figure("budget_seeds", budget_seeds_figure(t.budgets))
     efficiency = _efficiency(exp)
     if efficiency.drawn:
         folder.table("sample_efficiency", efficiency.curve)
