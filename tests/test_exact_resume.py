@@ -214,3 +214,22 @@ def test_a_resume_on_another_cpu_model_is_not_exact(tmp_path: Path) -> None:
         assert same_cpu_as_before(run) is same, (before, now)
     run.write_meta({"sessions": [{"resume": False, "cpu": "Xeon"}]})
     assert same_cpu_as_before(run) is False
+
+
+def test_the_recorded_cpu_tells_apart_what_its_model_name_does_not() -> None:
+    """Two virtual CPUs that both call themselves "AMD EPYC" but differ in generation and
+    vector unit (issue 70: their learners' losses differed at the first update) are recorded
+    as two CPUs; the same one twice as one."""
+    from priqn.run.provenance import cpu_model
+
+    def cpuinfo(family: int, model: int, flags: str) -> str:
+        one = (f"processor\t: {{}}\nvendor_id\t: AuthenticAMD\ncpu family\t: {family}\n"
+               f"model\t\t: {model}\nmodel name\t: AMD EPYC\nstepping\t: 1\nflags\t\t: {flags}\n")  # fmt: skip
+        return "\n".join(one.format(i) for i in range(2))
+
+    milan = cpu_model(cpuinfo(25, 1, "fpu sse4_2 avx avx2 fma"))
+    genoa = cpu_model(cpuinfo(25, 17, "fpu sse4_2 avx avx2 avx512f fma"))
+    assert milan == "AMD EPYC (family 25, model 1, stepping 1; avx2)"
+    assert genoa == "AMD EPYC (family 25, model 17, stepping 1; avx512f)"
+    assert milan != genoa and milan == cpu_model(cpuinfo(25, 1, "fpu sse4_2 avx avx2 fma"))
+    assert cpu_model("processor\t: 0\nmodel name\t: Xeon\n") == "Xeon"  # no more detail given

@@ -65,16 +65,41 @@ def git_sha(root: Path | None = None) -> str:
     return (sha or "unknown") + ("-dirty" if dirty else "")
 
 
-def cpu_model() -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``, else ``platform.processor()``): float
-    results of the learner depend on it (SIMD kernels), so a run records it."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+SIMD_LEVELS = ("avx512f", "avx2", "avx", "sse4_2")
+"""CPU flags naming the widest vector unit, widest first: torch's CPU kernels pick their
+code path by it, so two CPUs that differ in it round the learner's floats differently."""
+
+
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The CPU as the learner's float results depend on it (SIMD kernels), so a run records
+    it: Linux ``/proc/cpuinfo``'s model name, then its family, model and stepping and the
+    widest vector unit of :data:`SIMD_LEVELS`, e.g. ``AMD EPYC (family 25, model 1,
+    stepping 1; avx2)``; else ``platform.processor()``. A virtual machine often shows one
+    model name (``AMD EPYC``) for several generations: two such CPUs once gave a loss
+    differing in its 5th digit at the first update (docs/results.md, issue 70), which the
+    name alone could not tell apart. ``cpuinfo``: that file's text (tests)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text(encoding="utf-8")
+        except OSError:
+            return platform.processor() or "unknown"
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, sep, value = line.partition(":")
+        if sep and key.strip() not in fields:  # the first processor's
+            fields[key.strip()] = value.strip()
+    name = fields.get("model name")
+    if not name:
+        return platform.processor() or "unknown"
+    ids = ", ".join(
+        f"{label} {fields[key]}"
+        for key, label in (("cpu family", "family"), ("model", "model"), ("stepping", "stepping"))
+        if fields.get(key)
+    )
+    flags = set(fields.get("flags", "").split())
+    simd = next((f for f in SIMD_LEVELS if f in flags), "")
+    detail = "; ".join(part for part in (ids, simd) if part)
+    return f"{name} ({detail})" if detail else name
 
 
 def versions() -> dict[str, str]:
