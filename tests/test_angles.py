@@ -1,4 +1,4 @@
-"""SUMO angle <-> heading and angle wrapping: one home each (priqn.sim.roadmap), hand-checked.
+"""SUMO angle <-> heading and angle wrapping: one home each (priqn.sim.geometry), hand-checked.
 
 SUMO's angle: degrees clockwise from north. priqn's heading: radians counter-clockwise
 from +x (east). So north is angle 0 / heading π/2, east 90 / 0, south 180 / -π/2,
@@ -17,7 +17,7 @@ import pytest
 
 import priqn
 from priqn.env import geometry
-from priqn.sim.roadmap import heading_rad_from_sumo, sumo_angle_deg, wrap_deg, wrap_rad
+from priqn.sim.geometry import heading_rad_from_sumo, sumo_angle_deg, wrap_deg, wrap_rad
 
 PI = math.pi
 
@@ -120,7 +120,7 @@ SUMO_CONVERSION = re.compile(
 
 def test_the_sumo_conversion_is_written_once() -> None:
     root = Path(priqn.__file__).resolve().parent
-    home = root / "sim" / "roadmap.py"
+    home = root / "sim" / "geometry.py"
     for home_fn in (sumo_angle_deg, heading_rad_from_sumo):  # the pattern finds the real thing
         assert SUMO_CONVERSION.search(inspect.getsource(home_fn).splitlines()[-1])
     elsewhere = [
@@ -131,5 +131,5 @@ def test_the_sumo_conversion_is_written_once() -> None:
         if SUMO_CONVERSION.search(line)
     ]
     assert not elsewhere, (
-        f"call priqn.sim.roadmap.sumo_angle_deg / heading_rad_from_sumo: {elsewhere}"
+        f"call priqn.sim.geometry.sumo_angle_deg / heading_rad_from_sumo: {elsewhere}"
     )

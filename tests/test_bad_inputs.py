@@ -13,7 +13,7 @@ from test_train import TINY
 
 from priqn.cli import main
 from priqn.config import dumps_toml, to_dict
-from priqn.env.intersection import EnvConfig
+from priqn.env.config import EnvConfig
 from priqn.env.traffic import TRAFFIC_SETTINGS
 from priqn.errors import PriqnError, did_you_mean
 from priqn.io import atomic_write_json

@@ -67,7 +67,7 @@ def test_every_reader_of_a_density_or_a_tolerance_uses_the_one_check() -> None:
     """EnvConfig, EvalConfig, --densities and the near-greedy policy all say it the same way."""
     import argparse
 
-    from priqn.env.intersection import EnvConfig
+    from priqn.env.config import EnvConfig
     from priqn.evaluation.cli import config_from_args, configure_parser
     from priqn.evaluation.protocol import EvalConfig
 

@@ -38,7 +38,8 @@ def run_in(worker: concurrent.futures.ProcessPoolExecutor, fn: Any, *args: Any) 
 
 
 def _make_env(**kw: Any):  # noqa: ANN202
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     kw.setdefault("family", "tjunction")
     kw.setdefault("obs_size_px", 64)
@@ -155,7 +156,7 @@ def _check_env() -> list[str]:
     from gymnasium.utils.env_checker import check_env
 
     import priqn  # noqa: F401 - registers priqn/Intersection-v0
-    from priqn.env.intersection import EnvConfig
+    from priqn.env.config import EnvConfig
 
     made = gymnasium.make(
         "priqn/Intersection-v0", config=EnvConfig(obs_size_px=32), render_mode="rgb_array"
@@ -307,7 +308,8 @@ def _unseeded_first_episodes() -> tuple[list[str], tuple[str, str]]:
         _, info = env.reset()
         return f"{info['net']} {info['command']} {env.np_random.integers(1 << 30)}"
 
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     fresh, fixed = [], []
     for seed, out in ((None, fresh), (None, fresh), (None, fresh), (5, fixed), (5, fixed)):
@@ -320,7 +322,8 @@ def _unseeded_first_episodes() -> tuple[list[str], tuple[str, str]]:
 
 
 def _render_sizes() -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(obs_size_px=32, render_size_px=96), render_mode="rgb_array")
     try:
@@ -496,7 +499,8 @@ def _episode_after(preload: bool) -> dict:
     """Reset (seed 5) and three steps, with or without ``preload_nets`` first (worker side)."""
     import hashlib
 
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(obs_size_px=32))
     try:
@@ -522,7 +526,8 @@ def _generators_around_preload() -> tuple[bool, bool, bool]:
 
     import numpy as np
 
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     random.seed(11)
     np.random.seed(11)

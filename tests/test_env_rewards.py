@@ -9,7 +9,8 @@ import pytest
 
 from priqn.config import from_dict
 from priqn.env import rewards as R
-from priqn.env.intersection import EnvConfig, IntersectionEnv
+from priqn.env.config import EnvConfig
+from priqn.env.intersection import IntersectionEnv
 from priqn.env.traffic import check_density
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES

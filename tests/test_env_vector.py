@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from priqn.env.intersection import EnvConfig
+from priqn.env.config import EnvConfig
 from priqn.env.vector import make_vector_env, worker_seeds
 from priqn.errors import PriqnError
 

@@ -94,7 +94,7 @@ def test_nets_flags_folder_names_and_scenes() -> None:
 
     # A run trained through junction B of its own net meets the hold-out nets at their own
     # junction (it used to carry env.junction there and fail), and its --nets at --junction.
-    from priqn.env.intersection import EnvConfig
+    from priqn.env.config import EnvConfig
     from priqn.evaluation.targets import evaluation_env
 
     trained = EnvConfig(nets=("grid.net.xml",), junction="B")

@@ -113,7 +113,8 @@ def test_env_nets_entries_are_checked(own: Path, tmp_path: Path) -> None:
 
 
 def _drive(net_file: str, queue: multiprocessing.Queue) -> None:
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(nets=(net_file,), obs_size_px=32))
     obs, info = env.reset(seed=3)
@@ -218,7 +219,7 @@ OSM_OPTIONS = (
 def test_clip_polygon_and_polyline_to_a_box() -> None:
     import numpy as np
 
-    from priqn.sim.roadmap import clip_polygon, clip_polyline
+    from priqn.sim.geometry import clip_polygon, clip_polyline
 
     box = (0.0, 0.0, 10.0, 10.0)
     inside = np.array([[1.0, 1.0], [9.0, 1.0], [9.0, 9.0]])
@@ -381,7 +382,7 @@ def _old_roadmap_facts(path: Path) -> dict:
     every lane and edge of the net unclipped, the ego ``max(length - 70, 0)`` before the line."""
     import numpy as np
 
-    from priqn.sim.roadmap import lane_polygon
+    from priqn.sim.geometry import lane_polygon
 
     net = sumolib.net.readNet(str(path), withInternal=True)
     (junction,) = [n for n in net.getNodes() if n.getType() not in ("dead_end", "internal")]
@@ -448,7 +449,8 @@ def test_generated_nets_give_the_same_roadmap_as_before() -> None:
 
 def test_env_nets_from_python_toml_and_set(own: Path) -> None:
     from priqn.config import apply_overrides, from_dict
-    from priqn.env.intersection import EnvConfig, make_config
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import make_config
 
     t = str(own / "tjunction.net.xml")
     assert EnvConfig(nets=own / "tjunction.net.xml").nets == (t,)  # a Path
@@ -463,7 +465,8 @@ def test_env_nets_from_python_toml_and_set(own: Path) -> None:
 
 
 def _drive_grid(net_file: str, queue: multiprocessing.Queue) -> None:
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(nets=net_file, junction="B", obs_size_px=32))
     routes = []

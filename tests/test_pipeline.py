@@ -14,7 +14,7 @@ from test_exact_resume import _assert_same_training, kill_after_the_first_checkp
 from test_train import TINY, cli
 
 from priqn.agents.replay import ReplayBuffer
-from priqn.env.intersection import EnvConfig
+from priqn.env.config import EnvConfig
 from priqn.env.vector import EnvGroups, make_vector_env, restore_episodes
 from priqn.errors import PriqnError
 from priqn.run.train_config import resolve_config

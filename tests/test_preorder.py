@@ -1,6 +1,6 @@
 """Tests of the preorder core (public as priqn.preorder): preorders (priqn.agents.preorder),
 comparators (priqn.agents.comparators) and Algorithm 1 (priqn.agents.subsets), checked
-against its slow reference (priqn.agents.subsets_oracle); docs/preorder.md."""
+against its slow reference (priqn.bench.references.subsets); docs/preorder.md."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from priqn.agents.comparators import (
 )
 from priqn.agents.preorder import Preorder
 from priqn.agents.subsets import _optimal_subsets, optimal_subsets, select
-from priqn.agents.subsets_oracle import reference_optimal_subsets
+from priqn.bench.references.subsets import reference_optimal_subsets
 from priqn.errors import PriqnError
 from priqn.objectives import OBJECTIVES
 

@@ -46,7 +46,8 @@ def test_reference_drivers_act_and_label() -> None:
 
 
 def _drive_by_sumo(queue: multiprocessing.Queue) -> None:
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(family="holdout", obs_size_px=32, ego_driver="sumo"))
     out = []

@@ -12,7 +12,7 @@ import pytest
 
 from priqn.agents.config import AgentConfig, LearnerConfig
 from priqn.agents.scalarise import SCHEMES, crash_margin, horizon, scheme_weights
-from priqn.env.intersection import EnvConfig
+from priqn.env.config import EnvConfig
 from priqn.errors import PriqnError
 from priqn.run.train_config import TrainConfig
 

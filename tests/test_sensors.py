@@ -273,7 +273,7 @@ def test_ray_casting_matches_a_naive_loop():
 
 # ----------------------------------------------------------------------------- fast == reference
 # The sensors were rewritten for speed (issue 38); their first implementation is kept in
-# priqn/env/sensors_reference.py. Observations must not change: byte for byte, on
+# priqn/bench/references/sensors.py. Observations must not change: byte for byte, on
 # synthetic scenes of every kind and on real env states at every density, on the numpy
 # path and on the compiled one (priqn/env/sensor_kernels.py, numba).
 
@@ -311,7 +311,7 @@ def _assert_same_observation(new: Sensors, ref, raster, ego, actors, speed=None)
 def test_fast_sensors_equal_the_reference_on_synthetic_scenes(
     cfg: SensorConfig, compiled: bool
 ) -> None:
-    from priqn.env.sensors_reference import ReferenceSensors
+    from priqn.bench.references.sensors import ReferenceSensors
 
     rng = np.random.default_rng(38)
     new, ref = Sensors(cfg, compiled=compiled), ReferenceSensors(cfg)
@@ -344,7 +344,7 @@ def test_fast_sensors_equal_the_reference_on_synthetic_scenes(
 @pytest.mark.parametrize("compiled", PATHS)
 def test_footprint_edges_through_cell_centres_count_as_inside(compiled: bool) -> None:
     """A box is closed: cell centres on its edges are inside, on both paths."""
-    from priqn.env.sensors_reference import ReferenceSensors
+    from priqn.bench.references.sensors import ReferenceSensors
 
     cfg = SensorConfig(size_px=64)  # 1 m cells; centres at fwd 48 - (r + .5), left 32 - (c + .5)
     ego = Boxes.make([0.0, 0.0], 0.0, 4.5, 1.8, 1.5)  # heading 0: the ego frame is exact
@@ -360,8 +360,9 @@ def test_footprint_edges_through_cell_centres_count_as_inside(compiled: bool) ->
 @pytest.mark.parametrize("compiled", PATHS)
 def test_fast_sensors_equal_the_reference_on_env_states(density: float, compiled: bool) -> None:
     """Seeded episodes of the real env: every observation of every step, both ways."""
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
-    from priqn.env.sensors_reference import ReferenceSensors
+    from priqn.bench.references.sensors import ReferenceSensors
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(family="all", obs_size_px=64, max_episode_steps=30))
     new = Sensors(env._sensors.cfg, compiled=compiled)

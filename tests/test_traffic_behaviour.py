@@ -217,7 +217,9 @@ def test_behaviour_and_setting_errors_are_one_line() -> None:
         TrafficBehaviour(impatience=-0.1)
     with pytest.raises(PriqnError, match="unknown setting 'polite' \\(valid: sumo, rude"):
         traffic_values("polite")
-    with pytest.raises(PriqnError, match=r"unknown setting 'tm-carl' .*; did you mean 'tm-carla'\?"):
+    with pytest.raises(
+        PriqnError, match=r"unknown setting 'tm-carl' .*; did you mean 'tm-carla'\?"
+    ):
         traffic_values("tm-carl")
     assert traffic_values("sumo") == ()
     assert traffic_values("rude-finite-long") == (

@@ -9,8 +9,9 @@ the configs and specs themselves live in the torch-free :mod:`priqn.agents.confi
 Also here, each its own module: :mod:`~priqn.agents.labels` (a policy's Table II
 identity, torch-free) and the preorder core: :mod:`~priqn.agents.preorder` (the preorder
 graph, torch-free), :mod:`~priqn.agents.comparators` (the comparators and the running
-scale), :mod:`~priqn.agents.subsets` (Algorithm 1) and :mod:`~priqn.agents.subsets_oracle`
-(its slow reference); the public module is :mod:`priqn.preorder`, which re-exports them.
+scale) and :mod:`~priqn.agents.subsets` (Algorithm 1); the public module is
+:mod:`priqn.preorder`, which re-exports them. Algorithm 1's slow reference lives with
+the bench, in :mod:`priqn.bench.references.subsets`.
 """
 
 from __future__ import annotations

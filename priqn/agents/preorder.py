@@ -9,7 +9,7 @@ module imports neither torch nor another module of :mod:`priqn.agents` but the t
 without loading torch.
 
 Beside it: the comparators (:mod:`priqn.agents.comparators`), Algorithm 1
-(:mod:`priqn.agents.subsets`) and its slow reference (:mod:`priqn.agents.subsets_oracle`);
+(:mod:`priqn.agents.subsets`) and its slow reference (:mod:`priqn.bench.references.subsets`);
 the public module is :mod:`priqn.preorder`; ``docs/preorder.md`` explains the method.
 """
 

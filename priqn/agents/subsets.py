@@ -4,7 +4,7 @@ This is the decision core of Pr-IQN: every acting step and every TD target calls
 :func:`optimal_subsets`. It implements our reading of Algorithm 1; ``docs/preorder.md``
 explains the method and records the benchmark. The preorder is
 :class:`priqn.agents.preorder.Preorder`, the scores and relations come from
-:mod:`priqn.agents.comparators`, and :mod:`priqn.agents.subsets_oracle` is the slow,
+:mod:`priqn.agents.comparators`, and :mod:`priqn.bench.references.subsets` is the slow,
 literal version the tests and ``priqn bench preorder`` check this one against.
 
 Shapes (glossary): ``B`` states, ``N`` objectives (in ``Preorder.objectives`` order),

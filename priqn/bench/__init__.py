@@ -2,6 +2,8 @@
 
 Sub-benchmarks live in their own modules (``priqn.bench.env``, ``.preorder``,
 ``.train``, ``.sweep``, ``.replay``, ``.loop``), each with ``configure_parser`` / ``run`` like a CLI command.
+The slow baselines they time against (which are also the tests' oracles) live in
+:mod:`priqn.bench.references`.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ process, and a fresh process keeps the measurements independent):
 3. **vector** — ``make_vector_env`` with 1 and with 2 workers, total decisions/s.
 
 The sensors are also timed against their first implementation
-(:class:`~priqn.env.sensors_reference.ReferenceSensors`) on the same states: every
+(:class:`~priqn.bench.references.sensors.ReferenceSensors`) on the same states: every
 ``observe`` of a step is repeated by the reference, in alternating order (reference
 first on every other decision), outside the step's timing, and the two outputs are
 compared byte for byte (``sensors ref ms``, ``sensors mismatches``). ``--sensors numpy``
@@ -354,7 +354,8 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
     mode = spec["mode"]
     if mode == "highway":
         return _measure_highway(spec)
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     cfg = EnvConfig(family=spec["family"], obs_size_px=spec["obs_size_px"])
     if spec.get("traffic"):
@@ -551,7 +552,7 @@ def _with_reference(sensors: Any, in_step: list[bool], totals: dict[str, Any]) -
     timed on the same inputs (alternating which runs first) and compared byte for byte."""
     import numpy as np
 
-    from priqn.env.sensors_reference import ReferenceSensors
+    from priqn.bench.references.sensors import ReferenceSensors
 
     new, ref = sensors.observe, ReferenceSensors(sensors.cfg).observe
     calls = [0]

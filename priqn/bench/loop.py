@@ -192,7 +192,7 @@ def metrics_writes(decisions: int, episode_length: int) -> dict[str, Any]:
 
 def preload_timing(preload: bool, workers: int, steps: int, seed: int) -> dict[str, float]:
     """Seconds of a fresh vector env's creation, first reset, slowest step and the whole."""
-    from priqn.env.intersection import EnvConfig
+    from priqn.env.config import EnvConfig
     from priqn.env.vector import make_vector_env
 
     rng = np.random.default_rng(seed)

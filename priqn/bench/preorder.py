@@ -2,7 +2,7 @@
 
 Times :func:`priqn.preorder.optimal_subsets` on a batch of random quantiles
 ``[B, N, K, A]`` against
-:func:`priqn.agents.subsets_oracle.reference_optimal_subsets`, a straightforward
+:func:`priqn.bench.references.subsets.reference_optimal_subsets`, a straightforward
 per-state implementation of Algorithm 1 in plain Python + numpy (one state at a
 time, one objective at a time, the relations as numpy matrices, written the way the
 paper writes it; the tests check the batched core against the same oracle). Both must
@@ -178,7 +178,7 @@ class _SubsetTimes(NamedTuple):
     batched: tuple[float, float]
     """Median and minimum seconds per batch of :func:`priqn.preorder.optimal_subsets`."""
     reference: tuple[float, float]
-    """The same of :func:`priqn.agents.subsets_oracle.reference_optimal_subsets`."""
+    """The same of :func:`priqn.bench.references.subsets.reference_optimal_subsets`."""
     agree: bool
     """Both give the same subsets (compared in float64)."""
     sizes: list[float]
@@ -198,7 +198,7 @@ def _time_subsets(
     import numpy as np
     import torch
 
-    from priqn.agents.subsets_oracle import reference_optimal_subsets
+    from priqn.bench.references.subsets import reference_optimal_subsets
     from priqn.preorder import optimal_subsets
 
     q64 = torch.from_numpy(quantiles_np)

@@ -49,7 +49,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def real_observations(px: int, decisions: int, seed: int) -> list[dict[str, np.ndarray]]:
     """``decisions`` observations of the hold-out nets at ``px`` (random actions, resets)."""
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
 
     env = IntersectionEnv(EnvConfig(family="holdout", obs_size_px=px), seed=seed)
     rng = np.random.default_rng(seed)

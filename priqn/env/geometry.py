@@ -28,7 +28,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from priqn.errors import PriqnError
-from priqn.sim.roadmap import heading_rad_from_sumo, sumo_angle_deg
+from priqn.sim.geometry import heading_rad_from_sumo, sumo_angle_deg
 
 # --------------------------------------------------------------------------- SUMO poses
 
@@ -38,7 +38,7 @@ def sumo_from_center(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Centre pose → SUMO's ``(front-bumper xy [..., 2], angle_deg [...])`` for ``moveToXY``.
 
-    SUMO's angle is in degrees clockwise from north (:func:`~priqn.sim.roadmap.sumo_angle_deg`);
+    SUMO's angle is in degrees clockwise from north (:func:`~priqn.sim.geometry.sumo_angle_deg`);
     its position is the front bumper, ``length/2`` ahead of the centre along the heading.
     """
     c = np.asarray(center_xy, dtype=float)

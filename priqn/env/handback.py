@@ -23,7 +23,7 @@ import numpy as np
 
 from priqn.env import planner
 from priqn.env.reads import EgoState
-from priqn.sim.roadmap import heading_rad_from_sumo
+from priqn.sim.geometry import heading_rad_from_sumo
 
 S_WINDOW_M = (5.0, 30.0)
 """A pose is projected on the route's reference line within this arc length [m] behind and

@@ -25,7 +25,7 @@ class DecisionContext:
     """One decision as the objectives see it (arrays ``[T]`` over its counted SUMO steps)."""
 
     config: Any
-    """The env's :class:`~priqn.env.intersection.EnvConfig` (``config.reward``: RewardConfig)."""
+    """The env's :class:`~priqn.env.config.EnvConfig` (``config.reward``: RewardConfig)."""
     measures: Any
     """The built-in measurements (:class:`priqn.env.intersection.Measures`): events,
     conflict times, lateral offset, heading error, advance, speed, jerk, lateral accel."""

@@ -57,7 +57,8 @@ from typing import Any
 
 import numpy as np
 
-from priqn.sim.roadmap import RoadMap, arc_length
+from priqn.sim.geometry import arc_length
+from priqn.sim.roadmap import RoadMap
 
 SAMPLE_STEP_M = 0.5
 """Spacing of the points along an NPC's path tested against the ego's box [m]."""

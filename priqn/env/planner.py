@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from priqn.sim.roadmap import wrap_rad
+from priqn.sim.geometry import wrap_rad
 
 _EPS = 1e-9
 

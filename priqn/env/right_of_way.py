@@ -38,7 +38,7 @@ import numpy as np
 
 from priqn.env import geometry
 from priqn.env.reads import StepActors
-from priqn.sim.roadmap import wrap_rad
+from priqn.sim.geometry import point_polyline_distance_m, wrap_rad
 
 SAMPLE_STEP_M = 0.5
 """Spacing of the points of a foe link's centre line [m]."""
@@ -95,17 +95,6 @@ class ConflictArea:
 
 
 # ----------------------------------------------------------------------------- pure geometry
-
-
-def point_polyline_distance_m(points_xy: np.ndarray, line_xy: np.ndarray) -> np.ndarray:
-    """``[P]`` distance of each point to the polyline ``line_xy [Q, 2]`` [m]."""
-    a, b = line_xy[:-1], line_xy[1:]
-    ab = b - a  # [Q-1, 2]
-    ap = points_xy[:, None, :] - a[None]  # [P, Q-1, 2]
-    denom = np.maximum((ab * ab).sum(-1), 1e-12)
-    t = np.clip((ap * ab[None]).sum(-1) / denom, 0.0, 1.0)
-    closest = a[None] + t[..., None] * ab[None]
-    return np.hypot(*(points_xy[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)
 
 
 def box_point_distance_m(boxes: geometry.Boxes, points_xy: np.ndarray) -> np.ndarray:

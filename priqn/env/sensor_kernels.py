@@ -6,7 +6,7 @@ elements, 1–3 µs each), not arithmetic. One loop per part removes it.
 
 The loops repeat the numpy path's arithmetic operation for operation, in the same order
 and precision, so the grids are byte-identical: ``tests/test_sensors.py`` checks both
-paths against :class:`~priqn.env.sensors_reference.ReferenceSensors` on synthetic scenes
+paths against :class:`~priqn.bench.references.sensors.ReferenceSensors` on synthetic scenes
 and on seeded env episodes at every density. Two rules keep it so:
 
 * trigonometry (``cos``, ``sin``, ``arctan2``, ``hypot``) stays in numpy, outside the

@@ -30,7 +30,7 @@ with ``res = extent_m / size_px`` metres per cell.
   the drivable area (off-road surfaces return nothing: the net knows none). Not
   modelled: roofs, ground clearance, noise, intensity.
 
-The first implementation is kept as :class:`priqn.env.sensors_reference.ReferenceSensors`:
+The first implementation is kept as :class:`priqn.bench.references.sensors.ReferenceSensors`:
 the tests and ``priqn bench env`` check byte for byte that this one gives the same grids.
 """
 

@@ -37,7 +37,7 @@ import numpy as np
 from priqn.checks import check_density
 from priqn.env.path_braking import NpcPaths, PathBraking
 from priqn.errors import PriqnError, did_you_mean
-from priqn.sim.roadmap import sumo_angle_deg
+from priqn.sim.geometry import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
 
 NPC_PREFIX = "npc."

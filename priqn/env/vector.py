@@ -162,7 +162,7 @@ def make_vector_env(
 ) -> PriqnVectorEnv:
     """``num_envs`` :class:`~priqn.env.intersection.IntersectionEnv` in spawned worker processes.
 
-    ``config`` is an :class:`~priqn.env.intersection.EnvConfig` (None = defaults). Call
+    ``config`` is an :class:`~priqn.env.config.EnvConfig` (None = defaults). Call
     ``reset()`` without a seed to use the per-worker seeds derived from ``seed``
     (:func:`worker_seeds`); ``reset(seed=s)`` reseeds worker i with ``s + i`` as gymnasium
     does. Rewards come out ``float32 [num_envs, N]`` (N = ``len(config.objectives)``).
@@ -185,7 +185,7 @@ def make_vector_env(
 def _vector_env(config: Any, seeds: list[int], render_mode: str | None) -> PriqnVectorEnv:
     """One :class:`PriqnVectorEnv` whose worker ``i`` starts from ``seeds[i]``."""
     if config is None:
-        from priqn.env.intersection import EnvConfig  # pure-python; no SUMO import
+        from priqn.env.config import EnvConfig  # pure-python; no SUMO import
 
         config = EnvConfig()
     fns = [_EnvFactory(config, s, render_mode) for s in seeds]

@@ -30,7 +30,7 @@ from priqn.agents.config import (
 from priqn.agents.frames import REPLAY_STORAGES
 from priqn.agents.scalarise import crash_margin, scheme_weights
 from priqn.config import ConfigValues, apply_values, from_dict, load_toml, to_dict, value_pairs
-from priqn.env.intersection import EnvConfig
+from priqn.env.config import EnvConfig
 from priqn.errors import PriqnError, did_you_mean
 from priqn.objectives import objective_names
 

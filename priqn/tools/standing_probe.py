@@ -108,7 +108,8 @@ def probe(spec: dict[str, Any]) -> list[dict[str, Any]]:
     from tqdm import tqdm
 
     from priqn.config import apply_values
-    from priqn.env.intersection import EnvConfig, IntersectionEnv
+    from priqn.env.config import EnvConfig
+    from priqn.env.intersection import IntersectionEnv
     from priqn.env.traffic import TRAFFIC_SETTINGS
 
     cfg = EnvConfig(family="holdout", obs_size_px=32, max_episode_steps=100)
