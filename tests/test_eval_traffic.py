@@ -1,7 +1,7 @@
 """Evaluating a trained run under another traffic setting's NPCs (issue 68: the committed
 ``tm-long`` cells played under ``tm-carla``): the folder it goes to (``eval-traffic-<name>/``,
 never ``eval/``), the env it plays (only ``env.traffic`` replaced), and Table II leaving it
-out. No SUMO runs here."""
+out (tests/test_out_of_range.py, with the family evaluations). No SUMO runs here."""
 
 from __future__ import annotations
 
@@ -10,9 +10,7 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-from fake_runs import IQN, PR, iqn_value, pr_value, write_run
 
-from priqn.analysis.load import load_evaluation
 from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_values
 from priqn.errors import PriqnError
 from priqn.evaluation.cli import config_from_args, configure_parser
@@ -68,15 +66,3 @@ def test_only_the_npcs_change() -> None:
         run_env, EvalConfig(), None
     )
     assert evaluation_env(run_env, EvalConfig(), None).traffic == run_env.traffic
-
-
-def test_table2_never_reads_a_traffic_evaluation(runs: Path) -> None:
-    before = load_evaluation(runs)
-    for seed in (0, 1):
-        write_run(runs, f"iqn_s{seed}", "IQN", IQN, seed, pr_value,
-                  eval_dir_name="eval-traffic-tm-carla")  # fmt: skip
-        write_run(runs, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, iqn_value,
-                  eval_dir_name="eval-traffic-tm-carla")  # fmt: skip
-    after = load_evaluation(runs)
-    assert [r.eval_dir for r in after.runs] == ["eval"] * 4
-    assert after.episodes.equals(before.episodes)

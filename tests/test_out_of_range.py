@@ -117,13 +117,14 @@ def test_evaluate_run_routes_by_the_runs_own_family(tmp_path: Path, monkeypatch)
     assert calls == ["out-of-range", "holdout", "out-of-range"]
 
 
-def test_table2_never_reads_a_family_evaluation(runs: Path) -> None:
+@pytest.mark.parametrize("side", ["eval-family-out-of-range", "eval-traffic-tm-carla"])
+def test_table2_never_reads_a_family_or_traffic_evaluation(runs: Path, side: str) -> None:
+    """Evaluations on another family or under another traffic (issue 68's
+    ``eval-traffic-<name>/``) are reported apart: Table II reads ``eval/`` only."""
     before = load_evaluation(runs)
     for seed in (0, 1):
-        write_run(runs, f"iqn_s{seed}", "IQN", IQN, seed, pr_value,
-                  eval_dir_name="eval-family-out-of-range")  # fmt: skip
-        write_run(runs, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, iqn_value,
-                  eval_dir_name="eval-family-out-of-range")  # fmt: skip
+        write_run(runs, f"iqn_s{seed}", "IQN", IQN, seed, pr_value, eval_dir_name=side)
+        write_run(runs, f"pr_s{seed}", "Pr-IQN QD ✓ 0.2 ✗", PR, seed, iqn_value, eval_dir_name=side)
     after = load_evaluation(runs)
     assert [r.eval_dir for r in after.runs] == ["eval"] * 4
     assert after.episodes.equals(before.episodes)
