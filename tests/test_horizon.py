@@ -11,12 +11,13 @@ from pathlib import Path
 import pytest
 from fake_runs import IQN, write_run
 
+from priqn.analysis.artifacts import render
 from priqn.analysis.horizon import (
     common_scenes,
+    horizon_report,
     limit_episodes,
     mix_table,
     timeout_table,
-    write_horizon_report,
 )
 from priqn.analysis.load import load_evaluation
 from priqn.errors import PriqnError
@@ -68,14 +69,14 @@ def test_mix_and_where_the_timeouts_go_by_hand(tmp_path: Path) -> None:
 
 def test_the_report_and_its_errors(tmp_path: Path) -> None:
     runs = _runs(tmp_path / "runs")
-    path = write_horizon_report(runs, [600], tmp_path / "out", "priqn report runs --horizon 600")
+    path = render(tmp_path / "out", horizon_report(runs, [600], "priqn report runs --horizon 600"))
     text = path.read_text()
     # cut 50 %; then success 50 %, collision 50 %, off-road 0, timeout 0; others changed 0
     assert "| IQN | 600 | 32 | 50.0 % | 50.0 % | 50.0 % | 0.0 % | 0.0 % | 0.0 % |" in text
     assert (tmp_path / "out" / "tables" / "horizon_mix.csv").is_file()
     with pytest.raises(PriqnError, match="eval-limit200: no complete evaluation; run 'priqn "
                        "evaluate .* --max-episode-steps 200'"):  # fmt: skip
-        write_horizon_report(runs, [200], tmp_path / "out", "")
+        horizon_report(runs, [200], "")
 
 
 def test_table_ii_leaves_the_limit_evaluations_out(tmp_path: Path) -> None:
@@ -91,7 +92,7 @@ def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path: Path) -> Non
         ensure_dir(tmp_path / "file" / "out")
     runs = _runs(tmp_path / "runs")
     with pytest.raises(PriqnError, match="^/proc/x: cannot write"):
-        write_horizon_report(runs, [600], Path("/proc/x"), "")
+        render(Path("/proc/x"), horizon_report(runs, [600], ""))
 
 
 def test_the_mix_is_over_the_scenes_played_at_every_limit(tmp_path: Path) -> None:

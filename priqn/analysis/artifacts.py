@@ -125,3 +125,20 @@ def write_json(path: str | Path, record: Any) -> Path:
     path = Path(path)
     atomic_write_json(path, record)
     return path
+
+
+def render(out: str | Path, report: Any) -> Path:
+    """Write ``report`` (a :class:`priqn.analysis.sections.Report`) into the folder ``out``,
+    the one renderer of the reports built from sections: each section's tables, figures and
+    text files, then the Markdown and ``meta.json``; returns the Markdown file."""
+    folder = ReportFolder.open(out)
+    for section in report.sections:
+        for name, frame in section.tables.items():
+            folder.table(name, frame, report.float_format)
+        for name, fig in section.figures.items():
+            folder.figure(name, fig)
+        for relative, content in section.files.items():
+            folder.text(relative, content)
+    path = folder.text(report.markdown, report.text())
+    folder.meta(report.kind, report.command, report.experiment, report.meta)
+    return path

@@ -52,6 +52,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "and where the timeouts go (horizon.md, descriptive)",
     )
     parser.add_argument(
+        "--evaluation",
+        metavar="NAME",
+        help="instead: the report of an evaluation design (evaluations/NAME.toml, e.g. "
+        "out-of-range) over the committed cells it names; the runs argument is unused",
+    )
+    parser.add_argument(
         "--partial",
         action="store_true",
         help="report the fully evaluated runs of a grid still running; name the rest",
@@ -62,6 +68,15 @@ def run(args: argparse.Namespace) -> int:
     if args.reps < 1:
         raise PriqnError(f"--reps: must be >= 1, got {args.reps}")
     runs = Path(args.runs)
+    if args.evaluation:
+        from priqn.evaluation.design import load_design
+
+        design = load_design(args.evaluation)
+        out = Path(args.out) if args.out else Path("reports") / design.design.name
+        request = ReportRequest(runs, out, None, seed=args.seed, partial=args.partial,
+                                evaluation=design)  # fmt: skip
+        print(write_report(request))
+        return 0
     out = Path(args.out) if args.out else Path("reports") / runs.resolve().name
     request = ReportRequest(
         runs,

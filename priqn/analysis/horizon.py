@@ -14,9 +14,9 @@ cut goes on. Two tables:
   scene (evaluation run, net, density, episode). Also the share of all episodes whose
   outcome differs: anything but the timeouts would mean the limit changed more than the cut.
 
-:func:`write_horizon_report` (kind ``horizon``) writes them through a
-:class:`~priqn.analysis.artifacts.ReportFolder`: ``horizon.md``, ``tables/horizon_mix.csv``,
-``tables/horizon_timeouts.csv`` and ``meta.json``.
+:func:`horizon_report` (kind ``horizon``) builds them as sections, rendered like every
+report's (:func:`priqn.analysis.artifacts.render`): ``horizon.md``,
+``tables/horizon_mix.csv``, ``tables/horizon_timeouts.csv`` and ``meta.json``.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import pandas as pd
 
 from priqn.analysis.load import find_run_dirs, read_episodes
 from priqn.analysis.render import markdown_table
+from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
 from priqn.io import read_json
@@ -117,100 +118,106 @@ def timeout_table(episodes: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def write_horizon_report(
+def horizon_report(
     runs: str | Path,
     limits: Sequence[int],
-    out: str | Path,
     command: str,
     experiment: str | None = None,
-) -> Path:
-    """``horizon.md``, ``tables/horizon_mix.csv``, ``tables/horizon_timeouts.csv`` and
-    ``meta.json`` (``command``; ``experiment``: the name of the experiment whose runs these
-    are, or None) in ``out``; returns the Markdown file."""
-    from priqn.analysis.artifacts import ReportFolder
-
+) -> Report:
+    """The horizon report of ``runs`` (kind ``horizon``): ``horizon.md`` with the mix
+    (``tables/horizon_mix.csv``) and where the timeouts go (``tables/horizon_timeouts.csv``);
+    ``command`` and ``experiment`` (the name of the experiment whose runs these are, or
+    None) go to ``meta.json``. Reads the runs, writes nothing (render it with
+    :func:`priqn.analysis.artifacts.render`)."""
     if not limits or any(n <= 0 for n in limits):
         raise PriqnError(f"--horizon {list(limits)}: expected limits > 0, e.g. 200,600")
-    folder = ReportFolder.open(out)
     episodes = limit_episodes(runs, limits)
     mix, moved = mix_table(episodes), timeout_table(episodes)
-    folder.table("horizon_mix", mix)
-    folder.table("horizon_timeouts", moved)
     own = sorted(set(episodes["own_limit"]))
-    path = folder.text("horizon.md", horizon_markdown(runs, limits, own, mix, moved, command))
+    sections = [
+        _title_section(runs, limits, own, command),
+        _mix_section(mix),
+        _timeouts_section(moved),
+    ]
     fields = {
         "limits": [int(n) for n in limits],
         "own_limits": [int(n) for n in own],
         "runs": sorted(set(episodes["run"])),
     }
-    folder.meta("horizon", command, experiment, fields)
-    return path
+    return Report("horizon", "horizon.md", sections, command, experiment, fields)
 
 
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
 
-def horizon_markdown(
-    runs: str | Path,
-    limits: Sequence[int],
-    own: Sequence[int],
-    mix: pd.DataFrame,
-    moved: pd.DataFrame,
-    command: str,
-) -> str:
-    """``horizon.md``: the mix per row, limit and density (:func:`mix_table`), and where
-    the timeouts of the runs' own limits ``own`` go (:func:`timeout_table`)."""
-    text = [
-        f"# The horizon: {Path(runs).name} at longer evaluation-only limits (descriptive)",
-        "",
-        f"Made by `{command}`. The runs' own limit: {', '.join(map(str, own))} decisions; "
-        f"the same scenes at {', '.join(map(str, limits))}. The observation holds no clock, "
-        "so the policies decide as before; only where an episode is cut changes.",
-        "",
-        "## Outcome mix per row, limit and density (mean over training seeds)",
-        "",
-        markdown_table(
-            ["row", "limit", "density", "seeds", *OUTCOMES],
+def _title_section(
+    runs: str | Path, limits: Sequence[int], own: Sequence[int], command: str
+) -> Section:
+    return Section(
+        [
+            f"# The horizon: {Path(runs).name} at longer evaluation-only limits (descriptive)",
+            "",
+            f"Made by `{command}`. The runs' own limit: {', '.join(map(str, own))} decisions; "
+            f"the same scenes at {', '.join(map(str, limits))}. The observation holds no clock, "
+            "so the policies decide as before; only where an episode is cut changes.",
+            "",
+        ]
+    )
+
+
+def _mix_section(mix: pd.DataFrame) -> Section:
+    """The mix per row, limit and density (:func:`mix_table`)."""
+    table = markdown_table(
+        ["row", "limit", "density", "seeds", *OUTCOMES],
+        [
             [
-                [
-                    r.label,
-                    str(r.limit),
-                    f"{r.density:g}",
-                    str(r.seeds),
-                    *(_pct(getattr(r, o)) for o in OUTCOMES),
-                ]
-                for r in mix.itertuples()
-            ],
-        ),
-        "",
-        "## Where the timeouts go",
-        "",
-        "Of the episodes each row's own limit cut, the share that end in each outcome at the "
-        "longer limit (the same scenes); the last column: the other episodes whose outcome "
-        "changed (0 unless something besides the limit differs).",
-        "",
-        markdown_table(
+                r.label,
+                str(r.limit),
+                f"{r.density:g}",
+                str(r.seeds),
+                *(_pct(getattr(r, o)) for o in OUTCOMES),
+            ]
+            for r in mix.itertuples()
+        ],
+    )
+    heading = "## Outcome mix per row, limit and density (mean over training seeds)"
+    return Section([heading, "", table, ""], tables={"horizon_mix": mix})
+
+
+def _timeouts_section(moved: pd.DataFrame) -> Section:
+    """Where the timeouts of the runs' own limits go (:func:`timeout_table`)."""
+    table = markdown_table(
+        [
+            "row",
+            "limit",
+            "episodes",
+            "cut at own limit",
+            *(f"cut, then {o}" for o in OUTCOMES),
+            "others changed",
+        ],
+        [
             [
-                "row",
-                "limit",
-                "episodes",
-                "cut at own limit",
-                *(f"cut, then {o}" for o in OUTCOMES),
-                "others changed",
-            ],
-            [
-                [
-                    r.label,
-                    str(r.limit),
-                    str(r.episodes),
-                    _pct(r.cut_at_own_limit),
-                    *(_pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
-                    _pct(r.others_changed),
-                ]
-                for r in moved.itertuples()
-            ],
-        ),
-        "",
-    ]
-    return "\n".join(text)
+                r.label,
+                str(r.limit),
+                str(r.episodes),
+                _pct(r.cut_at_own_limit),
+                *(_pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
+                _pct(r.others_changed),
+            ]
+            for r in moved.itertuples()
+        ],
+    )
+    return Section(
+        [
+            "## Where the timeouts go",
+            "",
+            "Of the episodes each row's own limit cut, the share that end in each outcome at the "
+            "longer limit (the same scenes); the last column: the other episodes whose outcome "
+            "changed (0 unless something besides the limit differs).",
+            "",
+            table,
+            "",
+        ],
+        tables={"horizon_timeouts": moved},
+    )

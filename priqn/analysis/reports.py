@@ -7,6 +7,7 @@ the output folder and the options) gets its kind from :func:`choose_kind`, its
 ``meta.json`` command from :func:`~priqn.analysis.request.report_command` (the one builder
 of that string) and is written by the kind's writer::
 
+    --evaluation NAME             evaluation    priqn.analysis.design_report
     --horizon N,...               horizon       priqn.analysis.horizon
     an experiment's [calibration] calibration   priqn.analysis.calibration
     its [sequential] table        sequential    priqn.analysis.sequential_report
@@ -26,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from priqn.analysis.request import ReportRequest, report_command
+from priqn.analysis.sections import Report
 from priqn.errors import PriqnError
 from priqn.io import removed_on_failure
 
@@ -38,7 +40,11 @@ class ReportKind:
     summary: str
     write: Callable[[ReportRequest, str], Path] | None
     """``write(request, command)`` -> the report's Markdown; None for a kind another command
-    writes (``priqn mechanism``), not ``priqn report``."""
+    writes (``priqn mechanism``), not ``priqn report``, or one built from sections."""
+    build: Callable[[ReportRequest, str], Report] | None = None
+    """``build(request, command)`` -> the report's sections
+    (:class:`~priqn.analysis.sections.Report`), rendered by
+    :func:`priqn.analysis.artifacts.render`: the kinds ported to sections."""
 
 
 def _grid(request: ReportRequest, command: str) -> Path:
@@ -75,12 +81,16 @@ def _calibration(request: ReportRequest, command: str) -> Path:
     return calibration.write_report(request.experiment, request.out, command)
 
 
-def _horizon(request: ReportRequest, command: str) -> Path:
-    from priqn.analysis.horizon import write_horizon_report
+def _evaluation(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.design_report import design_report
 
-    return write_horizon_report(
-        request.runs, request.horizon, request.out, command, request.experiment_name
-    )
+    return design_report(request.evaluation, command, request.seed, request.partial)
+
+
+def _horizon(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.horizon import horizon_report
+
+    return horizon_report(request.runs, request.horizon, command, request.experiment_name)
 
 
 REPORTS: dict[str, ReportKind] = {
@@ -90,7 +100,10 @@ REPORTS: dict[str, ReportKind] = {
         ReportKind("sequential", "a [sequential] table's looks and verdicts", _sequential),
         ReportKind("questions", "[[question]] tables' looks and verdicts", _questions),
         ReportKind("calibration", "the row whose outcome mix is nearest a target", _calibration),
-        ReportKind("horizon", "the runs at longer evaluation-only episode limits", _horizon),
+        ReportKind("horizon", "the runs at longer evaluation-only episode limits", None, _horizon),
+        ReportKind(
+            "evaluation", "an evaluation design's questions on another family", None, _evaluation
+        ),
         # Written by `priqn mechanism` (priqn.tools), from replayed decisions, not by
         # `priqn report`: named here so every meta.json's kind is one of REPORTS. Their
         # writers (priqn.analysis.mechanism / standstill / collisions) take the replayed
@@ -131,6 +144,8 @@ def experiment_of(runs: str | Path, name: str | None = None) -> Any:
 def choose_kind(request: ReportRequest) -> str:
     """The kind of report ``request`` gets (a name in :data:`REPORTS`)."""
     exp = request.experiment
+    if request.evaluation is not None:
+        return "evaluation"
     if request.horizon:
         return "horizon"
     if exp is None or (not exp.designs and exp.calibration is None):
@@ -147,10 +162,17 @@ def write_report(request: ReportRequest) -> Path:
     :func:`report_command`; returns the report's Markdown file. A report refused (no runs,
     an unevaluated one, ...) leaves no empty output folder it made."""
     kind = choose_kind(request)
-    write = REPORTS[kind].write
-    assert write is not None, kind  # choose_kind chooses priqn report's kinds only
+    chosen = REPORTS[kind]
+    command = report_command(request, kind)
+    if chosen.build is not None:
+        from priqn.analysis.artifacts import render
+
+        report = chosen.build(request, command)  # read and computed before any file is made
+        with removed_on_failure(request.out):
+            return render(request.out, report)
+    assert chosen.write is not None, kind  # choose_kind chooses priqn report's kinds only
     with removed_on_failure(request.out):
-        return write(request, report_command(request, kind))
+        return chosen.write(request, command)
 
 
 def write_experiment_report(exp: Any, out: str | Path) -> Path:

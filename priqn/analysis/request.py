@@ -40,6 +40,9 @@ class ReportRequest:
     """Grid: reference drivers' folders (``--reference``)."""
     horizon: tuple[int, ...] = ()
     """Evaluation-only episode limits (``--horizon``); non-empty: the horizon report."""
+    evaluation: Any = None
+    """An evaluation design (:class:`priqn.evaluation.design.EvaluationDesign`,
+    ``--evaluation``): its report over the cells it names; ``runs`` is then unused."""
 
     @property
     def experiment_name(self) -> str | None:
@@ -53,6 +56,10 @@ def report_command(request: ReportRequest, kind: str) -> str:
     in ``report.md`` and ``meta.json``."""
     from priqn.analysis.sequential import relative_path
 
+    if kind == "evaluation":
+        words = ["priqn", "report", "--evaluation", request.evaluation.design.name]
+        words += ["--out", relative_path(request.out), "--seed", str(request.seed)]
+        return shlex.join(words + (["--partial"] if request.partial else []))
     words = ["priqn", "report", relative_path(request.runs)]
     if kind == "horizon":
         words += ["--horizon", ",".join(str(n) for n in request.horizon)]

@@ -145,6 +145,47 @@ class EvaluationDesign:
         return sum(len(s.rows) * len(s.seeds) for s in self.source)
 
 
+FEATURES = ("lane width", "skew", "junction radius", "lanes", "kind", "junction type")
+"""The net features a design's report tables violations by, in its order."""
+
+
+def net_features(family: str, skew_split_deg: float) -> list[dict[str, str]]:
+    """One record per net of ``family`` (``net``: ``<family>/<id>`` as the episode tables name
+    it) and its level of each feature the design tables: lane width and junction radius
+    against the hold-out family's ranges, skew (largest arm jitter against
+    ``skew_split_deg``), lanes per direction, kind and junction type."""
+    from priqn.sim.scenario import NOMINAL_SPACING_DEG, load_family, load_manifest
+
+    train = load_family("holdout").geometry
+
+    def against(value: float, lo_hi: tuple[float, float], unit: str) -> str:
+        lo, hi = lo_hi
+        if value < lo:
+            return f"below training (< {lo:g} {unit})"
+        return f"above training (> {hi:g} {unit})" if value > hi else "in training range"
+
+    rows = []
+    for net in load_manifest(family)["nets"]:
+        p = net["params"]
+        jitter = [
+            abs((a - i * NOMINAL_SPACING_DEG - p["rotation_deg"] + 180.0) % 360.0 - 180.0)
+            for i, a in enumerate(p["arm_angles_deg"])
+        ]
+        skew = max(jitter)
+        rows.append(
+            {
+                "net": f"{family}/{net['id']}",
+                "lane width": against(p["lane_width_m"], train.lane_width_m, "m"),
+                "skew": f"largest jitter {'>' if skew > skew_split_deg else '<='} {skew_split_deg:g} deg",
+                "junction radius": against(p["junction_radius_m"], train.junction_radius_m, "m"),
+                "lanes": "3 on every arm" if min(p["lanes_per_direction"]) >= 3 else "1-2",
+                "kind": p["kind"],
+                "junction type": p["junction_type"],
+            }
+        )
+    return rows
+
+
 def design_path(name_or_path: str | Path) -> Path:
     """An existing TOML path, or ``evaluations/<name>.toml`` (working directory, then shipped)."""
     p = Path(name_or_path)
