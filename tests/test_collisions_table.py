@@ -13,7 +13,8 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from priqn.analysis.collisions import kind_table, write_report
+from priqn.analysis.artifacts import render
+from priqn.analysis.collisions import collisions_report, kind_table
 
 
 def _collisions() -> pd.DataFrame:
@@ -47,7 +48,9 @@ def test_shares_per_density_and_pooled_by_hand() -> None:
 
 
 def test_the_report_prints_the_pooled_row(tmp_path) -> None:
-    text = write_report(_collisions(), tmp_path / "r", "priqn mechanism x --collisions").read_text()
+    text = render(
+        tmp_path / "r", collisions_report(_collisions(), "priqn mechanism x --collisions")
+    ).read_text()
     assert "| tm | IQN | all | 4 | 2 |" in text
     assert "| tm | IQN | 1 | 2 | 2 |" in text
 
@@ -59,7 +62,7 @@ def test_a_replay_under_other_traffic_reports_what_it_prevented(tmp_path) -> Non
     frame = _collisions()
     frame.insert(2, "replay_traffic", "tm-strict")
     frame["replayed_collision"] = [True, False, False, True]
-    text = write_report(frame, tmp_path / "r", "cmd", replay_traffic="tm-strict").read_text()
+    text = render(tmp_path / "r", collisions_report(frame, "cmd", "tm-strict")).read_text()
     assert "| tm | IQN | 4 | 2 | 50 % |" in text
     assert "2 of 4 still end in a collision" in text
     assert "| tm | IQN | all | 2 | 2 |" in text
@@ -67,5 +70,5 @@ def test_a_replay_under_other_traffic_reports_what_it_prevented(tmp_path) -> Non
     assert prevented.loc[0, "prevented"] == 0.5
     # None collides again: the report says so, without a kinds table.
     frame["replayed_collision"] = False
-    text = write_report(frame, tmp_path / "r2", "cmd", replay_traffic="tm-strict").read_text()
+    text = render(tmp_path / "r2", collisions_report(frame, "cmd", "tm-strict")).read_text()
     assert "0 of 4 still end in a collision" in text and "| tm | IQN | all |" not in text

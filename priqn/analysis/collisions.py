@@ -4,20 +4,19 @@ From one row per collision (:mod:`priqn.tools.collisions`): per traffic setting,
 density, how many collisions, the share of each kind (:data:`COLLISION_KINDS`), the share
 the NPC struck, and the share a Traffic-Manager-like NPC would have prevented (it could have
 stopped when the ego entered its path: the TM's collision stage brakes there).
-:func:`write_report` writes the report folder through
-:class:`priqn.analysis.artifacts.ReportFolder`: ``report.md``, ``tables/collisions.csv``
+:func:`collisions_report` builds the report as sections (rendered by
+:func:`priqn.analysis.artifacts.render`): ``report.md``, ``tables/collisions.csv``
 (every collision), ``tables/collisions_by_kind.csv`` (the table) and ``meta.json``.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from priqn.analysis.artifacts import ReportFolder
 from priqn.analysis.render import markdown_table
+from priqn.analysis.sections import Report, Section
 from priqn.objectives import COLLISION_KINDS
 
 GROUP: tuple[str, ...] = ("traffic", "label", "density")
@@ -109,26 +108,28 @@ def _kinds_markdown(table: pd.DataFrame) -> str:
     return markdown_table([*header, "NPC struck", "TM-like NPC would prevent"], rows)
 
 
-def write_report(
-    collisions: pd.DataFrame, out: str | Path, command: str, replay_traffic: str | None = None
-) -> Path:
-    """The report folder ``out``: ``tables/collisions.csv`` (every collision),
+def collisions_report(
+    collisions: pd.DataFrame, command: str, replay_traffic: str | None = None
+) -> Report:
+    """The collisions report: ``tables/collisions.csv`` (every collision),
     ``tables/collisions_by_kind.csv`` and ``report.md`` (the table), ``meta.json``
-    (``command``: the one that makes it); returns report.md. ``replay_traffic``: the
-    collisions were replayed under that traffic setting (``--traffic``): the report also says
-    which share of each row's collisions it prevented (``tables/prevented.csv``), and the
-    kinds table describes the replays that still collide."""
-    folder = ReportFolder.open(out)
-    folder.table("collisions", collisions)
+    (``command``: the one that makes it). ``replay_traffic``: the collisions were replayed
+    under that traffic setting (``--traffic``): the report also says which share of each
+    row's collisions it prevented (``tables/prevented.csv``), and the kinds table describes
+    the replays that still collide."""
     fields = {
         "collisions": len(collisions),
         "cells_with_collisions": sorted(set(collisions.get("cell", []))),
     }
     if replay_traffic is not None:
         fields["replay_traffic"] = replay_traffic
-    folder.meta("collisions", command, None, fields)
+
+    def report(*sections: Section) -> Report:
+        return Report("collisions", "report.md", sections, command, None, fields)
+
+    every = {"collisions": collisions}
     if collisions.empty:
-        return folder.text("report.md", "# Collisions\n\nNo collision to describe.\n")
+        return report(Section(["# Collisions", "", "No collision to describe.", ""], every))
     replayed = collisions["replayed_collision"].astype(str)
     if replay_traffic is None:
         again = int((replayed == "True").sum())
@@ -142,7 +143,7 @@ def write_report(
         described = collisions
     else:
         prevented = prevented_table(collisions)
-        folder.table("prevented", prevented)
+        every["prevented"] = prevented
         source = [
             f"Made by `{command}`.",
             "",
@@ -150,7 +151,7 @@ def write_report(
         ]
         described = collisions[replayed == "True"]
     if described.empty:
-        return folder.text("report.md", "\n".join(["# Collisions (descriptive)", "", *source, ""]))
+        return report(Section(["# Collisions (descriptive)", "", *source, ""], every))
     table = kind_table(described)
     text = [
         "# Collisions, by kind (descriptive)",
@@ -167,5 +168,4 @@ def write_report(
         _kinds_markdown(table),
         "",
     ]
-    folder.table("collisions_by_kind", table)
-    return folder.text("report.md", "\n".join(text))
+    return report(Section(text, {**every, "collisions_by_kind": table}))

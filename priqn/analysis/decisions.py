@@ -13,8 +13,8 @@ Here, with no torch and no SUMO:
 - :class:`DecisionMeasure` and :func:`seed_table`: one row per cell (its identity, the
   share of replayed episodes that ended as evaluated, the kind's measures) and one per
   group of cells (means over its cells);
-- :func:`markdown` and :func:`write_report`: the report folder (report.md, tables/*.csv,
-  figures/<kind>.png+.pdf, meta.json), through :class:`priqn.analysis.artifacts.ReportFolder`.
+- :func:`markdown` and :func:`decision_report`: the report (report.md, tables/*.csv,
+  figures/<kind>.png+.pdf, meta.json) as sections, rendered by :func:`priqn.analysis.artifacts.render`.
 
 The measures of each kind are :mod:`priqn.analysis.mechanism`'s and
 :mod:`priqn.analysis.standstill`'s.
@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from priqn.analysis.artifacts import ReportFolder, write_csv, write_json
+from priqn.analysis.artifacts import write_csv, write_json
 from priqn.analysis.render import markdown_table
+from priqn.analysis.sections import Report, Section
 from priqn.io import read_json
 
 # ----------------------------------------------------------------------------- schema
@@ -379,8 +380,7 @@ class ReportTable:
     formats: Mapping[str, str] = field(default_factory=dict)
 
 
-def write_report(
-    out: str | Path,
+def decision_report(
     kind: str,
     command: str,
     title: str,
@@ -388,20 +388,15 @@ def write_report(
     tables: Sequence[ReportTable],
     figure: Any,
     fields: Mapping[str, Any],
-) -> Path:
-    """The report folder ``out`` of a decision-row report: ``report.md`` (``title``,
-    ``intro``, the command, each shown table, the figure), ``tables/<name>.csv``,
+) -> Report:
+    """The report of decision rows (kind ``kind``): ``report.md`` (``title``, ``intro``,
+    the command, each shown table, the figure), ``tables/<name>.csv`` (floats exact),
     ``figures/<kind>.png`` and ``.pdf``, and ``meta.json`` (``kind``, ``command``,
-    ``fields``); returns report.md."""
-    folder = ReportFolder.open(out)
-    text = [f"# {title}", "", intro, "", f"Made by `{command}`.", ""]
+    ``fields``); rendered by :func:`priqn.analysis.artifacts.render`."""
+    sections = [Section([f"# {title}", "", intro, "", f"Made by `{command}`.", ""])]
     for t in tables:
-        folder.table(t.name, t.frame, float_format=None)
-        if t.shown:
-            if t.heading:
-                text += [f"## {t.heading}", ""]
-            text += [markdown(t.frame[list(t.shown)], t.formats), ""]
-    folder.figure(kind, figure)
-    text += [f"![{kind}](figures/{kind}.png)", ""]
-    folder.meta(kind, command, None, fields)
-    return folder.text("report.md", "\n".join(text))
+        lines = [f"## {t.heading}", ""] if t.shown and t.heading else []
+        lines += [markdown(t.frame[list(t.shown)], t.formats), ""] if t.shown else []
+        sections.append(Section(lines, tables={t.name: t.frame}))
+    sections.append(Section([f"![{kind}](figures/{kind}.png)", ""], figures={kind: figure}))
+    return Report(kind, "report.md", sections, command, None, fields, float_format=None)

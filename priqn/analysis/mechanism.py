@@ -5,8 +5,8 @@ writes one row per decision (:data:`priqn.analysis.decisions.MECHANISM_ROWS`); h
 those rows alone (docs/mechanism.md): :func:`removal_measures` (one seed's removal,
 violation, calibration and waiting measures), :func:`reliability_table` (the safety
 head's predictions binned against what happened), :func:`mechanism_measure` (the seed table's
-columns and groups: collapsed, healthy, all) and :func:`write_mechanism` (the report
-folder, through :func:`priqn.analysis.decisions.write_report`). No torch, no SUMO.
+columns and groups: collapsed, healthy, all) and :func:`mechanism_report` (the report,
+as :func:`priqn.analysis.decisions.decision_report`'s sections). No torch, no SUMO.
 """
 
 from __future__ import annotations
@@ -25,12 +25,13 @@ from priqn.analysis.decisions import (
     DecisionCache,
     DecisionMeasure,
     ReportTable,
+    decision_report,
     default_cache,
     rate,
     replay_share,
     seed_table,
-    write_report,
 )
+from priqn.analysis.sections import Report
 from priqn.run.evaluations import evaluation_folder, snapshot_evaluation
 
 DEFAULT_EPISODES = 54
@@ -266,13 +267,11 @@ def mechanism_figure(seeds: Any, reliability: dict[str, Any], cfg: MechanismConf
     return fig
 
 
-def write_mechanism(
-    cells: Sequence[CellRows], cfg: MechanismConfig, out: str | Path, command: str
-) -> Path:
-    """The report folder ``out`` of ``priqn mechanism`` (``command``: the one that makes
-    it) from the replayed cells: ``tables/mechanism.csv`` (a row per seed, then per
-    group), ``tables/reliability.csv``, ``figures/mechanism.png``/``.pdf``, ``report.md``
-    and ``meta.json``; returns report.md."""
+def mechanism_report(cells: Sequence[CellRows], cfg: MechanismConfig, command: str) -> Report:
+    """The report of ``priqn mechanism`` (``command``: the one that makes it) from the
+    replayed cells: ``tables/mechanism.csv`` (a row per seed, then per group),
+    ``tables/reliability.csv``, ``figures/mechanism.png``/``.pdf``, ``report.md`` and
+    ``meta.json``."""
     import pandas as pd
 
     m = mechanism_measure(cfg)
@@ -316,4 +315,4 @@ def write_mechanism(
     }
     title = "Pr-IQN mechanism (priqn mechanism)"
     figure = mechanism_figure(seeds, reliability, cfg)
-    return write_report(out, "mechanism", command, title, intro, tables, figure, fields)
+    return decision_report("mechanism", command, title, intro, tables, figure, fields)

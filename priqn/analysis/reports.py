@@ -34,17 +34,22 @@ from priqn.io import removed_on_failure
 
 @dataclasses.dataclass(frozen=True)
 class ReportKind:
-    """One kind of report: its name (``meta.json``'s ``kind``), what it shows, and its writer."""
+    """One kind of report: its name (``meta.json``'s ``kind``), what it shows, and how it is
+    made: built from sections (``build``) or, for the kinds not yet moved to sections,
+    written by its own module (``write``)."""
 
     name: str
     summary: str
-    write: Callable[[ReportRequest, str], Path] | None
-    """``write(request, command)`` -> the report's Markdown; None for a kind another command
-    writes (``priqn mechanism``), not ``priqn report``, or one built from sections."""
-    build: Callable[[ReportRequest, str], Report] | None = None
-    """``build(request, command)`` -> the report's sections
-    (:class:`~priqn.analysis.sections.Report`), rendered by
-    :func:`priqn.analysis.artifacts.render`: the kinds ported to sections."""
+    build: Callable[..., Report] | None = None
+    """The kind's :class:`~priqn.analysis.sections.Report`, rendered by
+    :func:`priqn.analysis.artifacts.render`: ``build(request, command)`` for a kind of
+    ``priqn report``, ``build(<the replayed cells>, ..., command)`` for one of ``priqn
+    mechanism`` (:mod:`priqn.tools` replays, then builds)."""
+    write: Callable[[ReportRequest, str], Path] | None = None
+    """``write(request, command)`` -> the report's Markdown, for the kinds that still write
+    their own folder through :class:`~priqn.analysis.artifacts.ReportFolder`."""
+    made_by: str = "priqn report"
+    """The command that makes it: ``priqn report`` or ``priqn mechanism``."""
 
 
 def _grid(request: ReportRequest, command: str) -> Path:
@@ -87,6 +92,24 @@ def _evaluation(request: ReportRequest, command: str) -> Report:
     return design_report(request.evaluation, command, request.seed, request.partial)
 
 
+def _mechanism(*args: Any) -> Report:
+    from priqn.analysis.mechanism import mechanism_report
+
+    return mechanism_report(*args)
+
+
+def _standstill(*args: Any) -> Report:
+    from priqn.analysis.standstill import standstill_report
+
+    return standstill_report(*args)
+
+
+def _collisions(*args: Any) -> Report:
+    from priqn.analysis.collisions import collisions_report
+
+    return collisions_report(*args)
+
+
 def _horizon(request: ReportRequest, command: str) -> Report:
     from priqn.analysis.horizon import horizon_report
 
@@ -96,23 +119,30 @@ def _horizon(request: ReportRequest, command: str) -> Report:
 REPORTS: dict[str, ReportKind] = {
     kind.name: kind
     for kind in (
-        ReportKind("grid", "Tables I and II, rliable statistics, the claims", _grid),
-        ReportKind("sequential", "a [sequential] table's looks and verdicts", _sequential),
-        ReportKind("questions", "[[question]] tables' looks and verdicts", _questions),
-        ReportKind("calibration", "the row whose outcome mix is nearest a target", _calibration),
-        ReportKind("horizon", "the runs at longer evaluation-only episode limits", None, _horizon),
+        ReportKind("grid", "Tables I and II, rliable statistics, the claims", write=_grid),
+        ReportKind("sequential", "a [sequential] table's looks and verdicts", write=_sequential),
+        ReportKind("questions", "[[question]] tables' looks and verdicts", write=_questions),
         ReportKind(
-            "evaluation", "an evaluation design's questions on another family", None, _evaluation
+            "calibration", "the row whose outcome mix is nearest a target", write=_calibration
         ),
-        # Written by `priqn mechanism` (priqn.tools), from replayed decisions, not by
-        # `priqn report`: named here so every meta.json's kind is one of REPORTS. Their
-        # writers (priqn.analysis.mechanism / standstill / collisions) take the replayed
-        # rows, not a ReportRequest.
-        ReportKind("mechanism", "safety removals and the safety head's calibration", None),
-        ReportKind("standstill", "where and why Pr-IQN stands still", None),
-        ReportKind("collisions", "who struck whom, and could it have been prevented", None),
+        ReportKind("horizon", "the runs at longer evaluation-only episode limits", _horizon),
+        ReportKind("evaluation", "an evaluation design's questions on another family", _evaluation),
+        # Built from replayed decisions by `priqn mechanism` (priqn.tools replays the cells,
+        # then builds the report from their rows), not by `priqn report`.
+        ReportKind(
+            "mechanism", "safety removals and the safety head's calibration", _mechanism,
+            made_by="priqn mechanism",
+        ),
+        ReportKind(
+            "standstill", "where and why Pr-IQN stands still", _standstill,
+            made_by="priqn mechanism",
+        ),
+        ReportKind(
+            "collisions", "who struck whom, and could it have been prevented", _collisions,
+            made_by="priqn mechanism",
+        ),
     )
-}
+}  # fmt: skip
 """Every kind of report, by the name its ``meta.json`` records."""
 
 

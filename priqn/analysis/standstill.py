@@ -6,14 +6,13 @@ go action survive to the ``--target`` level, which level removed the last one, a
 safety / risk heads' best stop vs best go (docs/mechanism.md, "Standing still"). Here,
 from those rows alone: :func:`waiting_measures` (one cell's shares and medians),
 :func:`standstill_measure` (the seed table's columns and groups: each row of cells) and
-:func:`write_standstill` (the report folder, through
-:func:`priqn.analysis.decisions.write_report`). No torch, no SUMO.
+:func:`standstill_report` (the report, as
+:func:`priqn.analysis.decisions.decision_report`'s sections). No torch, no SUMO.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,13 +23,14 @@ from priqn.analysis.decisions import (
     CellRows,
     DecisionMeasure,
     ReportTable,
+    decision_report,
     episodes_in,
     median,
     rate,
     replay_share,
     seed_table,
-    write_report,
 )
+from priqn.analysis.sections import Report
 
 COMPARED: tuple[str, ...] = ("safety", "risk")
 """Objectives whose best stop and best go actions are compared per decision."""
@@ -180,19 +180,18 @@ def standstill_figure(table: Any, decisions: Any, eps: float, target: str = DEFA
     return fig
 
 
-def write_standstill(
+def standstill_report(
     cells: Sequence[CellRows],
     episodes: int,
     eps: float,
     target: str,
-    out: str | Path,
     command: str,
-) -> Path:
-    """The report folder ``out`` of ``--standstill`` (``command``: the one that makes it)
+) -> Report:
+    """The report of ``--standstill`` (``command``: the one that makes it)
     from the replayed cells (``episodes``: asked per cell, 0 = all; ``eps``: the ε of the
     figure's threshold line; ``target``: the ``--target`` level): ``tables/standstill.csv``
     (a row per cell, then per group), ``figures/standstill.png``/``.pdf``, ``report.md``
-    and ``meta.json``; returns report.md."""
+    and ``meta.json``."""
     import pandas as pd
 
     table = seed_table(standstill_measure(), cells)
@@ -216,4 +215,4 @@ def write_standstill(
     figure = standstill_figure(table.iloc[: len(cells)], decisions, eps, target)
     tables = [ReportTable("standstill", table, m.shown, formats=m.formats)]
     title = "Standing still (priqn mechanism --standstill)"
-    return write_report(out, "standstill", command, title, intro, tables, figure, fields)
+    return decision_report("standstill", command, title, intro, tables, figure, fields)

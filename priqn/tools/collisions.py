@@ -12,7 +12,7 @@ not replayed.
 instead: which of them that traffic's NPCs would have prevented (with the same policy,
 whose later decisions may change with the traffic: the same scenes, not the same episodes).
 
-Writes the report folder ``DIR`` (:func:`priqn.analysis.collisions.write_report`):
+Writes the report folder ``DIR`` (:func:`priqn.analysis.collisions.collisions_report`):
 ``tables/collisions.csv`` (one row per collision), ``tables/collisions_by_kind.csv`` and
 ``report.md`` (per row and density: the share of each kind, and the share a
 Traffic-Manager-like NPC would have prevented), ``meta.json``.
@@ -98,7 +98,8 @@ def analyse(
     import pandas as pd
     from tqdm.auto import tqdm
 
-    from priqn.analysis.collisions import write_report
+    from priqn.analysis.artifacts import render
+    from priqn.analysis.collisions import collisions_report
 
     total = sum(int(resolve_outcomes(c.episodes)["collision"].astype(bool).sum()) for c in cells)
     rows: list[dict] = []
@@ -111,7 +112,7 @@ def analyse(
         frame.insert(1, "traffic", frame["cell"].map(own))
         if traffic is not None:
             frame.insert(2, "replay_traffic", traffic)
-    return write_report(frame, out, command, replay_traffic=traffic)
+    return render(out, collisions_report(frame, command, replay_traffic=traffic))
 
 
 def _traffic_name(run: Path) -> str:

@@ -16,7 +16,7 @@ recorded) and measures per training seed (docs/mechanism.md):
 3. **collapsed vs healthy**: the same measures for seeds whose hold-out success (all of
    their ``eval/episodes.csv``) is below a threshold, and for the others.
 
-Writes the report folder ``--out`` (:func:`priqn.analysis.mechanism.write_mechanism`:
+Writes the report folder ``--out`` (:func:`priqn.analysis.mechanism.mechanism_report`:
 ``report.md``, ``tables/mechanism.csv``, ``tables/reliability.csv``,
 ``figures/mechanism.png``/``.pdf``, ``meta.json``) and caches every replayed decision
 (:class:`priqn.analysis.decisions.DecisionCache` under ``--decisions``; a cell whose rows
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.analysis.artifacts import ReportFolder
+from priqn.analysis.artifacts import ReportFolder, render
 from priqn.analysis.decisions import (
     EPISODE_KEYS,
     MECHANISM_ROWS,
@@ -54,7 +54,7 @@ from priqn.analysis.mechanism import (
     DEFAULT_COLLAPSED_BELOW,
     DEFAULT_EPISODES,
     MechanismConfig,
-    write_mechanism,
+    mechanism_report,
 )
 from priqn.analysis.standstill import DEFAULT_TARGET
 from priqn.errors import PriqnError
@@ -197,7 +197,7 @@ def replay_cell(cell: ReplayCell, cfg: MechanismConfig, progress: Any = None) ->
 def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig, command: str) -> Path:
     """Replay every cell under ``paths`` (a cell whose rows are in ``cfg.cache()`` is read
     instead), write the report folder ``out``
-    (:func:`priqn.analysis.mechanism.write_mechanism`); returns its report.md."""
+    (:func:`priqn.analysis.mechanism.mechanism_report`); returns its report.md."""
     from tqdm.auto import tqdm
 
     from priqn.evaluation.targets import find_runs
@@ -217,7 +217,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig, comman
             rows = cache.rows(MECHANISM_ROWS, cell.name, params, want, replay, bar)
             seed = int(RunFolder(cell.path).config().seed)
             replayed.append(CellRows(cell.name, seed, cell.episodes, rows))
-    return write_mechanism(replayed, cfg, out, command)
+    return render(out, mechanism_report(replayed, cfg, command))
 
 
 # ----------------------------------------------------------------------------- CLI

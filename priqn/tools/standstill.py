@@ -31,9 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from priqn.analysis.artifacts import render
 from priqn.analysis.decisions import EPISODE_KEYS, STANDSTILL_ROWS, CellRows, ended_as_evaluated
 from priqn.analysis.mechanism import MechanismConfig
-from priqn.analysis.standstill import COMPARED, DEFAULT_TARGET, write_standstill
+from priqn.analysis.standstill import COMPARED, DEFAULT_TARGET, standstill_report
 from priqn.errors import PriqnError
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
@@ -183,7 +184,7 @@ def analyse(
     """Replay every cell (``pick_scenes(cell)``: its scenes; a cell whose rows are in
     ``cfg.cache()`` is read instead; ``cfg.episodes``: asked per cell)
     and write the report folder ``out``
-    (:func:`priqn.analysis.standstill.write_standstill`); returns its report.md."""
+    (:func:`priqn.analysis.standstill.standstill_report`); returns its report.md."""
     from tqdm.auto import tqdm
 
     scenes = {c.name: list(pick_scenes(c)) for c in cells}
@@ -202,4 +203,4 @@ def analyse(
             seed = int(RunFolder(cell.path).config().seed)
             replayed.append(CellRows(cell.name, seed, cell.episodes, rows))
     eps = max((float(c.episodes["eps"].iloc[0]) for c in cells if "eps" in c.episodes), default=0.2)
-    return write_standstill(replayed, cfg.episodes, eps, target, out, command)
+    return render(out, standstill_report(replayed, cfg.episodes, eps, target, command))
