@@ -23,6 +23,8 @@ import pytest
 from fake_runs import IQN, write_run
 
 from priqn.analysis import calibration
+from priqn.analysis.artifacts import render
+from priqn.analysis.mixes import mean_mix
 from priqn.errors import PriqnError
 from priqn.experiment import CalibrationSpec, load_experiment
 
@@ -88,7 +90,7 @@ def test_the_rule_picks_the_row_nearest_the_target_by_l1(tmp_path: Path) -> None
     exp = _grid(tmp_path)
     mixes, missing = calibration.setting_mixes(exp)
     assert missing == []
-    mean = calibration.mean_mix(mixes)
+    mean = mean_mix(mixes)
     near = mean[mean.row == "near"].set_index(["outcome", "density"]).rate
     assert near[("success", 0.5)] == pytest.approx(0.75)
     assert near[("collision", 1.0)] == pytest.approx(0.5)
@@ -150,7 +152,7 @@ def test_a_tie_goes_to_the_row_first_in_the_file() -> None:
 def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> None:
     exp = _grid(tmp_path)
     out = tmp_path / "report"
-    path = calibration.write_report(exp, out, "priqn report results/cal --out report")
+    path = render(out, calibration.calibration_report(exp, "priqn report results/cal --out report"))
     text = path.read_text()
     assert "**chosen: near** (L1 0.000)" in text
     assert "| near | 0: 0.50, 1: 0.50 | [0.00, 0.50] | 100.0% |" in text
@@ -163,7 +165,7 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
     assert meta["command"] == "priqn report results/cal --out report"
     assert (meta["schema"], meta["kind"], meta["experiment"]) == (1, "calibration", "cal")
     first = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*.*")}
-    calibration.write_report(exp, out, "priqn report results/cal --out report")
+    render(out, calibration.calibration_report(exp, "priqn report results/cal --out report"))
     assert {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*.*")} == first
     assert set(first) == {"report.md", "meta.json", "figures/calibration.png",
                           "figures/calibration.pdf", "tables/mix.csv", "tables/distances.csv",
@@ -173,7 +175,7 @@ def test_report_names_the_choice_and_regenerates_identically(tmp_path: Path) -> 
 
 def test_missing_cells_make_the_choice_provisional(tmp_path: Path) -> None:
     exp = _grid(tmp_path, rows=("far",))
-    text = calibration.write_report(exp, tmp_path / "r").read_text()
+    text = render(tmp_path / "r", calibration.calibration_report(exp, "c")).read_text()
     assert "provisionally nearest (cells missing): far" in text
     assert "- near__seed0: not complete" in text
 
@@ -185,7 +187,9 @@ def test_a_design_of_one_row_is_a_check_with_nothing_to_choose(tmp_path: Path) -
     design = exp.path.read_text()
     head, tail = design.split('[[policy]]\nname = "near"')
     exp.path.write_text(head + tail.split("\n\n", 1)[1])
-    text = calibration.write_report(load_experiment(exp.path), tmp_path / "r").read_text()
+    text = render(
+        tmp_path / "r", calibration.calibration_report(load_experiment(exp.path), "c")
+    ).read_text()
     assert "**far: L1 2.500** (one row: a check of its setting, nothing to choose)." in text
     assert "chosen: far" not in text
 

@@ -12,12 +12,13 @@ import pandas as pd
 import pytest
 
 from priqn.analysis import (
+    figures,
     questions,
     questions_outcomes,
     questions_report,
     sequential,
-    sequential_report,
 )
+from priqn.analysis.artifacts import render
 from priqn.analysis.load import resumed_before
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EPISODE_COLUMNS
@@ -240,8 +241,8 @@ def test_a_seed_no_row_reaches_at_the_budget_is_refused(tmp_path: Path) -> None:
 
 def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_path: Path) -> None:
     exp = grid(tmp_path)
-    first = questions_report.write_report(exp, tmp_path / "r1", command="cmd")
-    second = questions_report.write_report(exp, tmp_path / "r2", command="cmd")
+    first = render(tmp_path / "r1", questions_report.questions_report(exp, "cmd"))
+    second = render(tmp_path / "r2", questions_report.questions_report(exp, "cmd"))
     for f in sorted((tmp_path / "r1").rglob("*")):
         if f.is_file():
             assert (
@@ -274,7 +275,9 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
 def report_section(tmp_path: Path, start: str, end: str) -> tuple[str, str]:
     """The report of :func:`grid` (written to ``tmp_path / "r"``): the section from the
     heading ``start`` to ``end``, split into its 200- and 400-decision parts."""
-    text = questions_report.write_report(grid(tmp_path), tmp_path / "r", command="c").read_text()
+    text = render(
+        tmp_path / "r", questions_report.questions_report(grid(tmp_path), "c")
+    ).read_text()
     section = text[text.index(start) : text.index(end)]
     at200, at400 = section.split("### At 200 decisions")[1].split("### At 400 decisions")
     return at200, at400
@@ -392,7 +395,7 @@ def test_report_lists_each_cell_once_and_where_it_resumed(tmp_path: Path) -> Non
     atomic_write_json(
         run / "meta.json", {"status": "complete", "git_sha": "abc", "sessions": sessions}
     )
-    text = questions_report.write_report(exp, tmp_path / "r", command="cmd").read_text()
+    text = render(tmp_path / "r", questions_report.questions_report(exp, "cmd")).read_text()
     cells = text[text.index("## Cells") :].splitlines()
     rows = [line for line in cells if line.startswith("| `")]
     assert len(rows) == 16  # 8 seeds x 2 groups, each once
@@ -442,7 +445,7 @@ def test_budget_outcomes_figure_stacks_each_groups_outcomes_per_budget(tmp_path:
 
 def test_report_tables_each_questions_looks_and_draws_them_look_by_look(tmp_path: Path) -> None:
     exp = grid(tmp_path)
-    text = questions_report.write_report(exp, tmp_path / "r", command="c").read_text()
+    text = render(tmp_path / "r", questions_report.questions_report(exp, "c")).read_text()
     looks = pd.read_csv(tmp_path / "r" / "tables" / "looks.csv")
     # a violates in 8 of 10 episodes, b in 2, at every seed: +60 points, no spread, so the
     # Welch interval is the point itself, and AdaStop decides at the first look (4 seeds).
@@ -452,9 +455,7 @@ def test_report_tables_each_questions_looks_and_draws_them_look_by_look(tmp_path
     needed = f"{100 * first['needed']:.1f}"
     assert f"| 1 | a vs b | 4 vs 4 | +60.0 | [+60.0, +60.0] | {needed} | larger |" in text
     assert "![each comparison look by look](figures/looks.png)" in text
-    fig = sequential_report.looks_figure(
-        [(q, questions.take_looks(exp, q)[1]) for q in exp.designs], "t"
-    )
+    fig = figures.looks_figure([(q, questions.take_looks(exp, q)[1]) for q in exp.designs], "t")
     titles = [ax.get_title() for ax in fig.axes]
     assert titles == ["safety: a vs b: a violates more", "long: a > b: reproduced"]
     assert (tmp_path / "r" / "figures" / "looks.png").stat().st_size > 0
@@ -469,5 +470,5 @@ def test_verdict_words_name_the_row(monkeypatch: pytest.MonkeyPatch) -> None:
     for words, printed in (("a violates more", "pr-iqn-qd violates more"),
                            ("a better", "pr-iqn-qd better"), ("reproduced", "reproduced"),
                            ("no difference found at 5 seeds", "no difference found at 5 seeds")):  # fmt: skip
-        monkeypatch.setattr(sequential_report, "verdict", lambda d, r, x, w=words: w)
-        assert sequential_report.row_verdict(None, None, c) == printed
+        monkeypatch.setattr(sequential, "verdict", lambda d, r, x, w=words: w)
+        assert sequential.row_verdict(None, None, c) == printed

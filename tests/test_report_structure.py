@@ -3,10 +3,12 @@ meta.json schema, modules a reader can hold in mind.
 
 - Only :mod:`priqn.analysis.artifacts` writes files in ``priqn/analysis/`` (no
   ``savefig``, ``atomic_write_*``, ``write_text`` or ``write_bytes`` call elsewhere): report folders through
-  ``ReportFolder``, a replay's cached rows through its ``write_csv`` / ``write_json``.
+  its ``render``, a replay's cached rows through its ``write_csv`` / ``write_json``.
   A run's training curve is drawn in :mod:`priqn.run.curve`, not here.
 - Every committed ``docs/results/**/meta.json`` has the schema's common keys.
 - No module in ``priqn/analysis/`` (or ``priqn/agents/``) is over :data:`MAX_MODULE_LINES`.
+- Every report kind is built from sections, and no report kind's module imports another's
+  (issue 69).
 """
 
 from __future__ import annotations
@@ -126,3 +128,39 @@ def test_no_agents_module_is_over_800_lines() -> None:
     split: that split is another change of issue 60."""
     long = _long_modules("agents")
     assert not long, f"split these modules (at most {MAX_MODULE_LINES} lines): {long}"
+
+
+REPORT_MODULES = frozenset(
+    {"report", "sequential_report", "questions_report", "calibration", "horizon",
+     "design_report", "mechanism", "standstill", "collisions"}
+)  # fmt: skip
+"""The modules that build a report kind's sections (:data:`REPORTS`' builders)."""
+
+
+def _imported_analysis_modules(path: Path) -> set[str]:
+    """The ``priqn.analysis`` modules ``path`` imports, anywhere in it (lazy imports too)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.module == "priqn.analysis":
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("priqn.analysis."):
+            found.add(node.module.split(".")[2])
+        elif isinstance(node, ast.Import):
+            found |= {
+                a.name.split(".")[2] for a in node.names if a.name.startswith("priqn.analysis.")
+            }
+    return found
+
+
+def test_every_kind_is_built_from_sections_and_no_report_module_imports_another() -> None:
+    """Issue 69: each kind is a builder of a ``Report`` (one renderer writes it); a kind's
+    module shares code with another only through frames, estimates or figures modules."""
+    assert all(callable(kind.build) for kind in REPORTS.values())
+    crossing = {
+        name: sorted(
+            (_imported_analysis_modules(PACKAGE / "analysis" / f"{name}.py") & REPORT_MODULES)
+            - {name}
+        )
+        for name in sorted(REPORT_MODULES)
+    }
+    assert not {k: v for k, v in crossing.items() if v}, crossing

@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 from matplotlib.collections import PolyCollection
 
-from priqn.analysis import questions, sequential, sequential_report
+from priqn.analysis import figures, questions, sequential, sequential_report
 from priqn.errors import PriqnError
 from priqn.io import atomic_write_json
 from priqn.sweep import load_experiment
@@ -165,10 +165,10 @@ def test_replay_decides_look_by_look_and_names_the_next_cells(tmp_path: Path) ->
 def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: Path) -> None:
     exp = load_experiment(design(tmp_path))
     none = take_looks(exp, scores_frame({}))
-    assert sequential_report.looks_figure([(exp.sequential, none)], "t") is None
+    assert figures.looks_figure([(exp.sequential, none)], "t") is None
     four = scores_frame({"good": [0.9] * 4, "bad": [0.1] * 4, "same": SAME[:4]})
     r = take_looks(exp, four)
-    fig = sequential_report.looks_figure([(exp.sequential, r)], "t")
+    fig = figures.looks_figure([(exp.sequential, r)], "t")
     good_bad, good_same = fig.axes[:2]
     needed = 100 * r.looks[0].needed["primary"]
     for ax in (good_bad, good_same):
@@ -189,7 +189,7 @@ def test_looks_figure_draws_each_looks_band_and_marks_the_decided_dot(tmp_path: 
     # so its dot stays black, inside the band drawn for that look.
     r2 = take_looks(exp, scores_frame({"good": [0.9] * 8, "bad": [0.1] * 4, "same": SAME}))
     assert r2.finished and r2.decisions["good vs same"] == "equal"
-    good_same = sequential_report.looks_figure([(exp.sequential, r2)], "t").axes[1]
+    good_same = figures.looks_figure([(exp.sequential, r2)], "t").axes[1]
     dots = [ln for ln in good_same.lines if ln.get_marker() == "o"]
     assert [d.get_xdata()[0] for d in dots] == [1, 2]
     assert [d.get_color() for d in dots] == ["black", "black"]

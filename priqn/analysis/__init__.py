@@ -29,15 +29,20 @@ Tables, figures and reports:
 - :mod:`analysis.tables` — Table II and Table I as data, Markdown, LaTeX and CSV;
 - :mod:`analysis.figures` — the paper-style figures (matplotlib figures);
 - :mod:`analysis.render` — the one CSV and Markdown table renderer;
-- :mod:`analysis.artifacts` — :class:`~analysis.artifacts.ReportFolder`, the one writer of
-  every report's files (``report.md``, ``meta.json`` in one schema, ``tables/``,
-  ``figures/`` as PNG + PDF);
+- :mod:`analysis.sections` — :class:`~analysis.sections.Section` and
+  :class:`~analysis.sections.Report`: what every report kind builds, pure of the disk;
+- :mod:`analysis.artifacts` — :func:`~analysis.artifacts.render`, the one renderer of a
+  report's files (``report.md``, ``meta.json`` in one schema, ``tables/``, ``figures/``
+  as PNG + PDF);
+- :mod:`analysis.mixes` — outcome mixes (shares per outcome and density) and their L1
+  distances, shared by the calibration and the questions' outcome-mix section;
 - :mod:`analysis.reports` — every kind of report (:data:`~analysis.reports.REPORTS`), and
   the one place ``priqn report`` and ``priqn sweep`` choose a folder's kind;
 - :mod:`analysis.request` — what a report is asked for, and the one builder of the command
   its ``meta.json`` records (re-running it regenerates the folder byte for byte);
 - :mod:`analysis.report` — the grid report (Tables I/II, rliable):
-  :func:`analysis.report.make_report`;
+  :func:`analysis.report.grid_report` (rendered from Python by
+  :func:`analysis.report.make_report`);
 - :mod:`analysis.claims_report` — the claims section and ``tables/claims.csv``;
 - :mod:`analysis.sequential_report` — the report of a ``[sequential]`` table;
 - :mod:`analysis.questions_report` — the report of ``[[question]]`` tables, with

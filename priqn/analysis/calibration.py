@@ -10,8 +10,8 @@ target's; the chosen row has the smallest distance (a tie: the row first in the 
 
 Descriptive, as the rule is: no interval decides anything here. Pure functions of the
 cells' ``eval/episodes.csv`` (:func:`cell_rates`, :func:`setting_mixes`,
-:func:`distances`, :func:`choose`), then :func:`write_report` (kind ``calibration``,
-through a :class:`~priqn.analysis.artifacts.ReportFolder`: ``report.md``, four CSVs in
+:func:`distances`, :func:`choose`), then :func:`calibration_report` (kind ``calibration``,
+sections rendered by :func:`priqn.analysis.artifacts.render`: ``report.md``, four CSVs in
 ``tables/``, a figure in ``figures/`` and ``meta.json``). How sure the choice is, beside
 it: each seed's own distance (:func:`seed_distances`) and the rule applied again to
 bootstrap resamples of each row's seeds (:func:`choice_bootstrap`).
@@ -19,23 +19,19 @@ bootstrap resamples of each row's seeds (:func:`choice_bootstrap`).
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from priqn.analysis.load import read_episodes
+from priqn.analysis.mixes import cell_rates, l1_by_outcome, mean_mix, rates_of
 from priqn.analysis.render import markdown_table
-from priqn.analysis.request import ReportRequest, report_command
+from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.experiment import CalibrationSpec, Experiment, check_code
 from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import evaluated
 from priqn.run.folder import RunFolder
-
-if TYPE_CHECKING:
-    from priqn.analysis.artifacts import ReportFolder
 
 MIX_COLUMNS = ("row", "traffic", "seed", "outcome", "density", "rate")
 """Columns of :func:`setting_mixes`: one row per (cell, outcome, density)."""
@@ -46,14 +42,6 @@ BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 2026
 """Seed of the report's :func:`choice_bootstrap` generator (``numpy.random.default_rng``);
 recorded in report.md and meta.json."""
-
-
-def cell_rates(eval_dir: str | Path) -> pd.DataFrame:
-    """``float [densities x outcomes]``: the share of one evaluation's episodes ending in
-    each outcome, per density (index sorted); each row sums to 1."""
-    episodes = read_episodes(eval_dir)
-    flags = episodes[list(OUTCOMES)].astype(bool).astype(float)
-    return flags.groupby(episodes["density"].astype(float)).mean()
 
 
 def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
@@ -80,14 +68,6 @@ def setting_mixes(exp: Experiment) -> tuple[pd.DataFrame, list[str]]:
     return pd.DataFrame(rows, columns=list(MIX_COLUMNS)), missing
 
 
-def mean_mix(mixes: pd.DataFrame, group: str = "row", seed: str = "seed") -> pd.DataFrame:
-    """``rate`` averaged over each ``group``'s seeds (column ``seed``): one line per
-    (``group``, outcome, density), in first-seen order, with ``seeds`` (how many). A
-    question report's outcome mix is the same mean, by label and training seed."""
-    grouped = mixes.groupby([group, "outcome", "density"], sort=False)
-    return grouped.agg(rate=("rate", "mean"), seeds=(seed, "nunique")).reset_index()
-
-
 def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.DataFrame:
     """Per row (in ``order``, those with cells): ``l1`` to the target mix over every
     (outcome, density) the target gives, ``seeds``, and the four outcomes' parts of it.
@@ -105,15 +85,6 @@ def distances(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> pd.
         parts = l1_by_outcome(have, target)
         out.append({"row": row, "l1": sum(parts.values()), "seeds": int(mine.seeds.min()), **parts})
     return pd.DataFrame(out, columns=["row", "l1", "seeds", *OUTCOMES])
-
-
-def l1_by_outcome(
-    have: dict[tuple[str, float], float], target: dict[tuple[str, float], float]
-) -> dict[str, float]:
-    """Per outcome of :data:`~priqn.objectives.OUTCOMES`, the L1 distance of ``have`` to
-    ``target`` over the densities ``target`` gives (both ``(outcome, density) -> rate``;
-    ``have`` has every key of ``target``). Their sum is a mix's distance."""
-    return {o: sum(abs(have[k] - t) for k, t in target.items() if k[0] == o) for o in OUTCOMES}
 
 
 def choose(dist: pd.DataFrame) -> str:
@@ -189,13 +160,6 @@ def choice_bootstrap(
     return pd.DataFrame({"row": list(by_row), "chosen": chosen, "l1_low": low, "l1_high": high})
 
 
-def rates_of(lines: pd.DataFrame) -> dict[tuple[str, float], float]:
-    """``(outcome, density) -> rate`` of mix lines (columns outcome, density, rate: one
-    row's :func:`mean_mix` lines, or a question report's outcome mix)."""
-    keys = zip(lines.outcome, lines.density.astype(float), strict=True)
-    return dict(zip(keys, lines.rate.astype(float), strict=True))
-
-
 def _spec(exp: Experiment) -> CalibrationSpec:
     if exp.calibration is None:
         raise PriqnError(f"{exp.path}: no [calibration] table")
@@ -234,11 +198,9 @@ def _distance_table(dist: pd.DataFrame, chosen: str, final: bool) -> str:
     return markdown_table(heads, rows)
 
 
-def _sureness_lines(
-    mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str], folder: ReportFolder
-) -> tuple[list[str], dict]:
-    """The section "How sure is the choice", ``tables/seed_distances.csv`` and
-    ``tables/choice_bootstrap.csv`` in ``folder``, and meta.json's ``bootstrap`` record."""
+def _sureness(mixes: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> tuple[Section, dict]:
+    """The section "How sure is the choice" (with ``tables/seed_distances.csv`` and
+    ``tables/choice_bootstrap.csv``) and meta.json's ``bootstrap`` record."""
     by_row, target = seed_mixes(mixes, cal, order), target_vector(cal)
     per_seed = seed_distances(by_row, target)
     seeds = {row: list(m.index) for row, m in by_row.items()}
@@ -247,8 +209,6 @@ def _sureness_lines(
         [(row, s, d) for row in by_row for s, d in zip(seeds[row], per_seed[row], strict=True)],
         columns=["row", "seed", "l1"],
     )
-    folder.table("seed_distances", seed_frame, float_format="%.6f")
-    folder.table("choice_bootstrap", boot, float_format="%.6f")
     rows = [
         [b.row, ", ".join(f"{s}: {d:.2f}" for s, d in zip(seeds[b.row], per_seed[b.row],
                                                           strict=True)),
@@ -275,7 +235,8 @@ def _sureness_lines(
         "seed": BOOTSTRAP_SEED,
         "chosen": {b.row: round(float(b.chosen), 6) for b in boot.itertuples()},
     }
-    return lines, record
+    tables = {"seed_distances": seed_frame, "choice_bootstrap": boot}
+    return Section(lines, tables=tables), record
 
 
 def figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> Any:
@@ -306,15 +267,12 @@ def figure(mean: pd.DataFrame, cal: CalibrationSpec, order: list[str]) -> Any:
     return fig
 
 
-def write_report(exp: Experiment, out: str | Path, command: str | None = None) -> Path:
-    """report.md, ``tables/mix.csv`` (every cell's rates), ``tables/distances.csv``,
-    ``tables/seed_distances.csv``, ``tables/choice_bootstrap.csv``,
-    ``figures/calibration.png`` (and ``.pdf``) and ``meta.json`` (with ``command``, the one
-    that regenerates it: by default :func:`priqn.analysis.request.report_command`'s) into
-    ``out``; returns report.md's path. Cells not complete yet are named, and the choice is
+def calibration_report(exp: Experiment, command: str) -> Report:
+    """The calibration report (kind ``calibration``): report.md, ``tables/mix.csv`` (every
+    cell's rates), ``tables/distances.csv``, ``tables/seed_distances.csv``,
+    ``tables/choice_bootstrap.csv``, ``figures/calibration.png`` (and ``.pdf``); ``command``
+    is the one that regenerates it. Cells not complete yet are named, and the choice is
     marked provisional until every cell is in."""
-    from priqn.analysis.artifacts import ReportFolder
-
     cal = _spec(exp)
     mixes, missing = setting_mixes(exp)
     if mixes.empty:
@@ -324,13 +282,7 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     mean = mean_mix(mixes)
     dist = distances(mean, cal, order)
     chosen = choose(dist)
-    folder = ReportFolder.open(out)
-    if command is None:
-        command = report_command(ReportRequest(exp.runs_dir, Path(out), exp), "calibration")
-    folder.table("mix", mixes, float_format="%.6f")
-    folder.table("distances", dist, float_format="%.6f")
-    folder.figure("calibration", figure(mean, cal, order))
-    sureness, bootstrap = _sureness_lines(mixes, cal, order, folder)
+    sureness, bootstrap = _sureness(mixes, cal, order)
     budget = exp.experiment.steps
     one_row = len(order) == 1  # a check of one setting on more seeds: nothing to choose
     if one_row:
@@ -339,8 +291,11 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
     else:
         words = "chosen" if not missing else "provisionally nearest (cells missing)"
         verdict = f"**{words}: {chosen}** (L1 {dist.l1.min():.3f})."
-    md = [
+    head = Section([
         f"# {exp.experiment.name}: calibration",
+        "",
+        f"Made by `{command}` from the cells' run folders and the rule in "
+        f"`{exp.path.name}` (committed before any of its cells trained).",
         "",
         exp.experiment.description,
         "",
@@ -355,23 +310,21 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         + "; the target was measured after 2M decisions, and our IQN crashes less as it "
         "trains, so a setting matched here is matched at this budget only.",
         "",
-        "## Outcome mix per density",
-        "",
-        _mix_table(mean, cal, order, traffic),
-        "",
-        "![outcome mix per density](figures/calibration.png)",
-        "",
-        "## Distance to the target",
-        "",
-        _distance_table(dist, "" if one_row else chosen, final=not missing),
-        "",
-        *sureness,
-    ]
+    ])  # fmt: skip
+    mix = Section(
+        ["## Outcome mix per density", "", _mix_table(mean, cal, order, traffic), "",
+         "![outcome mix per density](figures/calibration.png)", ""],
+        tables={"mix": mixes},
+        figures={"calibration": figure(mean, cal, order)},
+    )  # fmt: skip
+    distance = Section(
+        ["## Distance to the target", "",
+         _distance_table(dist, "" if one_row else chosen, final=not missing), ""],
+        tables={"distances": dist},
+    )  # fmt: skip
+    sections = [head, mix, distance, sureness]
     if missing:
-        md += ["## Cells not counted yet", "", *(f"- {m}" for m in missing), ""]
-    md[1:1] = ["", f"Made by `{command}` from the cells' run folders and the rule in "
-               f"`{exp.path.name}` (committed before any of its cells trained)."]  # fmt: skip
-    path = folder.text("report.md", "\n".join(md))
+        sections.append(Section(["## Cells not counted yet", "", *(f"- {m}" for m in missing), ""]))
     fields = {
         "chosen": chosen,
         "final": not missing,
@@ -380,5 +333,6 @@ def write_report(exp: Experiment, out: str | Path, command: str | None = None) -
         "distances": {r.row: round(float(r.l1), 6) for r in dist.itertuples()},
         "bootstrap": bootstrap,
     }
-    folder.meta("calibration", command, exp.experiment.name, fields)
-    return path
+    return Report(
+        "calibration", "report.md", sections, command, exp.experiment.name, fields, "%.6f"
+    )

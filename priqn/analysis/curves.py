@@ -47,6 +47,11 @@ from priqn.evaluation.protocol import snapshot_budget
 from priqn.run.evaluations import control_evaluations, evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 
+CURVE_SEED = 0
+"""``np.random.seed`` before each rliable call of the sample-efficiency curves (recorded)."""
+CURVE_REPS = 2000
+"""Bootstrap replications of the sample-efficiency curves' intervals."""
+
 PERIODIC = "periodic"
 """In-training evaluation rows of ``metrics.csv`` (few episodes per point)."""
 SNAPSHOT = "snapshot"

@@ -1,6 +1,6 @@
 """Figures in the paper's style (rliable's plot utilities): each function returns a
-matplotlib figure, which a report writes as PNG and PDF through
-:meth:`priqn.analysis.artifacts.ReportFolder.figure` (deterministic bytes: no timestamps,
+matplotlib figure, which a report's section holds and the one renderer writes as PNG and
+PDF (:func:`priqn.analysis.artifacts.render`; deterministic bytes: no timestamps,
 a fixed SVG hash salt, the Agg backend). Nothing here writes a file; a run's
 ``learning_curve.png`` is drawn by :mod:`priqn.run.curve`.
 """
@@ -22,8 +22,10 @@ from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from priqn.agents.labels import trained_row  # noqa: E402
 from priqn.analysis.claims import ClaimResult  # noqa: E402
+from priqn.analysis.sequential import Look, Looks, row_verdict  # noqa: E402
 from priqn.analysis.stats import PAIR_SEPARATOR, SCORE_METRICS, RliableResult  # noqa: E402
 from priqn.analysis.tables import OUTCOMES  # noqa: E402
+from priqn.experiment import ComparisonSpec, SequentialSpec  # noqa: E402
 
 
 def seed_dots(
@@ -509,3 +511,95 @@ def seed_success_figure(episodes: pd.DataFrame, order: list[str]) -> plt.Figure:
     ] + [plt.Line2D([], [], color="black", lw=1.5, label="mean over seeds")]
     legend_above(ax, handles, "Success rate per training seed", ncol=len(handles))
     return fig
+
+
+def looks_figure(designs: Sequence[tuple[SequentialSpec, Looks]], title: str) -> Any:
+    """The monitoring chart of one or more designs (the ``[sequential]`` table, or each
+    ``[[question]]`` with its looks): one panel per comparison, its estimate at each look
+    taken (dot, Welch 95 % interval) inside the band AdaStop would not decide at that look
+    (grey, ±the look's ``needed``), with 0 and the paper's difference marked. A dot outside
+    its band is a difference found (orange); AdaStop's "equal" at the last look stays
+    black; the looks still to come are empty slots. A question's panels name it
+    (``success: ...``). None before the first look of any design."""
+    panels = [(d, r, c) for d, r in designs if r.looks for c in d.comparisons]
+    if not panels:
+        return None
+    ncols = min(2, len(panels))
+    nrows = -(-len(panels) // ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(3.9 * ncols, 2.5 * nrows + 0.6), sharey=True, squeeze=False
+    )
+    for ax, (design, result, c) in zip(axes.flat, panels, strict=False):
+        K = len(design.interims)
+        ax.axhline(0, color="0.6", lw=0.8)
+        if c.paper_difference is not None:
+            ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
+        for look in result.looks:
+            _draw_look(ax, look, c)
+        ax.set_xticks(range(1, K + 1), [f"{n}" for n in design.interims], fontsize=8)
+        ax.set_xlim(0.4, K + 0.6)
+        ax.set_xlabel("seeds per row at the look", fontsize=8)
+        name = f"{design.name}: {c.name}" if design.name else c.name
+        ax.set_title(textwrap.fill(f"{name}: {row_verdict(design, result, c)}", 58), fontsize=8)
+        ax.tick_params(axis="y", labelsize=8)
+    for ax in axes.flat[len(panels) :]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("difference, points", fontsize=8)
+    _looks_legend(fig, title)
+    return fig
+
+
+def _draw_look(ax: Any, look: Look, c: ComparisonSpec) -> None:
+    """Comparison ``c`` at one look of :func:`looks_figure`: the band AdaStop would not
+    decide in (while ``c`` is open, and at the look that decides it), then the estimate
+    with its Welch interval, orange once a difference is found."""
+    row = next(x for x in look.comparisons if x.name == c.name)
+    needed = look.needed.get(c.family)
+    if needed is not None and row.decided_at in (None, look.k):
+        if np.isfinite(needed):
+            ax.fill_between(
+                [look.k - 0.3, look.k + 0.3],
+                -100 * needed,
+                100 * needed,
+                color="0.88",
+                lw=0,
+                zorder=0,
+            )
+        else:  # too few splits to reject anything: the whole column
+            ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
+    # Orange once AdaStop has found a difference (its decision after this look);
+    # "equal" at the last look is no difference found: black, inside its band.
+    decided = row.decision in ("larger", "smaller")
+    ax.errorbar(
+        look.k,
+        100 * row.diff,
+        yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
+        fmt="o",
+        color="tab:orange" if decided else "black",
+        ms=4,
+        lw=1,
+        capsize=2,
+    )
+
+
+def _looks_legend(fig: Any, title: str) -> None:
+    """The title and one legend row above the panels of :func:`looks_figure`: estimate,
+    difference found, undecided band, paper's difference."""
+    handles = [
+        plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
+        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="difference found"),
+        plt.Rectangle((0, 0), 1, 1, color="0.88", label="not decided at that look"),
+        plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
+    ]
+    top = 1 - 0.45 / fig.get_figheight()  # room for the title and the legend's row
+    fig.suptitle(title, y=0.995, fontsize=10)
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()),
+        ncol=4,
+        fontsize=7,
+        frameon=False,
+    )
+    fig.tight_layout(rect=(0, 0, 1, top))

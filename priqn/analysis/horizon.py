@@ -34,7 +34,7 @@ from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
 from priqn.io import read_json
 from priqn.objectives import OUTCOMES
-from priqn.run.evaluations import evaluation_dir
+from priqn.run.evaluations import evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
 
 SCENE_KEY: tuple[str, ...] = ("eval_run", "net", "density", "episode")
@@ -51,8 +51,7 @@ def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
         own = int(read_json(folder.eval_dir / RunFolder.META)["env_config"]["max_episode_steps"])
         for limit, name in ((own, ""), *((n, f"{LIMIT_PREFIX}{n}") for n in limits)):
             eval_dir = evaluation_dir(folder, name)
-            meta = eval_dir / RunFolder.META
-            if not meta.is_file() or read_json(meta).get("status") != Status.COMPLETE:
+            if recorded_eval_status(folder, name) != Status.COMPLETE:
                 raise PriqnError(
                     f"{eval_dir}: no complete evaluation; run 'priqn evaluate {run}"
                     + (f" --max-episode-steps {limit}'" if name else "'")

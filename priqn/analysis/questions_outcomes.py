@@ -3,8 +3,8 @@ the descriptive sections of :mod:`priqn.analysis.questions_report` (outcome mix 
 paper's Table II row, outcome by manoeuvre, Table I), their tables and figures.
 
 :func:`outcome_sections` reads every counted cell's hold-out episodes once
-(:func:`counted_episodes`) and returns the sections' Markdown, writing their files through
-the report's :class:`~priqn.analysis.artifacts.ReportFolder`. Descriptive: no test decides
+(:func:`counted_episodes`) and returns the sections, each with its Markdown, tables and
+figures (:class:`~priqn.analysis.sections.Section`). Descriptive: no test decides
 on these numbers.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -20,27 +20,26 @@ import pandas as pd
 from priqn.agents.labels import budget_text
 from priqn.analysis import tables
 from priqn.analysis.load import SORT_COLUMNS, read_evaluation
+from priqn.analysis.mixes import l1_by_outcome, mean_mix, rates_of
 from priqn.analysis.paper import PAPER_DENSITIES
 from priqn.analysis.render import markdown_table
+from priqn.analysis.sections import Section
 from priqn.experiment import Experiment
 from priqn.objectives import OUTCOMES
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder
 
-if TYPE_CHECKING:
-    from priqn.analysis.artifacts import ReportFolder
 
-
-def outcome_sections(exp: Experiment, scores: pd.DataFrame, folder: ReportFolder) -> list[str]:
+def outcome_sections(exp: Experiment, scores: pd.DataFrame) -> list[Section]:
     """The outcome-mix, outcome-by-manoeuvre and Table I sections of the cells every
-    question counts (``scores``, with a ``question`` column), at each question's budget;
-    their tables and figures into ``folder``. None while no cell is counted."""
+    question counts (``scores``, with a ``question`` column), at each question's budget,
+    with their tables and figures. Empty sections while no cell is counted."""
     episodes_by_budget = counted_episodes(exp, scores)
     return [
-        *_mix_lines(episodes_by_budget, folder),
-        *_manoeuvre_lines(episodes_by_budget, folder),
-        *_returns_lines(episodes_by_budget, folder),
+        _mix_section(episodes_by_budget),
+        _manoeuvre_section(episodes_by_budget),
+        _returns_section(episodes_by_budget),
     ]
 
 
@@ -109,14 +108,12 @@ def _paper_mix(label: str, densities: list[float]) -> dict[tuple[str, float], fl
 def mix_rows(
     episodes: pd.DataFrame,
 ) -> tuple[list[list[str]], list[dict[str, Any]], list[dict[str, Any]]]:
-    """The Markdown rows and CSV records of :func:`_mix_lines`: per label and outcome, each
+    """The Markdown rows and CSV records of :func:`_mix_section`: per label and outcome, each
     density's rate (each seed's share first, :func:`seed_shares`, then their mean:
-    :func:`~priqn.analysis.calibration.mean_mix`) beside the paper's (its Table II row of the same
+    :func:`~priqn.analysis.mixes.mean_mix`) beside the paper's (its Table II row of the same
     label), the L1 distance of the 12 numbers to the paper's row, and each training seed's
     own L1 (its shares, not the mean; median [min, max] in the Markdown, one record per
     seed in the third list)."""
-    from priqn.analysis.calibration import l1_by_outcome, mean_mix, rates_of
-
     shares = seed_shares(episodes)
     mix = mean_mix(shares, group="label", seed="train_seed")
     densities = sorted(mix["density"].unique())
@@ -156,13 +153,14 @@ def mix_rows(
     return md_rows, records, seed_records
 
 
-def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], folder: ReportFolder) -> list[str]:
+def _mix_section(episodes_by_budget: dict[int, pd.DataFrame]) -> Section:
     """The outcome-mix section: per question budget, how each group's hold-out episodes
     end at each density beside the paper's Table II row of the same label, with the L1
     distance calibration uses (``tables/outcome_mix_<budget>.csv``); none while no cell
     is counted."""
     if not episodes_by_budget:
-        return []
+        return Section([])
+    tables_by_name: dict[str, pd.DataFrame] = {}
     lines = [
         "## Outcome mix beside the paper's (descriptive)",
         "",
@@ -178,14 +176,14 @@ def _mix_lines(episodes_by_budget: dict[int, pd.DataFrame], folder: ReportFolder
     for budget, episodes in episodes_by_budget.items():
         md_rows, records, seed_records = mix_rows(episodes)
         name = f"outcome_mix_{budget_text(budget)}"
-        folder.table(name, pd.DataFrame(records))
+        tables_by_name[name] = pd.DataFrame(records)
         if seed_records:
-            folder.table(f"{name}_seeds", pd.DataFrame(seed_records))
+            tables_by_name[f"{name}_seeds"] = pd.DataFrame(seed_records)
         densities = sorted(episodes["density"].astype(float).unique())
         heads = ["policy", "seeds", "outcome", *(f"density {float(d)}" for d in densities),
                  "L1", "L1 of a seed alone"]  # fmt: skip
         lines += [f"### At {budget_text(budget)} decisions", "", markdown_table(heads, md_rows), ""]
-    return lines
+    return Section(lines, tables=tables_by_name)
 
 
 def manoeuvre_table(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -207,9 +205,7 @@ def manoeuvre_table(episodes: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
-def _manoeuvre_lines(
-    episodes_by_budget: dict[int, pd.DataFrame], folder: ReportFolder
-) -> list[str]:
+def _manoeuvre_section(episodes_by_budget: dict[int, pd.DataFrame]) -> Section:
     """The outcome-by-manoeuvre section: per question budget, how each group's hold-out
     episodes end for each route command of the ego (:func:`manoeuvre_table`,
     ``tables/outcome_by_manoeuvre_<budget>.csv`` and its figure); none while no cell is
@@ -217,7 +213,8 @@ def _manoeuvre_lines(
     from priqn.analysis.figures import outcomes_figure
 
     if not episodes_by_budget:
-        return []
+        return Section([])
+    tables_by_name, figures_by_name = {}, {}
     lines = [
         "## Outcome by manoeuvre (descriptive)",
         "",
@@ -232,8 +229,8 @@ def _manoeuvre_lines(
     for budget, episodes in episodes_by_budget.items():
         name = f"outcome_by_manoeuvre_{budget_text(budget)}"
         table = manoeuvre_table(episodes)
-        folder.table(name, table)
-        folder.figure(name, outcomes_figure(table, list(dict.fromkeys(table["label"]))))
+        tables_by_name[name] = table
+        figures_by_name[name] = outcomes_figure(table, list(dict.fromkeys(table["label"])))
         rows = [
             [r.label, r.command, str(r.seeds), str(r.episodes),
              *(f"{getattr(r, o):.3f}" for o in OUTCOMES),
@@ -248,15 +245,16 @@ def _manoeuvre_lines(
             f"![outcome by manoeuvre at {budget_text(budget)}](figures/{name}.png)",
             "",
         ]
-    return lines
+    return Section(lines, tables=tables_by_name, figures=figures_by_name)
 
 
-def _returns_lines(episodes_by_budget: dict[int, pd.DataFrame], folder: ReportFolder) -> list[str]:
+def _returns_section(episodes_by_budget: dict[int, pd.DataFrame]) -> Section:
     """The Table I section: per question budget, ``tables/table1_<budget>.{md,csv}`` and
     the table itself; none while no cell is counted."""
     by_budget = returns_tables(episodes_by_budget)
     if not by_budget:
-        return []
+        return Section([])
+    files = {}
     lines = [
         "## Returns per objective (Table I, descriptive)",
         "",
@@ -267,7 +265,7 @@ def _returns_lines(episodes_by_budget: dict[int, pd.DataFrame], folder: ReportFo
     ]
     for budget, table in by_budget.items():
         name = f"table1_{budget_text(budget)}"
-        folder.text(f"tables/{name}.md", tables.to_markdown(table))
-        folder.text(f"tables/{name}.csv", tables.to_csv(table))
+        files[f"tables/{name}.md"] = tables.to_markdown(table)
+        files[f"tables/{name}.csv"] = tables.to_csv(table)
         lines += [f"### At {budget_text(budget)} decisions", "", tables.to_markdown(table)]
-    return lines
+    return Section(lines, files=files)

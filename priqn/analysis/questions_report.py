@@ -6,8 +6,8 @@ minimum detectable difference and verdict words (:mod:`priqn.analysis.questions`
 questions, each group's endpoints at every budget its cells reach, and the change of a
 difference between budgets over the same seeds; then the descriptive sections of how the
 counted cells' episodes end (:mod:`priqn.analysis.questions_outcomes`) and the
-sample-efficiency curves (:func:`priqn.analysis.curves.efficiency`). Written through a
-:class:`~priqn.analysis.artifacts.ReportFolder`; deterministic: the same committed cells
+sample-efficiency curves (:func:`priqn.analysis.curves.efficiency`). Built as sections
+(:func:`questions_report`, rendered by :func:`priqn.analysis.artifacts.render`); deterministic: the same committed cells
 give byte-identical files (tables, figures, ``report.md``, ``meta.json``).
 """
 
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +23,13 @@ import pandas as pd
 
 from priqn.agents.labels import budget_text, seeds_text
 from priqn.analysis import curves, inference, questions
+from priqn.analysis.curves import CURVE_REPS, CURVE_SEED
+from priqn.analysis.figures import efficiency_figure, looks_figure
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
+from priqn.analysis.questions_outcomes import outcome_sections
 from priqn.analysis.render import markdown_table
-from priqn.analysis.request import ReportRequest, report_command
-from priqn.analysis.sequential import Looks
-from priqn.analysis.sequential_report import CURVE_REPS, CURVE_SEED, looks_figure, row_verdict
+from priqn.analysis.sections import Report, Section
+from priqn.analysis.sequential import Looks, row_verdict
 from priqn.experiment import Experiment, SequentialSpec
 from priqn.run.evaluations import evaluated, evaluation_dir, kept_evaluations, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
@@ -190,42 +191,6 @@ def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
     )
     fig.tight_layout()
     return fig
-
-
-def report_markdown(
-    exp: Experiment,
-    comparisons: pd.DataFrame,
-    looks: pd.DataFrame,
-    budgets: pd.DataFrame,
-    changes: pd.DataFrame,
-    command: str,
-    descriptive: Sequence[str] = (),
-    scores: pd.DataFrame | None = None,
-) -> str:
-    """``report.md`` of an experiment with questions (``descriptive``: the lines of the
-    outcome-mix, outcome-by-manoeuvre and Table I sections,
-    :func:`priqn.analysis.questions_outcomes.outcome_sections`, and the sample-efficiency
-    section, :func:`_efficiency_lines`; ``scores``: every question's counted cells,
-    ``tables/scores.csv``, for the "Cells" section)."""
-    e = exp.experiment
-    lines = [
-        f"# {e.name}: pre-registered questions",
-        "",
-        f"Made by `{command}` from the cells' run folders and the design in `{exp.path.name}` "
-        "(committed before any of its own cells trained).",
-        "",
-        f"{e.description}",
-        "",
-        *_verdict_lines(comparisons),
-        *_question_lines(exp, looks),
-        *_budget_lines(budgets),
-        *_change_lines(changes),
-        "![per-seed endpoints](figures/questions.png)",
-        "",
-        *descriptive,
-        *_cells_lines(scores if scores is not None else pd.DataFrame()),
-    ]
-    return "\n".join(lines)
 
 
 def _cells_lines(scores: pd.DataFrame) -> list[str]:
@@ -615,35 +580,52 @@ def design_tables(exp: Experiment) -> DesignTables:
     return DesignTables(all_scores, comparisons, looks, budgets, changes, scores_by_q, results)
 
 
-def write_report(exp: Experiment, out_dir: str | Path, command: str | None = None) -> Path:
-    """Write the questions' report into ``out_dir``; returns ``report.md``. ``command``:
-    the one recorded (by default :func:`priqn.analysis.request.report_command`'s)."""
-    from priqn.analysis.artifacts import ReportFolder
-    from priqn.analysis.figures import efficiency_figure
-    from priqn.analysis.questions_outcomes import outcome_sections
-
-    folder = ReportFolder.open(out_dir)
-    if command is None:
-        command = report_command(ReportRequest(exp.runs_dir, Path(out_dir), exp), "questions")
+def questions_report(exp: Experiment, command: str) -> Report:
+    """The questions' report (kind ``questions``); ``command``: the one that regenerates it."""
     t = design_tables(exp)
-    for name in DesignTables.CSV:
-        folder.table(name, getattr(t, name))
-    folder.figure("questions", figure(exp, t.by_question))
-    monitoring = looks_figure(t.results, f"{exp.experiment.name}: each comparison look by look")
-    if monitoring is not None:
-        folder.figure("looks", monitoring)
-    if len(t.budgets):
-        folder.figure("outcomes_by_budget", budget_outcomes_figure(t.budgets))
-        folder.figure("budget_seeds", budget_seeds_figure(t.budgets))
+    e = exp.experiment
+    monitoring = looks_figure(t.results, f"{e.name}: each comparison look by look")
     efficiency = _efficiency(exp)
-    if efficiency.drawn:
-        folder.table("sample_efficiency", efficiency.curve)
-        folder.figure("sample_efficiency", efficiency_figure(efficiency.curve, efficiency.agents))
-    descriptive = [*outcome_sections(exp, t.scores, folder), *_efficiency_lines(efficiency)]
-    text = report_markdown(
-        exp, t.comparisons, t.looks, t.budgets, t.budget_changes, command, descriptive, t.scores
+    head = Section(
+        [
+            f"# {e.name}: pre-registered questions",
+            "",
+            f"Made by `{command}` from the cells' run folders and the design in "
+            f"`{exp.path.name}` (committed before any of its own cells trained).",
+            "",
+            f"{e.description}",
+            "",
+        ],
+        tables={name: getattr(t, name) for name in DesignTables.CSV},
     )
-    report = folder.text("report.md", text)
+    budget_figures = (
+        {"outcomes_by_budget": budget_outcomes_figure(t.budgets),
+         "budget_seeds": budget_seeds_figure(t.budgets)}
+        if len(t.budgets) else {}
+    )  # fmt: skip
+    sections = [
+        head,
+        Section(_verdict_lines(t.comparisons)),
+        Section(
+            _question_lines(exp, t.looks),
+            figures={} if monitoring is None else {"looks": monitoring},
+        ),
+        Section(_budget_lines(t.budgets), figures=budget_figures),
+        Section(_change_lines(t.budget_changes)),
+        Section(
+            ["![per-seed endpoints](figures/questions.png)", ""],
+            figures={"questions": figure(exp, t.by_question)},
+        ),
+        *outcome_sections(exp, t.scores),
+        Section(
+            _efficiency_lines(efficiency),
+            tables={"sample_efficiency": efficiency.curve} if efficiency.drawn else {},
+            figures={"sample_efficiency": efficiency_figure(efficiency.curve, efficiency.agents)}
+            if efficiency.drawn
+            else {},
+        ),
+        Section(_cells_lines(t.scores)),
+    ]
     looks = t.looks
     fields = {
         "verdicts": {r.comparison: r.verdict for r in t.comparisons.itertuples()},
@@ -655,5 +637,4 @@ def write_report(exp: Experiment, out_dir: str | Path, command: str | None = Non
         },
         "cells": {q: len(s) for q, s in t.by_question.items()},
     }
-    folder.meta("questions", command, exp.experiment.name, fields)
-    return report
+    return Report("questions", "report.md", sections, command, e.name, fields)

@@ -27,7 +27,7 @@ from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
 from priqn.io import read_json
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluation_dir, recorded_eval_status
-from priqn.run.folder import RunFolder
+from priqn.run.folder import RunFolder, Status
 
 ENV_NEUTRAL_FIELDS: frozenset[str] = SCENE_NEUTRAL_FIELDS | {"ego_driver"}
 """EnvConfig fields a reference's env may differ in from the runs' (who drives is the point)."""
@@ -75,7 +75,7 @@ def load_references(
     run_env = _runs_env(evaluation)
     for d in dirs:
         folder = RunFolder(d)
-        if recorded_eval_status(folder) != "complete":
+        if recorded_eval_status(folder) != Status.COMPLETE:
             raise PriqnError(
                 f"{folder.path}: no complete reference evaluation in {folder.eval_dir.name}/; make "
                 f"one with 'priqn evaluate --reference sumo --out {folder.path}' (the runs' settings)"
@@ -104,7 +104,7 @@ def load_references(
         infos.append(info)
         for group in groups:
             name = f"{NETS_PREFIX}{group.nets_hash[:NETS_HASH_CHARS]}"
-            if recorded_eval_status(folder, name) != "complete":
+            if recorded_eval_status(folder, name) != Status.COMPLETE:
                 continue
             nets_frame, nets_info = read_evaluation(
                 str(d), folder.path, evaluation_dir(folder, name), reference=True

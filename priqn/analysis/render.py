@@ -1,11 +1,11 @@
 """How every report renders what it computed: CSV text and Markdown tables, one way each.
 
-The report writers (:mod:`priqn.analysis.report`, ``sequential_report``,
+The report kinds (:mod:`priqn.analysis.report`, ``sequential_report``,
 ``questions_report``, ``calibration``, ``horizon``, ``mechanism``, ``standstill``,
-``generalisation``) choose their columns and format their cells; the shape of the text is
-decided here, so a committed CSV or table reads the same whichever report made it. Every
-file is written by :mod:`priqn.analysis.artifacts` (a report's through ``ReportFolder``, a
-CSV outside any report through its ``write_csv``); nothing here writes.
+``collisions``, ``design_report``) choose their columns and format their cells; the shape
+of the text is decided here, so a committed CSV or table reads the same whichever report
+made it. Every file is written by :mod:`priqn.analysis.artifacts` (a report's by its
+``render``, a CSV outside any report by its ``write_csv``); nothing here writes.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 evaluated runs (``priqn report`` on a folder of runs that is no design's; the choice is
 :func:`priqn.analysis.reports.choose_kind`'s).
 
-``make_report(runs_dir, out_dir, seed=0)`` writes, through a
-:class:`~priqn.analysis.artifacts.ReportFolder`::
+:func:`grid_report` builds its sections (``make_report(runs_dir, out_dir, seed=0)`` renders
+them, :func:`priqn.analysis.artifacts.render`)::
 
     out_dir/report.md                 everything at a glance
     out_dir/meta.json                 inputs (runs, hold-out hash), seed, reps, command
@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, Any
 
 from priqn.analysis.render import markdown_table
 from priqn.analysis.request import DEFAULT_REPS, ReportRequest, report_command
+from priqn.analysis.sections import Report, Section
 from priqn.run.folder import RunFolder
 
 if TYPE_CHECKING:
-    from priqn.analysis.artifacts import ReportFolder
     from priqn.analysis.curves import Efficiency
 
 MIN_SEEDS_FOR_STATISTICS = 2
@@ -242,27 +242,6 @@ def compute_statistics(
     return ReportStatistics(rliable, claims.evaluate_claims(inputs.episodes, seed))
 
 
-def draw_figures(
-    inputs: ReportInputs, tabs: ReportTables, stats: ReportStatistics
-) -> dict[str, Any]:
-    """Every figure by file stem but the sample-efficiency one (:func:`efficiency_of`)."""
-    from priqn.analysis import figures
-
-    out: dict[str, Any] = {}
-    if stats.rliable:
-        sr = stats.rliable["success"]
-        out["probability_of_improvement"] = figures.probability_of_improvement_figure(sr)
-        out["iqm_optimality_gap"] = figures.aggregates_figure(stats.rliable)
-        out["performance_profile"] = figures.performance_profile_figure(sr)
-    out["seeds"] = figures.seed_success_figure(inputs.episodes, tabs.order)
-    out["outcomes_by_command"] = figures.outcomes_figure(
-        tabs.outcomes, tabs.order + tabs.reference_order
-    )
-    if stats.claims_checked:
-        out["claims"] = figures.claims_figure(stats.claims)
-    return {k: v for k, v in out.items() if v is not None}
-
-
 def efficiency_of(inputs: ReportInputs, tabs: ReportTables, reps: int, seed: int) -> Efficiency:
     """The sample-efficiency section (:func:`priqn.analysis.curves.efficiency`) of every
     run's own policy (controls share their run's training: no curve of their own), rows in
@@ -278,41 +257,29 @@ def efficiency_of(inputs: ReportInputs, tabs: ReportTables, reps: int, seed: int
     return curves.efficiency(cells, agents, reps, seed)
 
 
-def write_tables(folder: ReportFolder, tabs: ReportTables, stats: ReportStatistics) -> None:
-    """``tables/``: Markdown, LaTeX and CSV of Tables I/II; rliable and claims CSVs."""
+def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> Section:
+    """The rliable section: its statistics' tables and figures (none with too few seeds)."""
     import pandas as pd
 
-    from priqn.analysis import claims_report, tables
+    from priqn.analysis import figures
 
-    for name, table in (("table2", tabs.table2), ("table1", tabs.table1)):
-        folder.text(f"tables/{name}.md", tables.to_markdown(table))
-        folder.text(f"tables/{name}.tex", tables.to_latex(table))
-        folder.text(f"tables/{name}.csv", tables.to_csv(table))
-    if stats.rliable:
+    if not stats.rliable:
+        return Section(["## rliable", "", f"Not computed. {inputs.unranked_why}", ""])
+    frames = {
+        name: pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
         for name, part in (
             ("rliable_aggregates", "aggregates"),
             ("probability_of_improvement", "improvement"),
             ("performance_profiles", "profiles"),
-        ):
-            frame = pd.concat([getattr(r, part).assign(metric=m) for m, r in stats.rliable.items()])
-            folder.table(name, frame)
-    folder.table("outcomes_by_command", tabs.outcomes)
-    if tabs.generalisation:
-        from priqn.analysis.generalisation import table_markdown
-
-        for nets, table in tabs.generalisation:
-            stem = f"generalisation_{nets.short_hash}"
-            folder.text(f"tables/{stem}.md", table_markdown(table))
-            folder.table(stem, table)
-    if stats.claims_checked:
-        folder.table("claims", claims_report.to_frame(stats.claims))
-
-
-def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatistics) -> list[str]:
-    """Markdown lines of the rliable section."""
-    if not stats.rliable:
-        return ["## rliable", "", f"Not computed. {inputs.unranked_why}", ""]
-    return [
+        )
+    }
+    sr = stats.rliable["success"]
+    drawn = {
+        "probability_of_improvement": figures.probability_of_improvement_figure(sr),
+        "iqm_optimality_gap": figures.aggregates_figure(stats.rliable),
+        "performance_profile": figures.performance_profile_figure(sr),
+    }
+    lines = [
         "## rliable (descriptive)",
         "",
         "One score per training seed and task (evaluation runs averaged within a seed); the "
@@ -331,14 +298,23 @@ def _rliable_section(inputs: ReportInputs, order: list[str], stats: ReportStatis
         "![Performance profile](figures/performance_profile.png) ([pdf](figures/performance_profile.pdf))",
         "",
     ]
+    return Section(lines, tables=frames, figures=drawn)
 
 
-def _generalisation_section(tabs: ReportTables) -> str:
-    """The "Generalisation" section (evaluations on other nets), one table per set of nets."""
-    from priqn.analysis.generalisation import section_markdown
+def _generalisation_section(tabs: ReportTables) -> Section:
+    """The "Generalisation" section (evaluations on other nets), one table per set of nets;
+    empty when the runs were evaluated on no other nets."""
+    from priqn.analysis.generalisation import section_markdown, table_markdown
 
+    if not tabs.generalisation:
+        return Section([])
     groups = [g for g, _ in tabs.generalisation]
-    return section_markdown(groups, [t for _, t in tabs.generalisation])
+    stems = {f"generalisation_{nets.short_hash}": table for nets, table in tabs.generalisation}
+    return Section(
+        [section_markdown(groups, [t for _, t in tabs.generalisation])],
+        tables=stems,
+        files={f"tables/{stem}.md": table_markdown(table) for stem, table in stems.items()},
+    )
 
 
 def _row_notes(inputs: ReportInputs, tabs: ReportTables) -> list[str]:
@@ -363,17 +339,21 @@ def _row_notes(inputs: ReportInputs, tabs: ReportTables) -> list[str]:
     return md
 
 
-def _curves_section(has_curves: bool, seed: int, reps: int) -> list[str]:
+def _curves_section(efficiency: Efficiency, seed: int, reps: int) -> Section:
     """The "Sample-efficiency curves" section (:mod:`priqn.analysis.curves`)."""
-    if not has_curves:
-        return [
-            "## Sample-efficiency curves",
-            "",
-            "No run has an in-training evaluation or a full evaluation with a known "
-            "budget; no curves.",
-            "",
-        ]
-    return [
+    from priqn.analysis.figures import efficiency_figure
+
+    if not efficiency.drawn:
+        return Section(
+            [
+                "## Sample-efficiency curves",
+                "",
+                "No run has an in-training evaluation or a full evaluation with a known "
+                "budget; no curves.",
+                "",
+            ]
+        )
+    lines = [
         "## Sample-efficiency curves",
         "",
         "Hold-out success against training decisions, per row: the mean over training "
@@ -391,6 +371,11 @@ def _curves_section(has_curves: bool, seed: int, reps: int) -> list[str]:
         "([pdf](figures/learning_curves.pdf))",
         "",
     ]
+    return Section(
+        lines,
+        tables={"sample_efficiency": efficiency.curve},
+        figures={"learning_curves": efficiency_figure(efficiency.curve, efficiency.agents)},
+    )
 
 
 def _inputs_section(inputs: ReportInputs) -> list[str]:
@@ -416,29 +401,29 @@ def _inputs_section(inputs: ReportInputs) -> list[str]:
     ]
 
 
-def report_markdown(
+def report_sections(
     inputs: ReportInputs,
     tabs: ReportTables,
     stats: ReportStatistics,
-    has_curves: bool,
+    efficiency: Efficiency,
     cmd: str,
     seed: int,
     reps: int,
-) -> str:
-    """``report.md``: everything at a glance, in reading order."""
-    md = [
-        *_header_section(inputs, tabs, stats, cmd, seed, reps),
-        *_tables_section(tabs),
-        *([_generalisation_section(tabs)] if tabs.generalisation else []),
-        *(_claims_section(stats, seed) if stats.claims_checked else []),
-        *_rliable_section(inputs, tabs.order, stats),
-        *_curves_section(has_curves, seed, reps),
-        *_inputs_section(inputs),
-    ]
+) -> list[Section]:
+    """``report.md``'s sections, everything at a glance, in reading order."""
+    closing = ["Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.", ""]
     if inputs.notes:
-        md += ["## Notes", "", *[f"- {n}" for n in inputs.notes], ""]
-    md += ["Files: `tables/` (Markdown, LaTeX, CSV), `figures/` (PNG, PDF), `meta.json`.", ""]
-    return "\n".join(md)
+        closing = ["## Notes", "", *[f"- {n}" for n in inputs.notes], "", *closing]
+    return [
+        Section(_header_section(inputs, tabs, stats, cmd, seed, reps)),
+        _tables_section(inputs, tabs),
+        _generalisation_section(tabs),
+        _claims_section(stats, seed) if stats.claims_checked else Section([]),
+        _rliable_section(inputs, tabs.order, stats),
+        _curves_section(efficiency, seed, reps),
+        Section(_inputs_section(inputs)),
+        Section(closing),
+    ]
 
 
 def _header_section(
@@ -494,11 +479,24 @@ def _header_section(
     ]
 
 
-def _tables_section(tabs: ReportTables) -> list[str]:
-    """Table II, how episodes end, and Table I, each with its figure."""
-    from priqn.analysis import tables
+def _tables_section(inputs: ReportInputs, tabs: ReportTables) -> Section:
+    """Table II, how episodes end, and Table I, each with its figure; Tables I/II as
+    Markdown, LaTeX and CSV."""
+    from priqn.analysis import figures, tables
 
-    return [
+    files = {
+        f"tables/{name}.{ext}": write(table)
+        for name, table in (("table2", tabs.table2), ("table1", tabs.table1))
+        for ext, write in (("md", tables.to_markdown), ("tex", tables.to_latex),
+                           ("csv", tables.to_csv))
+    }  # fmt: skip
+    drawn = {
+        "seeds": figures.seed_success_figure(inputs.episodes, tabs.order),
+        "outcomes_by_command": figures.outcomes_figure(
+            tabs.outcomes, tabs.order + tabs.reference_order
+        ),
+    }
+    lines = [
         "## Table II — driving metrics",
         "",
         tables.to_markdown(tabs.table2),
@@ -518,19 +516,58 @@ def _tables_section(tabs: ReportTables) -> list[str]:
         "",
         tables.to_markdown(tabs.table1),
     ]
+    drawn = {k: v for k, v in drawn.items() if v is not None}
+    return Section(lines, tables={"outcomes_by_command": tabs.outcomes}, figures=drawn, files=files)
 
 
-def _claims_section(stats: ReportStatistics, seed: int) -> list[str]:
+def _claims_section(stats: ReportStatistics, seed: int) -> Section:
     """The "The paper's claims" section (:mod:`priqn.analysis.claims_report`)."""
-    from priqn.analysis import claims_report
+    from priqn.analysis import claims_report, figures
 
-    return [
+    fig = figures.claims_figure(stats.claims)
+    lines = [
         "## The paper's claims",
         "",
         claims_report.to_markdown(stats.claims, seed),
         "![The claims](figures/claims.png) ([pdf](figures/claims.pdf))",
         "",
     ]
+    return Section(
+        lines,
+        tables={"claims": claims_report.to_frame(stats.claims)},
+        figures={} if fig is None else {"claims": fig},
+    )
+
+
+def grid_report(
+    runs_dir: str | Path,
+    command: str,
+    seed: int = 0,
+    reps: int = DEFAULT_REPS,
+    min_seeds: int | None = None,
+    partial: bool = False,
+    references: tuple[str | Path, ...] = (),
+    experiment: str | None = None,
+) -> Report:
+    """The report of every evaluated run under ``runs_dir`` (kind ``grid``).
+
+    load → tables → statistics → sections. ``min_seeds``: refuse when a policy has
+    fewer training seeds. ``seed`` goes to ``np.random.seed`` before every rliable call
+    and seeds Monte-Carlo permutation tests (recorded in the report). ``partial``: report
+    the fully evaluated runs of a grid still running, and say which were left out.
+    ``references``: reference-driver folders shown as unranked rows
+    (:mod:`priqn.analysis.reference`); none leaves the report as it was. ``command``: the
+    one recorded; ``experiment``: the experiment's name for ``meta.json`` (None: no
+    experiment's runs).
+    """
+    inputs = load_inputs(runs_dir, partial, min_seeds, tuple(references))
+    tabs = build_tables(inputs)
+    stats = compute_statistics(inputs, tabs.order, reps, seed)
+    efficiency = efficiency_of(inputs, tabs, reps, seed)
+    inputs.notes.extend(efficiency.notes)
+    sections = report_sections(inputs, tabs, stats, efficiency, command, seed, reps)
+    meta = _meta(inputs, tabs, seed, reps, min_seeds)
+    return Report("grid", "report.md", sections, command, experiment, meta)
 
 
 def make_report(
@@ -544,33 +581,11 @@ def make_report(
     references: tuple[str | Path, ...] = (),
     experiment: str | None = None,
 ) -> Path:
-    """Write the report for every evaluated run under ``runs_dir``; returns ``report.md``.
+    """:func:`grid_report` rendered into ``out_dir`` (for use from Python); returns
+    ``report.md``. ``command``: the one recorded (by default
+    :func:`priqn.analysis.request.report_command`'s)."""
+    from priqn.analysis.artifacts import render
 
-    load → tables → statistics → figures → write. ``min_seeds``: refuse when a policy has
-    fewer training seeds. ``seed`` goes to ``np.random.seed`` before every rliable call
-    and seeds Monte-Carlo permutation tests (recorded in the report). ``partial``: report
-    the fully evaluated runs of a grid still running, and say which were left out.
-    ``references``: reference-driver folders shown as unranked rows
-    (:mod:`priqn.analysis.reference`); none leaves the report as it was. ``command``: the
-    one recorded (by default :func:`priqn.analysis.request.report_command`'s);
-    ``experiment``: the experiment's name for ``meta.json`` (None: no experiment's runs).
-    """
-    from priqn.analysis.artifacts import ReportFolder
-    from priqn.analysis.figures import efficiency_figure
-
-    folder = ReportFolder.open(out_dir)
-    inputs = load_inputs(runs_dir, partial, min_seeds, tuple(references))
-    tabs = build_tables(inputs)
-    stats = compute_statistics(inputs, tabs.order, reps, seed)
-    efficiency = efficiency_of(inputs, tabs, reps, seed)
-    inputs.notes.extend(efficiency.notes)
-
-    write_tables(folder, tabs, stats)
-    for name, fig in draw_figures(inputs, tabs, stats).items():
-        folder.figure(name, fig)
-    if efficiency.drawn:
-        folder.table("sample_efficiency", efficiency.curve)
-        folder.figure("learning_curves", efficiency_figure(efficiency.curve, efficiency.agents))
     if command is None:
         request = ReportRequest(
             Path(runs_dir),
@@ -582,10 +597,10 @@ def make_report(
             references=tuple(str(r) for r in references),
         )
         command = report_command(request, "grid")
-    text = report_markdown(inputs, tabs, stats, efficiency.drawn, command, seed, reps)
-    report = folder.text("report.md", text)
-    folder.meta("grid", command, experiment, _meta(inputs, tabs, seed, reps, min_seeds))
-    return report
+    report = grid_report(
+        runs_dir, command, seed, reps, min_seeds, partial, tuple(references), experiment
+    )
+    return render(out_dir, report)
 
 
 def _meta(

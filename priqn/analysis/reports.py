@@ -1,11 +1,12 @@
 """Every kind of report, and the one place a report's kind is chosen.
 
 :data:`REPORTS` names each kind (the ``kind`` of its ``meta.json``, :mod:`priqn.analysis.artifacts`)
-with the module that writes it. ``priqn report`` and ``priqn sweep`` both go through
+with the function that builds its sections (:mod:`priqn.analysis.sections`). ``priqn report`` and ``priqn sweep`` both go through
 :func:`write_report`: a :class:`~priqn.analysis.request.ReportRequest` (the runs folder,
 the output folder and the options) gets its kind from :func:`choose_kind`, its
 ``meta.json`` command from :func:`~priqn.analysis.request.report_command` (the one builder
-of that string) and is written by the kind's writer::
+of that string); the kind's report is built, then rendered by the one renderer
+(:func:`priqn.analysis.artifacts.render`)::
 
     --evaluation NAME             evaluation    priqn.analysis.design_report
     --horizon N,...               horizon       priqn.analysis.horizon
@@ -35,55 +36,52 @@ from priqn.io import removed_on_failure
 @dataclasses.dataclass(frozen=True)
 class ReportKind:
     """One kind of report: its name (``meta.json``'s ``kind``), what it shows, and how it is
-    made: built from sections (``build``) or, for the kinds not yet moved to sections,
-    written by its own module (``write``)."""
+    built from sections (``build``)."""
 
     name: str
+    """``meta.json``'s ``kind``."""
     summary: str
-    build: Callable[..., Report] | None = None
+    """What it shows, in a few words."""
+    build: Callable[..., Report]
     """The kind's :class:`~priqn.analysis.sections.Report`, rendered by
     :func:`priqn.analysis.artifacts.render`: ``build(request, command)`` for a kind of
     ``priqn report``, ``build(<the replayed cells>, ..., command)`` for one of ``priqn
     mechanism`` (:mod:`priqn.tools` replays, then builds)."""
-    write: Callable[[ReportRequest, str], Path] | None = None
-    """``write(request, command)`` -> the report's Markdown, for the kinds that still write
-    their own folder through :class:`~priqn.analysis.artifacts.ReportFolder`."""
     made_by: str = "priqn report"
     """The command that makes it: ``priqn report`` or ``priqn mechanism``."""
 
 
-def _grid(request: ReportRequest, command: str) -> Path:
-    from priqn.analysis.report import make_report
+def _grid(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.report import grid_report
 
-    return make_report(
+    return grid_report(
         request.runs,
-        request.out,
+        command,
         seed=request.seed,
         reps=request.reps,
         min_seeds=request.min_seeds,
-        command=command,
         partial=request.partial,
         references=request.references,
         experiment=request.experiment_name,
     )
 
 
-def _sequential(request: ReportRequest, command: str) -> Path:
-    from priqn.analysis import sequential_report
+def _sequential(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.sequential_report import sequential_report
 
-    return sequential_report.write_report(request.experiment, request.out, command)
-
-
-def _questions(request: ReportRequest, command: str) -> Path:
-    from priqn.analysis import questions_report
-
-    return questions_report.write_report(request.experiment, request.out, command)
+    return sequential_report(request.experiment, command)
 
 
-def _calibration(request: ReportRequest, command: str) -> Path:
-    from priqn.analysis import calibration
+def _questions(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.questions_report import questions_report
 
-    return calibration.write_report(request.experiment, request.out, command)
+    return questions_report(request.experiment, command)
+
+
+def _calibration(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.calibration import calibration_report
+
+    return calibration_report(request.experiment, command)
 
 
 def _evaluation(request: ReportRequest, command: str) -> Report:
@@ -119,12 +117,10 @@ def _horizon(request: ReportRequest, command: str) -> Report:
 REPORTS: dict[str, ReportKind] = {
     kind.name: kind
     for kind in (
-        ReportKind("grid", "Tables I and II, rliable statistics, the claims", write=_grid),
-        ReportKind("sequential", "a [sequential] table's looks and verdicts", write=_sequential),
-        ReportKind("questions", "[[question]] tables' looks and verdicts", write=_questions),
-        ReportKind(
-            "calibration", "the row whose outcome mix is nearest a target", write=_calibration
-        ),
+        ReportKind("grid", "Tables I and II, rliable statistics, the claims", _grid),
+        ReportKind("sequential", "a [sequential] table's looks and verdicts", _sequential),
+        ReportKind("questions", "[[question]] tables' looks and verdicts", _questions),
+        ReportKind("calibration", "the row whose outcome mix is nearest a target", _calibration),
         ReportKind("horizon", "the runs at longer evaluation-only episode limits", _horizon),
         ReportKind("evaluation", "an evaluation design's questions on another family", _evaluation),
         # Built from replayed decisions by `priqn mechanism` (priqn.tools replays the cells,
@@ -192,17 +188,11 @@ def write_report(request: ReportRequest) -> Path:
     :func:`report_command`; returns the report's Markdown file. A report refused (no runs,
     an unevaluated one, ...) leaves no empty output folder it made."""
     kind = choose_kind(request)
-    chosen = REPORTS[kind]
-    command = report_command(request, kind)
-    if chosen.build is not None:
-        from priqn.analysis.artifacts import render
+    from priqn.analysis.artifacts import render
 
-        report = chosen.build(request, command)  # read and computed before any file is made
-        with removed_on_failure(request.out):
-            return render(request.out, report)
-    assert chosen.write is not None, kind  # choose_kind chooses priqn report's kinds only
+    report = REPORTS[kind].build(request, report_command(request, kind))  # before any file
     with removed_on_failure(request.out):
-        return chosen.write(request, command)
+        return render(request.out, report)
 
 
 def write_experiment_report(exp: Any, out: str | Path) -> Path:

@@ -279,6 +279,14 @@ def verdict(design: SequentialSpec, result: Looks, comparison: ComparisonSpec) -
     return {"a better": "a violates more", "a worse": "a violates less"}.get(word, word)
 
 
+def row_verdict(design: SequentialSpec, result: Looks, comparison: ComparisonSpec) -> str:
+    """The verdict words (:func:`priqn.analysis.sequential.verdict`) as every report prints
+    them: a comparison's first row by its name, not as ``a`` (``iqn better``,
+    ``pr-iqn-qd-tp-eps0.2 violates more``)."""
+    words = verdict(design, result, comparison)
+    return comparison.a + words[1:] if words.startswith("a ") else words
+
+
 def _verdict(result: Looks, comparison: ComparisonSpec) -> str:
     """:func:`verdict` in the success endpoint's words."""
     decision = result.decisions[comparison.name]

@@ -1,8 +1,8 @@
 """The report of a ``[sequential]`` table (kind ``sequential``, the one-question layout),
 from its looks.
 
-:func:`write_report` writes through a :class:`~priqn.analysis.artifacts.ReportFolder`,
-deterministically (the same committed cells give the same bytes): ``report.md``
+:func:`sequential_report` builds its sections (rendered by
+:func:`priqn.analysis.artifacts.render`), deterministically (the same committed cells give the same bytes): ``report.md``
 (verdicts, each look, per-density success, the next cells, every cell),
 ``tables/scores.csv`` / ``looks.csv`` / ``density.csv`` / ``sample_efficiency.csv`` and
 ``figures/headline`` (per-seed success of each row), ``figures/looks`` (each comparison
@@ -16,26 +16,22 @@ their own layout, :mod:`priqn.analysis.questions_report`; the choice is
 from __future__ import annotations
 
 import dataclasses
-import textwrap
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from priqn.analysis import inference, questions
+from priqn.analysis import curves, inference, questions
+from priqn.analysis.curves import CURVE_REPS, CURVE_SEED
+from priqn.analysis.figures import efficiency_figure, looks_figure
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
 from priqn.analysis.render import markdown_table
-from priqn.analysis.request import ReportRequest, report_command
-from priqn.analysis.sequential import ComparisonLook, Look, Looks, relative_path, verdict
-from priqn.experiment import ComparisonSpec, SequentialSpec, cell_dir_name
+from priqn.analysis.sections import Report, Section
+from priqn.analysis.sequential import ComparisonLook, Looks, relative_path, row_verdict
+from priqn.experiment import cell_dir_name
 from priqn.run.folder import RunFolder
 
-CURVE_SEED = 0
-"""``np.random.seed`` before each rliable call of the sample-efficiency curves (recorded)."""
-CURVE_REPS = 2000
-"""Bootstrap replications of the sample-efficiency curves' intervals."""
 PAPER_TRAINING_DECISIONS = 2_000_000
 """The paper's training budget per run (``priqn/presets/train_paper.toml`` total_steps)."""
 SCORE_COLUMNS: tuple[str, ...] = ("policy", "seed", "score", "episodes", "git_sha", "run_dir")
@@ -96,14 +92,6 @@ def looks_frame(result: Looks) -> pd.DataFrame:
     fields = [f.name for f in dataclasses.fields(ComparisonLook)]
     columns = ["look", *fields, "level_spent", "needed"]
     return pd.DataFrame(rows, columns=columns).astype({"decided_at": "Int64"})
-
-
-def row_verdict(design: SequentialSpec, result: Looks, comparison: ComparisonSpec) -> str:
-    """The verdict words (:func:`priqn.analysis.sequential.verdict`) as every report prints
-    them: a comparison's first row by its name, not as ``a`` (``iqn better``,
-    ``pr-iqn-qd-tp-eps0.2 violates more``)."""
-    words = verdict(design, result, comparison)
-    return comparison.a + words[1:] if words.startswith("a ") else words
 
 
 def figure(exp: Any, scores: pd.DataFrame) -> Any:
@@ -177,102 +165,6 @@ def figure(exp: Any, scores: pd.DataFrame) -> Any:
     return fig
 
 
-def looks_figure(designs: Sequence[tuple[SequentialSpec, Looks]], title: str) -> Any:
-    """The monitoring chart of one or more designs (the ``[sequential]`` table, or each
-    ``[[question]]`` with its looks): one panel per comparison, its estimate at each look
-    taken (dot, Welch 95 % interval) inside the band AdaStop would not decide at that look
-    (grey, ±the look's ``needed``), with 0 and the paper's difference marked. A dot outside
-    its band is a difference found (orange); AdaStop's "equal" at the last look stays
-    black; the looks still to come are empty slots. A question's panels name it
-    (``success: ...``). None before the first look of any design."""
-    from priqn.analysis.figures import plt
-
-    panels = [(d, r, c) for d, r in designs if r.looks for c in d.comparisons]
-    if not panels:
-        return None
-    ncols = min(2, len(panels))
-    nrows = -(-len(panels) // ncols)
-    fig, axes = plt.subplots(
-        nrows, ncols, figsize=(3.9 * ncols, 2.5 * nrows + 0.6), sharey=True, squeeze=False
-    )
-    for ax, (design, result, c) in zip(axes.flat, panels, strict=False):
-        K = len(design.interims)
-        ax.axhline(0, color="0.6", lw=0.8)
-        if c.paper_difference is not None:
-            ax.axhline(100 * c.paper_difference, color="tab:red", ls="--", lw=1)
-        for look in result.looks:
-            _draw_look(ax, look, c)
-        ax.set_xticks(range(1, K + 1), [f"{n}" for n in design.interims], fontsize=8)
-        ax.set_xlim(0.4, K + 0.6)
-        ax.set_xlabel("seeds per row at the look", fontsize=8)
-        name = f"{design.name}: {c.name}" if design.name else c.name
-        ax.set_title(textwrap.fill(f"{name}: {row_verdict(design, result, c)}", 58), fontsize=8)
-        ax.tick_params(axis="y", labelsize=8)
-    for ax in axes.flat[len(panels) :]:
-        ax.set_visible(False)
-    for ax in axes[:, 0]:
-        ax.set_ylabel("difference, points", fontsize=8)
-    _looks_legend(fig, title)
-    return fig
-
-
-def _draw_look(ax: Any, look: Look, c: ComparisonSpec) -> None:
-    """Comparison ``c`` at one look of :func:`looks_figure`: the band AdaStop would not
-    decide in (while ``c`` is open, and at the look that decides it), then the estimate
-    with its Welch interval, orange once a difference is found."""
-    row = next(x for x in look.comparisons if x.name == c.name)
-    needed = look.needed.get(c.family)
-    if needed is not None and row.decided_at in (None, look.k):
-        if np.isfinite(needed):
-            ax.fill_between(
-                [look.k - 0.3, look.k + 0.3],
-                -100 * needed,
-                100 * needed,
-                color="0.88",
-                lw=0,
-                zorder=0,
-            )
-        else:  # too few splits to reject anything: the whole column
-            ax.axvspan(look.k - 0.3, look.k + 0.3, color="0.88", lw=0, zorder=0)
-    # Orange once AdaStop has found a difference (its decision after this look);
-    # "equal" at the last look is no difference found: black, inside its band.
-    decided = row.decision in ("larger", "smaller")
-    ax.errorbar(
-        look.k,
-        100 * row.diff,
-        yerr=[[100 * (row.diff - row.lo)], [100 * (row.hi - row.diff)]],
-        fmt="o",
-        color="tab:orange" if decided else "black",
-        ms=4,
-        lw=1,
-        capsize=2,
-    )
-
-
-def _looks_legend(fig: Any, title: str) -> None:
-    """The title and one legend row above the panels of :func:`looks_figure`: estimate,
-    difference found, undecided band, paper's difference."""
-    from priqn.analysis.figures import plt
-
-    handles = [
-        plt.Line2D([], [], color="black", marker="o", ms=4, lw=1, label="estimate, 95 % Welch"),
-        plt.Line2D([], [], color="tab:orange", marker="o", ms=4, lw=1, label="difference found"),
-        plt.Rectangle((0, 0), 1, 1, color="0.88", label="not decided at that look"),
-        plt.Line2D([], [], color="tab:red", ls="--", lw=1, label="paper's difference"),
-    ]
-    top = 1 - 0.45 / fig.get_figheight()  # room for the title and the legend's row
-    fig.suptitle(title, y=0.995, fontsize=10)
-    fig.legend(
-        handles=handles,
-        loc="upper center",
-        bbox_to_anchor=(0.5, 1 - 0.3 / fig.get_figheight()),
-        ncol=4,
-        fontsize=7,
-        frameon=False,
-    )
-    fig.tight_layout(rect=(0, 0, 1, top))
-
-
 def _needed(x: float) -> str:
     """A look's boundary in points, or why the look could not reject."""
     return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
@@ -332,22 +224,6 @@ def _curves_lines(has_curves: bool) -> list[str]:
         "([pdf](figures/sample_efficiency.pdf))",
         "",
     ]
-
-
-def report_markdown(
-    exp: Any, scores: pd.DataFrame, result: Looks, command: str, has_curves: bool = False
-) -> str:
-    """``report.md`` of a sequential experiment; ``has_curves``: with its sample-efficiency
-    section."""
-    lines = [
-        *_design_lines(exp, command),
-        *_verdict_lines(exp, scores, result),
-        *_looks_lines(exp, scores, result),
-        *_density_lines(density_frame(exp, scores), exp.experiment.steps),
-        *_curves_lines(has_curves),
-        *_next_lines(exp, scores, result),
-    ]
-    return "\n".join(lines + _cells_lines(scores, has_curves))
 
 
 def _design_lines(exp: Any, command: str) -> list[str]:
@@ -499,38 +375,43 @@ def _cells_lines(scores: pd.DataFrame, has_curves: bool) -> list[str]:
     ]
 
 
-def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> Path:
-    """Write the sequential experiment's report into ``out_dir``; returns ``report.md``.
-    ``command``: the one recorded (by default :func:`priqn.analysis.request.report_command`'s).
-
-    Deterministic: the same committed cells give byte-identical files."""
-    from priqn.analysis import curves
-    from priqn.analysis.artifacts import ReportFolder
-    from priqn.analysis.figures import efficiency_figure
-
-    folder = ReportFolder.open(out_dir)
+def sequential_report(exp: Any, command: str) -> Report:
+    """The sequential experiment's report (kind ``sequential``); ``command``: the one that
+    regenerates it. Deterministic: the same committed cells give byte-identical files."""
     scores, result = questions.take_looks(exp, exp.sequential)
     scores = scores[list(SCORE_COLUMNS)]
-    if command is None:
-        command = report_command(ReportRequest(exp.runs_dir, Path(out_dir), exp), "sequential")
-    folder.table("scores", scores)
-    folder.table("looks", looks_frame(result))
-    folder.table("density", density_frame(exp, scores))
-    folder.figure("headline", figure(exp, scores))
-    monitoring = looks_figure(
-        [(exp.sequential, result)], f"{exp.experiment.name}: each comparison look by look"
-    )
-    if monitoring is not None:
-        folder.figure("looks", monitoring)
     group = {p.name: p.group_name for p in exp.policies}
     cells = [(group[r.policy], int(r.seed), Path(r.run_dir)) for r in scores.itertuples()]
     agents = {p.group_name: p.agent for p in exp.policies}
     efficiency = curves.efficiency(cells, agents, CURVE_REPS, CURVE_SEED)
-    if efficiency.drawn:
-        folder.table("sample_efficiency", efficiency.curve)
-        folder.figure("sample_efficiency", efficiency_figure(efficiency.curve, efficiency.agents))
-    text = report_markdown(exp, scores, result, command, efficiency.drawn)
-    report = folder.text("report.md", text)
+    monitoring = looks_figure(
+        [(exp.sequential, result)], f"{exp.experiment.name}: each comparison look by look"
+    )
+    curve = (
+        Section(
+            _curves_lines(True),
+            tables={"sample_efficiency": efficiency.curve},
+            figures={"sample_efficiency": efficiency_figure(efficiency.curve, efficiency.agents)},
+        )
+        if efficiency.drawn
+        else Section([])
+    )
+    sections = [
+        Section(_design_lines(exp, command)),
+        Section(_verdict_lines(exp, scores, result), figures={"headline": figure(exp, scores)}),
+        Section(
+            _looks_lines(exp, scores, result),
+            tables={"looks": looks_frame(result)},
+            figures={} if monitoring is None else {"looks": monitoring},
+        ),
+        Section(
+            _density_lines(density := density_frame(exp, scores), exp.experiment.steps),
+            tables={"density": density},
+        ),
+        curve,
+        Section(_next_lines(exp, scores, result)),
+        Section(_cells_lines(scores, efficiency.drawn), tables={"scores": scores}),
+    ]
     fields = {
         "looks": len(result.looks),
         "decisions": result.decisions,
@@ -542,5 +423,4 @@ def write_report(exp: Any, out_dir: str | Path, command: str | None = None) -> P
     }
     if efficiency.drawn:
         fields["curves"] = {"seed": CURVE_SEED, "reps": CURVE_REPS, "notes": efficiency.notes}
-    folder.meta("sequential", command, exp.experiment.name, fields)
-    return report
+    return Report("sequential", "report.md", sections, command, exp.experiment.name, fields)

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from priqn.analysis.artifacts import ReportFolder, render
+from priqn.analysis.artifacts import render
 from priqn.analysis.decisions import (
     EPISODE_KEYS,
     MECHANISM_ROWS,
@@ -58,7 +58,7 @@ from priqn.analysis.mechanism import (
 )
 from priqn.analysis.standstill import DEFAULT_TARGET
 from priqn.errors import PriqnError
-from priqn.io import removed_on_failure
+from priqn.io import ensure_dir, removed_on_failure
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
 from priqn.tools.cells import ReplayCell, load_cell, replay_scenes, replayed_episodes
@@ -365,9 +365,7 @@ def run(args: argparse.Namespace) -> int:
 def _write(args: argparse.Namespace, cfg: MechanismConfig) -> int:
     """The report ``args`` asks for, into ``args.out``."""
     command = command_line(args)
-    out = ReportFolder.open(
-        args.out
-    ).root  # a folder that cannot be made: one line, before any replay
+    out = ensure_dir(args.out)  # a folder that cannot be made: one line, before any replay
     if args.standstill:
         print(_standstill(args.runs, out, cfg, args.target, command))
         return 0
