@@ -12,14 +12,9 @@ import pytest
 from fake_runs import IQN, write_run
 
 from priqn.analysis.artifacts import render
-from priqn.analysis.horizon import (
-    common_scenes,
-    horizon_report,
-    limit_episodes,
-    mix_table,
-    timeout_table,
-)
+from priqn.analysis.horizon import horizon_report, limit_episodes, timeout_table
 from priqn.analysis.load import load_evaluation
+from priqn.analysis.mixes import common_scenes, mix_table
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import EvalConfig, evaluation_name, limit_of
 
@@ -57,7 +52,7 @@ def test_an_evaluation_only_limit_has_its_own_folder_name() -> None:
 
 def test_mix_and_where_the_timeouts_go_by_hand(tmp_path: Path) -> None:
     episodes = limit_episodes(_runs(tmp_path), [600])
-    mix = mix_table(episodes).set_index(["limit", "density"])
+    mix = mix_table(episodes, "limit").set_index(["limit", "density"])
     assert mix.loc[(100, 0.5), "timeout"] == 0.5 and mix.loc[(100, 0.5), "success"] == 0.5
     assert mix.loc[(600, 1.0), "success"] == 0.75 and mix.loc[(600, 1.0), "collision"] == 0.25
     assert mix.loc[(600, 1.0), "timeout"] == 0.0 and mix.loc[(600, 1.0), "seeds"] == 2
@@ -100,5 +95,7 @@ def test_the_mix_is_over_the_scenes_played_at_every_limit(tmp_path: Path) -> Non
     # own limit's mix is taken over those scenes too (8 per seed, not 16).
     episodes = limit_episodes(_runs(tmp_path), [600])
     short = episodes[episodes["eval_run"] == 0]
-    kept = common_scenes(episodes[(episodes["limit"] == 100) | (episodes["eval_run"] == 0)])
+    kept = common_scenes(
+        episodes[(episodes["limit"] == 100) | (episodes["eval_run"] == 0)], "limit"
+    )
     assert len(kept) == len(short) and set(kept["eval_run"]) == {0}

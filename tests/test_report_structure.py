@@ -132,7 +132,7 @@ def test_no_agents_module_is_over_800_lines() -> None:
 
 REPORT_MODULES = frozenset(
     {"report", "sequential_report", "questions_report", "calibration", "horizon",
-     "design_report", "mechanism", "standstill", "collisions"}
+     "design_report", "mechanism", "standstill", "collisions", "traffic_report"}
 )  # fmt: skip
 """The modules that build a report kind's sections (:data:`REPORTS`' builders)."""
 

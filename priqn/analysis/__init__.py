@@ -49,6 +49,7 @@ Tables, figures and reports:
   :mod:`analysis.questions_outcomes`, its descriptive sections on how the counted cells'
   episodes end;
 - :mod:`analysis.horizon` — the same runs at longer evaluation-only episode limits;
+- :mod:`analysis.traffic_report` — the same runs under another traffic setting;
 - :mod:`analysis.generalisation` — evaluations on other nets (``priqn evaluate --nets``),
   reported apart from Table II;
 - :mod:`analysis.reference` — reference drivers (``priqn evaluate --reference``) as

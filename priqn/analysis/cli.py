@@ -52,6 +52,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "and where the timeouts go (horizon.md, descriptive)",
     )
     parser.add_argument(
+        "--traffic",
+        metavar="NAME",
+        help="instead: the same runs under another traffic setting (priqn evaluate RUN "
+        "--traffic NAME) beside their own evaluation: each row's change paired per seed, the "
+        "rows' difference under each, the outcome mix, scene by scene (traffic.md, descriptive)",
+    )
+    parser.add_argument(
         "--evaluation",
         metavar="NAME",
         help="instead: the report of an evaluation design (evaluations/NAME.toml, e.g. "
@@ -88,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         partial=args.partial,
         references=tuple(args.reference),
         horizon=_limits(args.horizon) if args.horizon else (),
+        traffic=args.traffic,
     )
     print(write_report(request))
     return 0

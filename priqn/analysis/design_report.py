@@ -33,6 +33,7 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
+from priqn.analysis.mixes import paired_changes, seed_rates
 from priqn.analysis.questions import OUTCOME_RATES
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
@@ -69,15 +70,6 @@ class Frames:
     """The family's manifest hash every out-of-range evaluation recorded ('' if none yet)."""
 
 
-def _rates(episodes: pd.DataFrame) -> dict[str, float]:
-    """Each rate of :data:`RATES`: per density, then the mean over densities."""
-    out = {}
-    for name, flags in OUTCOME_RATES.items():
-        hit = episodes[list(flags)].astype(bool).any(axis=1)
-        out[name] = float(hit.groupby(episodes["density"]).mean().mean())
-    return out
-
-
 def read_scores(design: Any, root: str | Path = ".") -> Frames:
     """Every named cell's rates in range and out of range (:class:`Frames`); a cell whose
     evaluations disagree on the traffic or the episode limit is a one-line error."""
@@ -107,11 +99,11 @@ def read_scores(design: Any, root: str | Path = ".") -> Frames:
                 key = {"source": source.experiment, "role": source.role, "row": row,
                        "label": str(episodes["label"].iloc[0]), "seed": int(seed)}  # fmt: skip
                 scores.append({**key, "where": where, "episodes": len(episodes),
-                               **_rates(episodes)})  # fmt: skip
+                               **seed_rates(episodes)})  # fmt: skip
             played = episodes.merge(nets, on="net", how="left")
             for feature in FEATURES:
                 for level, part in played.groupby(feature):
-                    rates = _rates(part)
+                    rates = seed_rates(part)
                     features.append({**key, "feature": feature, "level": level,
                                      "nets": part["net"].nunique(),
                                      "violation": rates["violation"], "success": rates["success"]})  # fmt: skip
@@ -204,24 +196,7 @@ def decide(design: Any, frames: Frames, seed: int) -> list[Verdict]:
 def drops(frames: Frames) -> pd.DataFrame:
     """Per source and row: in range, out of range and the change (out − in) of success and
     violations, the mean of each seed's change with its 95 % t interval, and the seeds."""
-    wide = frames.scores.pivot_table(
-        index=["source", "row", "label", "seed"], columns="where", values=list(ENDPOINTS)
-    )
-    rows = []
-    for (source, row, label), part in wide.groupby(level=["source", "row", "label"], sort=False):
-        record: dict[str, Any] = {"source": source, "row": row, "label": label, "seeds": len(part)}
-        for endpoint in ENDPOINTS:
-            change = (part[(endpoint, WHERE[1])] - part[(endpoint, WHERE[0])]).to_numpy()
-            lo, hi = inference.mean_interval(change)
-            record |= {
-                f"{endpoint}_in": float(part[(endpoint, WHERE[0])].mean()),
-                f"{endpoint}_out": float(part[(endpoint, WHERE[1])].mean()),
-                f"{endpoint}_change": float(change.mean()),
-                f"{endpoint}_change_lo": lo,
-                f"{endpoint}_change_hi": hi,
-            }
-        rows.append(record)
-    return pd.DataFrame(rows)
+    return paired_changes(frames.scores, ["source", "row", "label"], WHERE, ENDPOINTS)
 
 
 def feature_table(frames: Frames) -> pd.DataFrame:

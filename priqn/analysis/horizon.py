@@ -28,6 +28,7 @@ from typing import Any
 import pandas as pd
 
 from priqn.analysis.load import find_run_dirs, read_episodes
+from priqn.analysis.mixes import SCENE_KEY, common_scenes, mix_table, outcome_of
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
@@ -36,9 +37,6 @@ from priqn.io import read_json
 from priqn.objectives import OUTCOMES
 from priqn.run.evaluations import evaluation_dir, recorded_eval_status
 from priqn.run.folder import RunFolder, Status
-
-SCENE_KEY: tuple[str, ...] = ("eval_run", "net", "density", "episode")
-"""Columns that name one scene of the evaluation protocol (the same at every limit)."""
 
 
 def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
@@ -62,33 +60,7 @@ def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
             frames.append(frame)
     if not frames:
         raise PriqnError(f"{runs}: no evaluated runs")
-    return common_scenes(pd.concat(frames, ignore_index=True))
-
-
-def common_scenes(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Only each run's scenes played at every one of its limits (a longer limit may have
-    played fewer, e.g. ``--eval-runs 1``), so that every limit's mix is over the same scenes."""
-    key = ["run", *SCENE_KEY]
-    limits = episodes.groupby("run")["limit"].nunique()
-    counts = episodes.groupby(key)["limit"].nunique().rename("at_limits").reset_index()
-    counts = counts[counts["at_limits"] == counts["run"].map(limits)]
-    return episodes.merge(counts[key], on=key, how="inner")
-
-
-def outcome_of(episodes: pd.DataFrame) -> pd.Series:
-    """The one outcome of each episode (a name of :data:`OUTCOMES`)."""
-    flags = episodes[list(OUTCOMES)].astype(bool)
-    return flags.idxmax(axis=1).where(flags.any(axis=1), "timeout")
-
-
-def mix_table(episodes: pd.DataFrame) -> pd.DataFrame:
-    """``label, limit, density, seeds`` and the share of each outcome: per seed first, then
-    the mean over the row's seeds."""
-    frame = episodes.assign(**{o: episodes[o].astype(bool).astype(float) for o in OUTCOMES})
-    per_seed = frame.groupby(["label", "limit", "density", "train_seed"])[list(OUTCOMES)].mean()
-    table = per_seed.groupby(["label", "limit", "density"]).mean()
-    table["seeds"] = per_seed.groupby(["label", "limit", "density"]).size()
-    return table.reset_index()[["label", "limit", "density", "seeds", *OUTCOMES]]
+    return common_scenes(pd.concat(frames, ignore_index=True), "limit")
 
 
 def timeout_table(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -131,7 +103,7 @@ def horizon_report(
     if not limits or any(n <= 0 for n in limits):
         raise PriqnError(f"--horizon {list(limits)}: expected limits > 0, e.g. 200,600")
     episodes = limit_episodes(runs, limits)
-    mix, moved = mix_table(episodes), timeout_table(episodes)
+    mix, moved = mix_table(episodes, "limit"), timeout_table(episodes)
     own = sorted(set(episodes["own_limit"]))
     sections = [
         _title_section(runs, limits, own, command),

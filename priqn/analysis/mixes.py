@@ -5,16 +5,22 @@ A *mix* is, per evaluation density, the share of episodes ending in each of
 averaged (each seed's first); two mixes are compared by their L1 distance. The
 calibration report (:mod:`priqn.analysis.calibration`) chooses a setting by it, and a
 question report's outcome-mix section (:mod:`priqn.analysis.questions_outcomes`) sets
-each row beside the paper's by it.
+each row beside the paper's by it. The same policies played under two conditions (another
+episode limit, traffic or family) are compared scene by scene (:func:`common_scenes`,
+:func:`outcome_of`) and seed by seed (:func:`seed_rates`, :func:`paired_changes`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pandas as pd
 
+from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
+from priqn.analysis.questions import OUTCOME_RATES
 from priqn.objectives import OUTCOMES
 
 
@@ -48,3 +54,72 @@ def rates_of(lines: pd.DataFrame) -> dict[tuple[str, float], float]:
     row's :func:`mean_mix` lines, or a question report's outcome mix)."""
     keys = zip(lines.outcome, lines.density.astype(float), strict=True)
     return dict(zip(keys, lines.rate.astype(float), strict=True))
+
+
+SCENE_KEY: tuple[str, ...] = ("eval_run", "net", "density", "episode")
+"""Columns that name one scene of the evaluation protocol (the same at every limit)."""
+
+
+def common_scenes(episodes: pd.DataFrame, by: str) -> pd.DataFrame:
+    """Only each run's scenes played under every one of its conditions (column ``by``: the
+    episode limit, the traffic; a longer limit may have played fewer, e.g. ``--eval-runs
+    1``), so that every condition's mix is over the same scenes."""
+    key = ["run", *SCENE_KEY]
+    conditions = episodes.groupby("run")[by].nunique()
+    counts = episodes.groupby(key)[by].nunique().rename("played").reset_index()
+    counts = counts[counts["played"] == counts["run"].map(conditions)]
+    return episodes.merge(counts[key], on=key, how="inner")
+
+
+def outcome_of(episodes: pd.DataFrame) -> pd.Series:
+    """The one outcome of each episode (a name of :data:`OUTCOMES`)."""
+    flags = episodes[list(OUTCOMES)].astype(bool)
+    return flags.idxmax(axis=1).where(flags.any(axis=1), "timeout")
+
+
+def mix_table(episodes: pd.DataFrame, by: str) -> pd.DataFrame:
+    """``label, <by>, density, seeds`` and the share of each outcome, per row, condition
+    (column ``by``) and density: per seed first, then the mean over the row's seeds."""
+    frame = episodes.assign(**{o: episodes[o].astype(bool).astype(float) for o in OUTCOMES})
+    keys = ["label", by, "density"]
+    per_seed = frame.groupby([*keys, "train_seed"])[list(OUTCOMES)].mean()
+    table = per_seed.groupby(keys).mean()
+    table["seeds"] = per_seed.groupby(keys).size()
+    return table.reset_index()[[*keys, "seeds", *OUTCOMES]]
+
+
+def seed_rates(episodes: pd.DataFrame) -> dict[str, float]:
+    """One training seed's score of every rate of
+    :data:`~priqn.analysis.questions.OUTCOME_RATES` (success, violation, timeout, collision,
+    off-road): its rate per density, then the mean over densities (each density weighted
+    equally, nets pooled within a density), as the designs score a seed."""
+    out = {}
+    for name, flags in OUTCOME_RATES.items():
+        hit = episodes[list(flags)].astype(bool).any(axis=1)
+        out[name] = float(hit.groupby(episodes["density"]).mean().mean())
+    return out
+
+
+def paired_changes(
+    scores: pd.DataFrame, keys: list[str], where: tuple[str, str], endpoints: tuple[str, ...]
+) -> pd.DataFrame:
+    """Per group of ``keys`` (one row of policies): each endpoint under ``where[0]`` and
+    ``where[1]`` (column ``where`` of ``scores``: one row per group, ``seed`` and condition),
+    and the change ``where[1]`` − ``where[0]`` paired per training seed: its mean and 95 % t
+    interval (:func:`~priqn.analysis.inference.mean_interval`), and the seeds."""
+    wide = scores.pivot_table(index=[*keys, "seed"], columns="where", values=list(endpoints))
+    rows = []
+    for group, part in wide.groupby(level=keys if len(keys) > 1 else keys[0], sort=False):
+        record: dict[str, Any] = dict(zip(keys, np.atleast_1d(group), strict=True))
+        record["seeds"] = len(part)
+        for endpoint in endpoints:
+            change = (part[(endpoint, where[1])] - part[(endpoint, where[0])]).to_numpy()
+            lo, hi = inference.mean_interval(change)
+            record |= {
+                f"{endpoint}_{i}": float(part[(endpoint, w)].mean())
+                for i, w in zip(("in", "out"), where, strict=True)
+            }
+            record |= {f"{endpoint}_change": float(change.mean()),
+                       f"{endpoint}_change_lo": lo, f"{endpoint}_change_hi": hi}  # fmt: skip
+        rows.append(record)
+    return pd.DataFrame(rows)

@@ -10,6 +10,7 @@ of that string); the kind's report is built, then rendered by the one renderer
 
     --evaluation NAME             evaluation    priqn.analysis.design_report
     --horizon N,...               horizon       priqn.analysis.horizon
+    --traffic NAME                traffic       priqn.analysis.traffic_report
     an experiment's [calibration] calibration   priqn.analysis.calibration
     its [sequential] table        sequential    priqn.analysis.sequential_report
     its [[question]] tables       questions     priqn.analysis.questions_report
@@ -90,6 +91,14 @@ def _evaluation(request: ReportRequest, command: str) -> Report:
     return design_report(request.evaluation, command, request.seed, request.partial)
 
 
+def _traffic(request: ReportRequest, command: str) -> Report:
+    from priqn.analysis.traffic_report import traffic_report
+
+    return traffic_report(
+        request.runs, request.traffic, command, request.partial, request.experiment_name
+    )
+
+
 def _mechanism(*args: Any) -> Report:
     from priqn.analysis.mechanism import mechanism_report
 
@@ -123,6 +132,7 @@ REPORTS: dict[str, ReportKind] = {
         ReportKind("calibration", "the row whose outcome mix is nearest a target", _calibration),
         ReportKind("horizon", "the runs at longer evaluation-only episode limits", _horizon),
         ReportKind("evaluation", "an evaluation design's questions on another family", _evaluation),
+        ReportKind("traffic", "the runs under another traffic setting beside their own", _traffic),
         # Built from replayed decisions by `priqn mechanism` (priqn.tools replays the cells,
         # then builds the report from their rows), not by `priqn report`.
         ReportKind(
@@ -172,8 +182,12 @@ def choose_kind(request: ReportRequest) -> str:
     exp = request.experiment
     if request.evaluation is not None:
         return "evaluation"
+    if request.horizon and request.traffic:
+        raise PriqnError("--horizon and --traffic: one report at a time")
     if request.horizon:
         return "horizon"
+    if request.traffic:
+        return "traffic"
     if exp is None or (not exp.designs and exp.calibration is None):
         return "grid"
     if request.references:

@@ -40,6 +40,9 @@ class ReportRequest:
     """Grid: reference drivers' folders (``--reference``)."""
     horizon: tuple[int, ...] = ()
     """Evaluation-only episode limits (``--horizon``); non-empty: the horizon report."""
+    traffic: str | None = None
+    """Another named traffic setting (``--traffic``): the runs' evaluations under it beside
+    their own (the traffic report)."""
     evaluation: Any = None
     """An evaluation design (:class:`priqn.evaluation.design.EvaluationDesign`,
     ``--evaluation``): its report over the cells it names; ``runs`` is then unused."""
@@ -63,7 +66,11 @@ def report_command(request: ReportRequest, kind: str) -> str:
     words = ["priqn", "report", relative_path(request.runs)]
     if kind == "horizon":
         words += ["--horizon", ",".join(str(n) for n in request.horizon)]
+    if kind == "traffic":
+        words += ["--traffic", str(request.traffic)]
     words += ["--out", relative_path(request.out)]
+    if kind == "traffic" and request.partial:
+        words += ["--partial"]
     if kind == "grid":
         words += ["--seed", str(request.seed), "--reps", str(request.reps)]
         words += ["--seeds", str(request.min_seeds)] if request.min_seeds else []
