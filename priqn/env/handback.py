@@ -34,7 +34,8 @@ MIN_S_DOT_MPS = 0.1
 
 @dataclasses.dataclass(frozen=True)
 class Pose:
-    """The ego as SUMO reports it after one step, centre-based."""
+    """The ego after one SUMO step, centre-based: as SUMO reports it (or, for the planner's
+    ego, the plan sample ``moveToXY`` put it at)."""
 
     x_m: float
     """Centre x [m]."""

@@ -14,7 +14,9 @@ live in their own modules: the pool of nets and what is cached per net
 (:mod:`priqn.env.scenes`), the typed ego and actor reads (:mod:`priqn.env.reads`),
 the pure measures — off-road, first collision, risk (:mod:`priqn.env.measures`) —
 the reward terms (:mod:`priqn.env.rewards`), the sensors, the planner and the
-traffic. This module sets episodes up in SUMO and drives the ego.
+traffic, the episode's state (:mod:`priqn.env.episode`). This module sets episodes up in
+SUMO and drives the ego: one loop of SUMO steps, in which the planner's plan or SUMO
+itself moves the ego (``EnvConfig.ego_driver``).
 
 All randomness of an episode flows from ``reset(seed=...)``: the net, the requested
 density, the command and route, the traffic (vehicle sizes, speed factors, offsets,
@@ -25,11 +27,11 @@ termination, realised density).
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import copy
 import dataclasses
 from collections.abc import Iterator, Mapping
+from types import ModuleType
 from typing import Any
 
 import gymnasium
@@ -37,10 +39,11 @@ import numpy as np
 from gymnasium import spaces
 
 from priqn.checks import check_density
-from priqn.env import forensics, geometry, measures, planner, reads, sensors
+from priqn.env import forensics, geometry, handback, measures, planner, reads, sensors
 from priqn.env.config import EnvConfig
+from priqn.env.episode import DecisionPlan, Episode, Measures, SumoSteps
 from priqn.env.objective_terms import DecisionContext, EnvObjectives
-from priqn.env.reads import KIN_LIMIT, Actors, EgoState, StepActors
+from priqn.env.reads import KIN_LIMIT, Actors, EgoState
 from priqn.env.scenes import FAMILIES, Scene, ScenePool
 from priqn.env.traffic import NPC_PREFIX, Traffic
 from priqn.errors import PriqnError
@@ -60,112 +63,101 @@ EGO_HEIGHT_M = 1.5
 """Ego height [m] (LiDAR)."""
 
 
-@dataclasses.dataclass
-class Outcome:
-    """How the episode stands: the termination flags ``info`` reports."""
+class _PlanFollower:
+    """The planner's ego (``ego_driver = "planner"``): before SUMO step k it is moved with
+    ``moveToXY`` (front bumper, SUMO angle) to plan sample k + 1, where it then stands. It
+    runs all ``plan.steps`` steps: the plan is already cut at its first off-road or goal step.
+    """
 
-    success: bool = False
-    """The ego reached its goal (no collision or off-road in that step)."""
-    collision: bool = False
-    """The ego box overlapped an actor box."""
-    off_road: bool = False
-    """The ego footprint left the drivable area."""
-    timeout: bool = False
-    """``max_episode_steps`` decisions without one of the above."""
+    def __init__(self, plan: DecisionPlan, length_m: float) -> None:
+        self.plan, self.steps = plan, plan.steps
+        traj, sl = plan.traj, slice(1, plan.steps + 1)
+        self._front, self._angles = geometry.sumo_from_center(
+            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], length_m
+        )
 
-    @property
-    def terminated(self) -> bool:
-        """The episode ended by an event (not by the time limit)."""
-        return self.success or self.collision or self.off_road
+    def pose_before(self, k: int) -> tuple[tuple[float, float], float]:
+        """The ego's centre and heading before SUMO step k: plan sample k."""
+        traj = self.plan.traj
+        return (float(traj.x[k]), float(traj.y[k])), float(traj.heading_rad[k])
 
+    def move(self, sim: ModuleType, k: int) -> None:
+        front, angles = self._front, self._angles
+        sim.vehicle.moveToXY(
+            EGO_ID, "", -1, float(front[k, 0]), float(front[k, 1]), float(angles[k]), 3
+        )
 
-@dataclasses.dataclass
-class _Episode:
-    """State of the running episode."""
+    def pose_after(self, sim: ModuleType, k: int, arrived: tuple[str, ...]) -> handback.Pose:
+        """Plan sample k + 1 (where ``moveToXY`` put the ego)."""
+        traj, j = self.plan.traj, k + 1
+        return handback.Pose(
+            float(traj.x[j]), float(traj.y[j]), float(traj.heading_rad[j]),
+            float(traj.speed_mps[j]), float(traj.accel_lon_mps2[j]),
+        )  # fmt: skip
 
-    scene: Scene
-    route: EgoRoute
-    ref: planner.ReferenceLine
-    command: str
-    density: float
-    traffic: Traffic
-    raster: geometry.MapRaster
-    """The scene's raster with this route's bit (shared, read-only)."""
-    target_speed_mps: float
-    """Progress reward's target speed v* [m/s]."""
-    ego: EgoState
-    """The ego at the current decision."""
-    actors: Actors
-    """Actors read after the last SUMO step."""
-    steps: int = 0
-    returns: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
-    """Undiscounted return per objective so far (``float32 [N]``)."""
-    outcome: Outcome = dataclasses.field(default_factory=Outcome)
-    done: bool = False
-    history: collections.deque = dataclasses.field(
-        default_factory=lambda: collections.deque(maxlen=forensics.HISTORY_STEPS)
-    )
-    """The last SUMO steps (:class:`~priqn.env.forensics.Step`): the ego and the actors read."""
-    forensics: dict[str, Any] = dataclasses.field(default_factory=forensics.no_collision)
-    """The collision's kind, striker, speeds (:data:`~priqn.objectives.COLLISION_COLUMNS`; empty
-    without a collision), in the final ``info``."""
+    def done(self) -> bool:
+        """Never early: the plan ends at its first event."""
+        return False
 
-    @property
-    def net(self) -> str:
-        """``"family/net_id"``."""
-        return self.scene.net
+    def decision_plan(self) -> DecisionPlan:
+        return self.plan
 
 
-@dataclasses.dataclass(frozen=True)
-class _DecisionPlan:
-    """A decision's plan and what it implies before SUMO runs (arrays [n] over its steps)."""
+class _SumoDriver:
+    """SUMO drives the ego (``ego_driver = "sumo"``); its pose is read after each step.
 
-    traj: planner.Trajectory
-    """The Frenet plan; sample k (k = 1..n) is where the ego is after SUMO step k."""
-    off_road: np.ndarray
-    """bool [n]: the ego footprint is off the road after step k."""
-    at_goal: np.ndarray
-    """bool [n]: the ego has reached its goal after step k."""
-    steps: int
-    """SUMO steps to run: up to the first off-road or goal step, else n."""
+    Stops after the first step that reaches the goal or leaves the road (as a plan is cut
+    there), or when the ego has finished its route (counted as reaching the goal). What
+    happened becomes a :class:`DecisionPlan` (:func:`priqn.env.handback.driven_trajectory`),
+    measured exactly as a planned decision.
+    """
 
+    def __init__(self, ep: Episode, cfg: EnvConfig) -> None:
+        self.ep, self.cfg, self.steps = ep, cfg, cfg.substeps
+        s0 = ep.ego.frenet.s
+        self._window = (s0 - handback.S_WINDOW_M[0], s0 + handback.S_WINDOW_M[1])
+        self.poses: list[handback.Pose] = []
+        self.off_road: list[bool] = []
+        self.at_goal: list[bool] = []
 
-@dataclasses.dataclass(frozen=True)
-class _Measures:
-    """What one decision measured over its executed SUMO steps (arrays [T])."""
+    def pose_before(self, k: int) -> tuple[tuple[float, float], float]:
+        """The ego's centre and heading before the step: last read, or the decision's start."""
+        e = self.poses[-1] if self.poses else self.ep.ego
+        return (e.x_m, e.y_m), e.heading_rad
 
-    steps: int
-    """T: SUMO steps that count (up to and including the first event)."""
-    collision: bool
-    off_road: bool
-    success: bool
-    conflict_time_s: np.ndarray
-    """Time to the first conflict seen from each step [s] (risk)."""
-    lateral_offset_m: np.ndarray
-    """Frenet lateral offset from the route's centre line [m]."""
-    heading_error_rad: np.ndarray
-    """Heading minus the centre line's heading [rad]."""
-    end: EgoState
-    """The ego after the last counted step (the next decision starts from it)."""
-    advance_m: float
-    """Arc length gained along the route in the decision [m]."""
-    speed_mps: np.ndarray
-    jerk_mps3: np.ndarray
-    """Longitudinal jerk [m/s³]."""
-    lateral_accel_mps2: np.ndarray
-    """Lateral (centripetal) acceleration [m/s²]."""
+    def move(self, sim: ModuleType, k: int) -> None:
+        pass  # SUMO's own models move it
 
+    def pose_after(self, sim: ModuleType, k: int, arrived: tuple[str, ...]) -> handback.Pose | None:
+        """The pose SUMO reports, with its off-road and goal tests; None if the ego arrived."""
+        cfg, ep = self.cfg, self.ep
+        if EGO_ID in arrived:  # the end of its route: past the goal, where it stopped
+            e = ep.ego
+            self.poses.append(
+                self.poses[-1] if self.poses else handback.Pose(e.x_m, e.y_m, e.heading_rad, 0, 0)
+            )
+            self.off_road.append(False)
+            self.at_goal.append(True)
+            return None
+        pose = handback.read_pose(sim, EGO_ID, cfg.ego_length_m)
+        self.poses.append(pose)
+        x, y, h = np.array([pose.x_m]), np.array([pose.y_m]), np.array([pose.heading_rad])
+        off = measures.off_road_steps(ep.raster, x, y, h, cfg.ego_length_m, cfg.ego_width_m)
+        s, _ = ep.ref.to_frenet(np.stack([x, y], axis=1), self._window)
+        self.off_road.append(bool(off[0]))
+        self.at_goal.append(bool(s[0] >= ep.route.goal_s_m))
+        return pose
 
-@dataclasses.dataclass(frozen=True)
-class _Decision:
-    """What one decision's simulation produced, step by step (arrays [T], T = steps run)."""
+    def done(self) -> bool:
+        """The ego left the road or reached its goal in the last step."""
+        return self.off_road[-1] or self.at_goal[-1]
 
-    seen: StepActors
-    """Actors read after each SUMO step."""
-    departed: list[tuple[str, ...]]
-    """Vehicles SUMO inserted in each step."""
-    arrived: list[tuple[str, ...]]
-    """Vehicles SUMO removed in each step."""
+    def decision_plan(self) -> DecisionPlan:
+        """The steps run as a plan, continued at the last speed for the risk look-ahead."""
+        cfg, ep = self.cfg, self.ep
+        n_look = measures.look_ahead_samples(cfg.reward.conflict_time_safe_s, cfg.sim_step_s)
+        traj = handback.driven_trajectory(ep.ref, ep.ego, self.poses, cfg.sim_step_s, n_look + 1)
+        return DecisionPlan(traj, np.array(self.off_road), np.array(self.at_goal), len(self.poses))
 
 
 class IntersectionEnv(gymnasium.Env):
@@ -252,7 +244,7 @@ class IntersectionEnv(gymnasium.Env):
         if render_mode == "human":
             self.gui = _gui_view(cfg, gui)
             self._session = self.gui.session
-        self._episode: _Episode | None = None
+        self._episode: Episode | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
         self._record: dict[str, Any] | None = None
         """How the running episode came about: :meth:`episode_record`."""
@@ -376,7 +368,7 @@ class IntersectionEnv(gymnasium.Env):
             raise PriqnError(f"{net}: SUMO failed while setting up the episode: {exc}") from exc
 
         ref = scene.references[route.name]
-        self._episode = _Episode(
+        self._episode = Episode(
             scene=scene,
             route=route,
             ref=ref,
@@ -398,14 +390,14 @@ class IntersectionEnv(gymnasium.Env):
         action = self._check_action(action)
         self._record["actions"].append(action)
         if self.config.ego_driver == "sumo":  # SUMO drives; what it did is measured as a plan
-            with self._sumo_failure(ep):
-                plan, sim = self._drive_by_sumo(ep)
+            driver: _PlanFollower | _SumoDriver = _SumoDriver(ep, self.config)
         else:
-            plan = self._plan(ep, action)
-            with self._sumo_failure(ep):
-                if self.gui is not None:
-                    self._show_plan(plan, action)
-                sim = self._simulate(plan)
+            driver = _PlanFollower(self._plan(ep, action), self.config.ego_length_m)
+        with self._sumo_failure(ep):
+            if self.gui is not None and isinstance(driver, _PlanFollower):
+                self._show_plan(driver.plan, action)
+            sim = self._sumo_steps(ep, driver)
+        plan = driver.decision_plan()
         m = self._measure(ep, plan, sim)
         with self._sumo_failure(ep):
             self._advance(ep, sim, m)
@@ -427,7 +419,7 @@ class IntersectionEnv(gymnasium.Env):
         self._session.close()
         self._episode = None
 
-    def _show_plan(self, plan: _DecisionPlan, action: int) -> None:
+    def _show_plan(self, plan: DecisionPlan, action: int) -> None:
         """``render_mode="human"``: draw the decision's plan and chosen action in sumo-gui."""
         v_f, d_f = self._table[action]
         xy = np.stack([plan.traj.x, plan.traj.y], axis=1)
@@ -436,7 +428,7 @@ class IntersectionEnv(gymnasium.Env):
     # ------------------------------------------------------------------ validation
 
     @contextlib.contextmanager
-    def _sumo_failure(self, ep: _Episode) -> Iterator[None]:
+    def _sumo_failure(self, ep: Episode) -> Iterator[None]:
         """Turn a libsumo error inside the block into one line naming the net and decision."""
         try:
             yield
@@ -447,7 +439,7 @@ class IntersectionEnv(gymnasium.Env):
                 f"{ep.net}: SUMO failed at decision {ep.steps} ({type(exc).__name__}: {exc})"
             ) from exc
 
-    def _running_episode(self) -> _Episode:
+    def _running_episode(self) -> Episode:
         ep = self._episode
         if ep is None:
             raise PriqnError("step() before reset(): call env.reset() first")
@@ -559,7 +551,7 @@ class IntersectionEnv(gymnasium.Env):
 
     # ------------------------------------------------------------------ per step
 
-    def _plan(self, ep: _Episode, action: int) -> _DecisionPlan:
+    def _plan(self, ep: Episode, action: int) -> DecisionPlan:
         """Plan from the ego's state; the ego follows the plan exactly, so the steps at which
         it leaves the road or reaches its goal are known before SUMO runs."""
         cfg, n = self.config, self.config.substeps
@@ -572,97 +564,42 @@ class IntersectionEnv(gymnasium.Env):
         )  # fmt: skip
         at_goal = traj.s[sl] >= ep.route.goal_s_m
         events = np.flatnonzero(off_road | at_goal)
-        return _DecisionPlan(traj, off_road, at_goal, int(events[0]) + 1 if len(events) else n)
+        return DecisionPlan(traj, off_road, at_goal, int(events[0]) + 1 if len(events) else n)
 
-    def _simulate(self, plan: _DecisionPlan) -> _Decision:
-        """Drive the ego along samples 1..steps of the plan, one SUMO step each.
+    def _sumo_steps(self, ep: Episode, driver: _PlanFollower | _SumoDriver) -> SumoSteps:
+        """Run the decision's SUMO steps; ``driver`` moves the ego (or lets SUMO move it).
 
-        One ``moveToXY`` (front bumper, SUMO angle) and one bulk actor read per step.
+        Per step: the path-braking check with the ego where it stands, the driver's move,
+        one ``simulationStep``, the departed and arrived lists, the ego's pose after the step,
+        one bulk actor read and its forensics record; then the driver may stop early.
         """
-        cfg, sim, traj = self.config, self._session.sim, plan.traj
-        sl = slice(1, plan.steps + 1)
-        front, angles = geometry.sumo_from_center(
-            np.stack([traj.x[sl], traj.y[sl]], axis=1), traj.heading_rad[sl], cfg.ego_length_m
-        )
+        cfg, sim = self.config, self._session.sim
         raw, departed, arrived = [], [], []
-        stage = self._episode.traffic.path_braking
-        for k in range(plan.steps):
+        stage = ep.traffic.path_braking
+        for k in range(driver.steps):
             if stage is not None:  # NPCs see the ego where it stands before this step
+                xy, heading_rad = driver.pose_before(k)
                 stage.check(
-                    raw[-1] if raw else reads.read_actors(sim, EGO_ID),
-                    (float(traj.x[k]), float(traj.y[k])), float(traj.heading_rad[k]),
+                    raw[-1] if raw else reads.read_actors(sim, EGO_ID), xy, heading_rad,
                     cfg.ego_length_m, cfg.ego_width_m,
                 )  # fmt: skip
-            sim.vehicle.moveToXY(
-                EGO_ID, "", -1, float(front[k, 0]), float(front[k, 1]), float(angles[k]), 3
-            )
+            driver.move(sim, k)
             sim.simulationStep()
             departed.append(sim.simulation.getDepartedIDList())
             arrived.append(sim.simulation.getArrivedIDList())
-            raw.append(reads.read_actors(sim, EGO_ID))
-            self._episode.history.append(
-                forensics.Step((float(traj.x[k + 1]), float(traj.y[k + 1])),
-                               float(traj.heading_rad[k + 1]), float(traj.speed_mps[k + 1]), raw[-1])
-            )  # fmt: skip
-        return _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
-
-    def _drive_by_sumo(self, ep: _Episode) -> tuple[_DecisionPlan, _Decision]:
-        """Let SUMO drive the ego for one decision (``ego_driver = "sumo"``).
-
-        One SUMO step at a time, reading the ego's pose and the actors; stops after the
-        first step that reaches the goal or leaves the road (as a plan is cut there), or
-        when the ego has finished its route (counted as reaching the goal). Returns what
-        happened as a :class:`_DecisionPlan` (:func:`priqn.env.handback.driven_trajectory`) so that
-        :meth:`_measure` measures it exactly as a planned decision.
-        """
-        from priqn.env import handback
-
-        cfg, sim, route = self.config, self._session.sim, ep.route
-        window = (
-            ep.ego.frenet.s - handback.S_WINDOW_M[0],
-            ep.ego.frenet.s + handback.S_WINDOW_M[1],
-        )
-        poses: list[handback.Pose] = []
-        off_road, at_goal, raw, departed, arrived = [], [], [], [], []
-        stage = ep.traffic.path_braking
-        for _ in range(cfg.substeps):
-            if stage is not None:  # NPCs see the ego where it stands before this step
-                e = poses[-1] if poses else ep.ego
-                stage.check(
-                    raw[-1] if raw else reads.read_actors(sim, EGO_ID),
-                    (e.x_m, e.y_m), e.heading_rad, cfg.ego_length_m, cfg.ego_width_m,
-                )  # fmt: skip
-            sim.simulationStep()
-            departed.append(sim.simulation.getDepartedIDList())
-            arrived.append(sim.simulation.getArrivedIDList())
-            if EGO_ID in arrived[-1]:  # the end of its route: past the goal, where it stopped
-                e = ep.ego
-                poses.append(
-                    poses[-1] if poses else handback.Pose(e.x_m, e.y_m, e.heading_rad, 0, 0)
-                )
+            pose = driver.pose_after(sim, k, arrived[-1])
+            if pose is None:  # the ego finished its route and left SUMO: nothing to read
                 raw.append({})
-                off_road.append(False)
-                at_goal.append(True)
                 break
-            pose = handback.read_pose(sim, EGO_ID, cfg.ego_length_m)
-            poses.append(pose)
             raw.append(reads.read_actors(sim, EGO_ID))
             ep.history.append(
                 forensics.Step((pose.x_m, pose.y_m), pose.heading_rad, pose.speed_mps, raw[-1])
             )
-            x, y, h = np.array([pose.x_m]), np.array([pose.y_m]), np.array([pose.heading_rad])
-            off = measures.off_road_steps(ep.raster, x, y, h, cfg.ego_length_m, cfg.ego_width_m)
-            s, _ = ep.ref.to_frenet(np.stack([x, y], axis=1), window)
-            off_road.append(bool(off[0]))
-            at_goal.append(bool(s[0] >= route.goal_s_m))
-            if off_road[-1] or at_goal[-1]:
+            if driver.done():
                 break
-        n_look = measures.look_ahead_samples(cfg.reward.conflict_time_safe_s, cfg.sim_step_s)
-        traj = handback.driven_trajectory(ep.ref, ep.ego, poses, cfg.sim_step_s, n_look + 1)
-        plan = _DecisionPlan(traj, np.array(off_road), np.array(at_goal), len(poses))
-        return plan, _Decision(reads.decode_actors(raw, EGO_ID), departed, arrived)
+        return SumoSteps(reads.decode_actors(raw, EGO_ID), departed, arrived)
 
-    def _measure(self, ep: _Episode, plan: _DecisionPlan, sim: _Decision) -> _Measures:
+    def _measure(self, ep: Episode, plan: DecisionPlan, sim: SumoSteps) -> Measures:
         """Termination events and the reward inputs; the first collision ends the decision."""
         cfg, traj, n = self.config, plan.traj, plan.steps
         sl = slice(1, n + 1)
@@ -677,7 +614,7 @@ class IntersectionEnv(gymnasium.Env):
         success = bool(plan.at_goal[done_at - 1]) and hit is None and not off_road
         ref_heading = ep.ref.heading_at(traj.s[steps])
         end = EgoState.from_plan(traj, done_at)
-        return _Measures(
+        return Measures(
             steps=done_at,
             collision=hit is not None,
             off_road=off_road,
@@ -697,7 +634,7 @@ class IntersectionEnv(gymnasium.Env):
             lateral_accel_mps2=traj.accel_lat_mps2[steps],
         )
 
-    def _advance(self, ep: _Episode, sim: _Decision, m: _Measures) -> None:
+    def _advance(self, ep: Episode, sim: SumoSteps, m: Measures) -> None:
         """Move the episode to the end of the decision; top the traffic up if it goes on."""
         for k in range(m.steps):
             ep.traffic.record_step(sim.departed[k], sim.arrived[k])
@@ -718,9 +655,7 @@ class IntersectionEnv(gymnasium.Env):
         ep.steps += 1
         ep.done = out.terminated or out.timeout
 
-    def _reward(
-        self, ep: _Episode, plan: _DecisionPlan, sim: _Decision, m: _Measures
-    ) -> np.ndarray:
+    def _reward(self, ep: Episode, plan: DecisionPlan, sim: SumoSteps, m: Measures) -> np.ndarray:
         """The reward vector of the decision (``float32 [N]``, declared objectives' order)."""
         ctx = DecisionContext(
             config=self.config,
