@@ -91,6 +91,9 @@ def from_dict(cls: type[T], data: Mapping[str, Any], where: str) -> T:
     """
     if not isinstance(data, Mapping):
         raise PriqnError(f"{where}: expected a table, got {type(data).__name__}")
+    upgrade = getattr(cls, UPGRADE_HOOK, None)
+    if upgrade is not None:  # a table recorded in an older form, as the current one
+        data = upgrade(data)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
@@ -137,6 +140,15 @@ def _check_message(where: str, text: str, fields: Iterable[str]) -> str:
         return f"{field_label(where, name)}:{rest}"
     return f"{where}: {text}"
 
+
+UPGRADE_HOOK = "upgrade_table"
+"""Name of the classmethod a config dataclass may have that turns a table of an older
+recorded form into the current one (``TrafficBehaviour``: a run folder's flat ``path_*``
+keys); :func:`from_dict` calls it first, so old run folders load as they were."""
+
+MOVED_KEYS = "MOVED_KEYS"
+"""Name of the class attribute (``{old key: new key}``, relative to the class) of a config
+dataclass whose keys moved: a ``--set`` of an old key is a one-line error naming the new one."""
 
 NAMED_HINT = "named_hint"
 """Field metadata key: on a table field that a named setting fills (``EnvConfig.traffic``:
@@ -192,10 +204,10 @@ def apply_values(
     for item in values.items() if isinstance(values, Mapping) else values:
         if isinstance(item, str):
             key, value = parse_override(item, where)
-            _set_value(data, key, value, f"{where} {item!r}")
+            _set_value(data, key, value, f"{where} {item!r}", type(cfg))
         else:
             key, value = _pair(item, where)
-            _set_value(data, key, value, where)
+            _set_value(data, key, value, where, type(cfg))
     return from_dict(type(cfg), data, where)
 
 
@@ -244,6 +256,9 @@ def describe(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
         else:
             default = "(required)"
         rows.append((key, default, docs.get(f.name, "")))
+        table = _dataclass_of(tp)
+        if table is not None:  # an optional table (None = off): its keys when given
+            rows.extend(describe(table, key + "."))
     return rows
 
 
@@ -264,22 +279,78 @@ def _pair(item: Any, where: str = "config values") -> tuple[str, Any]:
     return item[0], item[1]
 
 
-def _set_value(data: dict[str, Any], key: str, value: Any, where: str) -> None:
-    """Set ``data[a][b] = value`` for the dotted ``key`` ``a.b``; an unknown key is one line."""
+def _set_value(data: dict[str, Any], key: str, value: Any, where: str, cls: Any = None) -> None:
+    """Set ``data[a][b] = value`` for the dotted ``key`` ``a.b``; an unknown key is one line
+    (naming its new place where ``cls``, the dataclass ``data`` is of, says it moved)."""
+    moved = _moved_key(cls, key)
+    if moved is not None:
+        raise PriqnError(f"{where}: {key!r} is now {moved!r}")
     node = data
     parts = key.split(".")
-    for part in parts[:-1]:
+    for i, part in enumerate(parts[:-1]):
+        if node.get(part) is True and _table_at(cls, parts[: i + 1]) is not None:
+            node[part] = {}  # an optional table given as true: its defaults
         if not isinstance(node.get(part), dict):
+            if part in node and (node[part] is None or isinstance(node[part], bool)):
+                table = ".".join(parts[: i + 1])  # an optional table, off or a shorthand
+                state = "off" if node[part] in (None, False) else toml_value(node[part])
+                raise PriqnError(
+                    f"{where}: {table!r} is {state}; to set {key!r} give it a table first "
+                    f"({table}={{}}: its defaults)"
+                )
             tables = [k for k, v in node.items() if isinstance(v, dict)]
             raise PriqnError(f"{where}: {key!r} is not a config field{did_you_mean(part, tables)}")
         node = node[part]
-    if parts[-1] not in node:
+    valid = set(node) | _fields_at(cls, parts[:-1])
+    if parts[-1] not in valid:
         prefix = key[: -len(parts[-1])]  # the last name alone is matched: not the table's
-        near = did_you_mean(parts[-1], node, prefix)
+        near = did_you_mean(parts[-1], sorted(valid), prefix)
         raise PriqnError(
-            f"{where}: unknown key {key!r} (valid here: {', '.join(sorted(node))}){near}"
+            f"{where}: unknown key {key!r} (valid here: {', '.join(sorted(valid))}){near}"
         )
     node[parts[-1]] = value
+
+
+def _dataclass_of(tp: Any) -> Any:
+    """The dataclass of a field type: ``tp`` itself, or X of ``X | None``; else None."""
+    if dataclasses.is_dataclass(tp):
+        return tp
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        options = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(options) == 1 and dataclasses.is_dataclass(options[0]):
+            return options[0]
+    return None
+
+
+def _table_at(cls: Any, parts: Sequence[str]) -> Any:
+    """The dataclass of the table at dotted ``parts`` of dataclass ``cls``; None if unknown."""
+    tp = _dataclass_of(cls)
+    for part in parts:
+        tp = _dataclass_of(typing.get_type_hints(tp).get(part)) if tp is not None else None
+    return tp
+
+
+def _fields_at(cls: Any, parts: Sequence[str]) -> set[str]:
+    """The field names of the table at dotted ``parts`` of dataclass ``cls`` (none unknown):
+    a table given as ``{}`` (its defaults) takes its keys one by one."""
+    tp = _table_at(cls, parts)
+    return {f.name for f in dataclasses.fields(tp)} if tp is not None else set()
+
+
+def _moved_key(cls: Any, key: str) -> str | None:
+    """Where the dotted ``key`` of dataclass ``cls`` is now, if a class on its way declares
+    it moved (:data:`MOVED_KEYS`); else None."""
+    parts = key.split(".")
+    tp = cls
+    for i, part in enumerate(parts):
+        tp = _dataclass_of(tp)
+        if tp is None:
+            return None
+        new = getattr(tp, MOVED_KEYS, {}).get(".".join(parts[i:]))
+        if new is not None:
+            return ".".join([*parts[:i], new])
+        tp = typing.get_type_hints(tp).get(part)
+    return None
 
 
 def _frozen(value: Any) -> Any:

@@ -455,6 +455,11 @@ class Experiment:
             ]
         )
 
+    def row_traffic(self, policy: PolicySpec) -> str:
+        """The named traffic setting ``policy``'s row trains under, as its runs record it:
+        the row's own, else the ``[experiment]``'s ('' for none: the preset's traffic)."""
+        return policy.traffic or self.experiment.traffic or ""
+
     def group(self, name: str) -> list[PolicySpec]:
         """The rows of group ``name`` (:attr:`PolicySpec.group_name`), in file order."""
         return [pol for pol in self.policies if pol.group_name == name]

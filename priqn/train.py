@@ -202,8 +202,11 @@ def train(
     resume: bool = False,
     force: bool = False,
     background_writes: bool = True,
+    traffic: str = "",
 ) -> Path:
     """Train ``cfg`` into ``run_dir``; ``resume`` continues from its latest checkpoint.
+    ``traffic``: the named traffic setting ``cfg`` was made with (``--traffic``), which a new
+    run records in meta.json (a resume keeps the recorded one).
 
     Returns the run folder. meta.json says ``running`` while training, ``complete``
     when the budget is spent, ``failed`` (with the error) otherwise; a new run that fails
@@ -225,7 +228,7 @@ def train(
     # What only the env workers find (a junction the nets lack, SUMO failing to start)
     # comes after: a new run that fails so is taken back, folder and all (undo_failed_start).
     made = [] if resume else missing_folders(run.path)
-    start_session(run, cfg, resume, force, origin, policy_labels(cfg, agent))
+    start_session(run, cfg, resume, force, origin, policy_labels(cfg, agent), traffic)
     # A resume that fails never turns a finished run into a failed one: its status goes
     # back to complete and the error is kept beside it.
     failed_status = Status.COMPLETE if was_complete else Status.FAILED
@@ -852,7 +855,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--traffic",
         metavar="NAME",
-        help="a named traffic setting, applied before --set: "
+        help="a named traffic setting, applied before --set and recorded in meta.json: "
         + "; ".join(f"{k}: {v.description}" for k, v in TRAFFIC_SETTINGS.items())
         + " (docs/environment.md, 'Traffic')",
     )
@@ -917,7 +920,7 @@ def run(args: argparse.Namespace) -> int:
             device=args.device,
         )
         run_dir = Path(args.runs_dir) / (args.name or default_run_name(cfg))
-        train(cfg, run_dir, force=args.force)
+        train(cfg, run_dir, force=args.force, traffic=args.traffic or "")
     print(f"priqn train: run folder {run_dir}")
     return 0
 

@@ -56,10 +56,10 @@ def test_only_the_npcs_change() -> None:
     else (the episode limit of 200 included) the run's own; no traffic: the run's own."""
     run_env = resolve_config(values=traffic_values("tm-long")).env
     env = evaluation_env(run_env, EvalConfig(traffic="tm-carla"), None)
-    assert env.traffic == TRAFFIC_SETTINGS["tm-carla"].behaviour()
+    assert env.traffic == TRAFFIC_SETTINGS["tm-carla"].behaviour
     assert (
-        env.traffic.path_look_ahead_form == "carla"
-        and run_env.traffic.path_look_ahead_form == "linear"
+        env.traffic.path_braking.look_ahead_form == "carla"
+        and run_env.traffic.path_braking.look_ahead_form == "linear"
     )
     assert env.max_episode_steps == run_env.max_episode_steps == 200
     assert dataclasses.replace(env, traffic=run_env.traffic) == evaluation_env(

@@ -247,6 +247,7 @@ def test_cell_values_stay_typed_through_json(tmp_path: Path) -> None:
         ("checkpoint.keep_at", (3000, 6000)),
         ("agent.eps", (0.1, 0.2, 0.3, 0.4, 0.5)),
     )
+    assert cell.traffic == "rude-finite"  # the row's setting, which its run records
     spec = json.loads(json.dumps(cell.to_spec()))
     back = Cell.from_spec(spec)
     assert back == cell and back.values == cell.values

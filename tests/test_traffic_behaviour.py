@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from priqn.env.path_braking import PathBrakingConfig
 from priqn.env.traffic import (
     IGNORE_IDS_PARAM,
     NPC_PREFIX,
@@ -227,6 +228,13 @@ def test_behaviour_and_setting_errors_are_one_line() -> None:
         ("env.traffic.top_up", False),
         ("env.max_episode_steps", 200),
     )
+    # Path braking at its defaults is `true`, as before its table: a cell run at an older
+    # commit (priqn sweep --code) reads the same values.
+    assert traffic_values("tm-long") == (
+        ("env.traffic.yield_to_ego_prob", 0.0),
+        ("env.traffic.path_braking", True),
+        ("env.max_episode_steps", 200),
+    )
 
 
 def test_every_named_setting_builds_a_train_config() -> None:
@@ -234,7 +242,9 @@ def test_every_named_setting_builds_a_train_config() -> None:
 
     for name in TRAFFIC_SETTINGS:
         cfg = resolve_config(values=traffic_values(name))
-        assert cfg.env.traffic == TRAFFIC_SETTINGS[name].behaviour()
+        assert cfg.env.traffic == TRAFFIC_SETTINGS[name].behaviour
+        assert cfg.env.max_episode_steps == (TRAFFIC_SETTINGS[name].max_episode_steps or 100)
+        assert TRAFFIC_SETTINGS[name].name == name
 
 
 def test_a_run_config_names_its_own_setting() -> None:
@@ -248,6 +258,18 @@ def test_a_run_config_names_its_own_setting() -> None:
     odd = resolve_config(values=(("env.traffic.impatience", 0.5),))
     assert setting_name(odd.env) == ""
     assert setting_name(resolve_config().env) == "sumo"
+
+
+def test_a_run_is_named_by_the_setting_it_records() -> None:
+    """meta.json's ``traffic`` (the name chosen) wins over the inference, which names runs
+    that recorded none: ``tm`` with 200-decision episodes set by hand stays ``tm``."""
+    from priqn.env.traffic import run_setting_name
+    from priqn.run.train_config import resolve_config
+
+    env = resolve_config(values=traffic_values("tm"), overrides=["env.max_episode_steps=200"]).env
+    assert run_setting_name({"traffic": "tm"}, env) == "tm"
+    assert run_setting_name({}, env) == "tm-long"
+    assert run_setting_name({"traffic": ""}, resolve_config().env) == "sumo"
 
 
 # ------------------------------------------------------------- the Traffic-Manager-like setting
@@ -300,8 +322,9 @@ def _drive_stage(
     from priqn.env import geometry, reads
     from priqn.sim.sumo import simulation_args
 
+    tm = TRAFFIC_SETTINGS[setting].behaviour
     behaviour = dataclasses.replace(
-        TRAFFIC_SETTINGS[setting].behaviour(), path_reaction_time_s=reaction_s
+        tm, path_braking=dataclasses.replace(tm.path_braking, reaction_time_s=reaction_s)
     )
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
@@ -439,10 +462,11 @@ def test_tm_carla_npc_does_not_brake_for_an_ego_30_m_ahead_and_tm_does(tjunction
 
 
 def test_path_braking_defaults_leave_sumo_and_rude_without_a_stage() -> None:
-    assert TrafficBehaviour().path_braking is False
+    assert TrafficBehaviour().path_braking is None
     for name, setting in TRAFFIC_SETTINGS.items():
-        on = ("traffic.path_braking", True) in setting.env
+        on = setting.behaviour.path_braking is not None
         assert on == (name == "tm" or name.startswith("tm-")), name
+        assert (setting.max_episode_steps == 200) == name.endswith("-long"), name
 
 
 def test_braking_speed_by_hand() -> None:
@@ -459,38 +483,96 @@ def test_braking_speed_by_hand() -> None:
 def test_look_ahead_grows_with_speed_up_to_its_cap() -> None:
     from priqn.env.path_braking import PathBraking
 
-    stage = PathBraking(None, None, TrafficBehaviour(path_braking=True), 0.1, 9.0, "npc.")
+    stage = PathBraking(None, None, PathBrakingConfig(), 0.1, 9.0, "npc.")
     assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
     assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 4.35 * 5.0)
     assert stage.look_ahead_m(20.0) == pytest.approx(50.0)
     # CARLA's form (`tm-carla`): 2.5 m + (0.36 x v)^2, at least the 2 m lead distance.
-    carla = TrafficBehaviour(path_braking=True, path_look_ahead_form="carla")
+    carla = PathBrakingConfig(look_ahead_form="carla")
     stage = PathBraking(None, None, carla, 0.1, 9.0, "npc.")
     assert stage.look_ahead_m(0.0) == pytest.approx(2.5)
     assert stage.look_ahead_m(5.0) == pytest.approx(2.5 + 1.8**2)  # 5.74 m
     assert stage.look_ahead_m(11.0) == pytest.approx(2.5 + 3.96**2)  # 18.18 m
     assert stage.look_ahead_m(30.0) == pytest.approx(50.0)  # the cap: 2.5 + 10.8^2 = 119 m
-    floor = dataclasses.replace(carla, path_look_ahead_min_m=0.5, path_stop_gap_m=3.0)
+    floor = dataclasses.replace(carla, look_ahead_min_m=0.5, stop_gap_m=3.0)
     stage = PathBraking(None, None, floor, 0.1, 9.0, "npc.")
     assert stage.look_ahead_m(0.0) == pytest.approx(3.0)  # max(3.0, 0.5)
     assert stage.look_ahead_m(5.0) == pytest.approx(3.74)  # max(3.0, 0.5 + 3.24)
 
 
 def test_path_braking_knob_errors_are_one_line() -> None:
-    with pytest.raises(ValueError, match=r"traffic.path_reaction_time_s: expected >= 0"):
-        TrafficBehaviour(path_reaction_time_s=-0.1)
-    with pytest.raises(ValueError, match=r"traffic.path_margin_m: expected >= 0"):
-        TrafficBehaviour(path_margin_m=-0.5)
+    with pytest.raises(ValueError, match=r"^reaction_time_s: expected >= 0"):
+        PathBrakingConfig(reaction_time_s=-0.1)
+    with pytest.raises(ValueError, match=r"^margin_m: expected >= 0"):
+        PathBrakingConfig(margin_m=-0.5)
+    with pytest.raises(ValueError, match=r"look_ahead_max_m: expected >= look_ahead_min_m"):
+        PathBrakingConfig(look_ahead_min_m=10.0, look_ahead_max_m=5.0)
     with pytest.raises(
-        ValueError, match=r"path_look_ahead_max_m: expected >= path_look_ahead_min_m"
+        ValueError, match=r"look_ahead_form: expected one of linear, carla, got 'x'"
     ):
-        TrafficBehaviour(path_look_ahead_min_m=10.0, path_look_ahead_max_m=5.0)
+        PathBrakingConfig(look_ahead_form="x")
+    with pytest.raises(ValueError, match=r"look_ahead_vel_factor: expected >= 0"):
+        PathBrakingConfig(look_ahead_vel_factor=-0.1)
+    from priqn.run.train_config import resolve_config
+
+    # Through --set, named by their key; the flat keys of before the table name the new one.
     with pytest.raises(
-        ValueError, match=r"traffic.path_look_ahead_form: expected one of linear, carla, got 'x'"
+        PriqnError, match=r"^--set env.traffic.path_braking.margin_m: expected >= 0, got -0.5$"
     ):
-        TrafficBehaviour(path_look_ahead_form="x")
-    with pytest.raises(ValueError, match=r"traffic.path_look_ahead_vel_factor: expected >= 0"):
-        TrafficBehaviour(path_look_ahead_vel_factor=-0.1)
+        resolve_config(
+            values=traffic_values("tm"), overrides=["env.traffic.path_braking.margin_m=-0.5"]
+        )
+    with pytest.raises(
+        PriqnError,
+        match=r"'env.traffic.path_margin_m' is now 'env.traffic.path_braking.margin_m'$",
+    ):
+        resolve_config(overrides=["env.traffic.path_margin_m=0.5"])
+    with pytest.raises(PriqnError, match=r"'env.traffic.path_braking' is off; .*=\{\}"):
+        resolve_config(overrides=["env.traffic.path_braking.margin_m=0.5"])
+
+
+def test_path_braking_on_the_command_line() -> None:
+    """``path_braking=true`` is its defaults (as in the flat form), ``false`` off, a table its
+    knobs; a knob set after ``true`` or a setting that has it on is set on its defaults."""
+    from priqn.run.train_config import resolve_config
+
+    def braking(*overrides: str, traffic: str | None = None) -> Any:
+        return resolve_config(values=traffic_values(traffic), overrides=overrides).env.traffic
+
+    assert braking("env.traffic.path_braking=true").path_braking == PathBrakingConfig()
+    assert braking("env.traffic.path_braking=false", traffic="tm").path_braking is None
+    assert braking("env.traffic.path_braking={margin_m = 0.5}").path_braking == PathBrakingConfig(
+        margin_m=0.5
+    )
+    on = braking("env.traffic.path_braking=true", "env.traffic.path_braking.follows_offset=true")
+    assert on.path_braking == PathBrakingConfig(follows_offset=True)
+    carla = braking("env.traffic.path_braking.look_ahead_form=carla", traffic="tm")
+    assert carla == TRAFFIC_SETTINGS["tm-carla"].behaviour
+
+
+def test_old_flat_traffic_tables_load_as_they_were() -> None:
+    """A run folder's ``[env.traffic]`` of before :class:`PathBrakingConfig` (flat ``path_*``
+    keys, some of them missing in older ones) loads as the table it meant, and is named as
+    before; ``path_braking = false`` is off whatever its knobs."""
+    from priqn.config import from_dict
+    from priqn.env.traffic import setting_name
+    from priqn.run.train_config import TrainConfig
+
+    knobs = {"path_look_ahead_max_m": 50.0, "path_look_ahead_min_m": 2.5,
+             "path_look_ahead_s": 4.35, "path_reaction_time_s": 0.0, "path_stop_gap_m": 2.0}  # fmt: skip
+    old = {"yield_to_ego_prob": 0.0, "top_up": True, "impatience": 0.0, "path_braking": True}
+    cfg = from_dict(
+        TrainConfig, {"env": {"traffic": {**old, **knobs}, "max_episode_steps": 200}}, "x"
+    )
+    assert cfg.env.traffic == TRAFFIC_SETTINGS["tm"].behaviour
+    assert setting_name(cfg.env) == "tm-long"
+    off = from_dict(TrainConfig, {"env": {"traffic": {**old, **knobs, "path_braking": False}}}, "x")
+    assert off.env.traffic == TRAFFIC_SETTINGS["rude"].behaviour and setting_name(off.env) == "rude"
+    carla = {**old, **knobs, "path_look_ahead_form": "carla", "path_margin_m": 0.0}
+    cfg = from_dict(TrainConfig, {"env": {"traffic": carla}}, "x")
+    assert setting_name(cfg.env) == "tm-carla"
+    oldest = from_dict(TrainConfig, {"env": {"traffic": {"top_up": True}}}, "x")  # no path_*
+    assert oldest.env.traffic == TrafficBehaviour() and setting_name(oldest.env) == "sumo"
 
 
 # ------------------------------------------------ an NPC straddling two lanes (issue 62)
@@ -529,7 +611,8 @@ def _drive_straddling(net: str, setting: str, **knobs: Any) -> dict:
     from priqn.env.traffic import NPC_TYPE
     from priqn.sim.sumo import simulation_args
 
-    behaviour = dataclasses.replace(TRAFFIC_SETTINGS[setting].behaviour(), **knobs)
+    tm = TRAFFIC_SETTINGS[setting].behaviour
+    behaviour = dataclasses.replace(tm, path_braking=dataclasses.replace(tm.path_braking, **knobs))
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
         traffic = _stage_scene(
@@ -579,9 +662,9 @@ def _straddle(worker: Any, net: Path, setting: str, **knobs: Any) -> list:
 
 
 def test_tm_npc_looking_along_its_own_offset_stops_for_the_ego(two_lanes, worker) -> None:
-    # path_follows_offset: the same NPC looks along its own lateral position, sees the
+    # follows_offset: the same NPC looks along its own lateral position, sees the
     # ego's rear in its path and stops 2 m short of it; no collision.
-    rows = _straddle(worker, two_lanes, "tm", path_follows_offset=True)
+    rows = _straddle(worker, two_lanes, "tm", follows_offset=True)
     assert not any(r[3] for r in rows)
     seen = [r for r in rows if r[2] is not None]
     assert seen and min(r[1] for r in seen) == 0.0
@@ -592,7 +675,7 @@ def test_tm_strict_keeps_its_margin_clear_of_the_ego(two_lanes, worker) -> None:
     # tm-strict adds a 0.5 m margin around the ego's box: the same NPC stops about 0.5 m
     # further back than with the offset alone (the ego's rear face, turned 10°, is met
     # about 0.5 / cos 10° = 0.51 m sooner along the path), and nothing touches.
-    offset = _straddle(worker, two_lanes, "tm", path_follows_offset=True)
+    offset = _straddle(worker, two_lanes, "tm", follows_offset=True)
     strict = _straddle(worker, two_lanes, "tm-strict")
     assert not any(r[3] for r in strict)
     stop_x = [

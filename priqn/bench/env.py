@@ -359,10 +359,9 @@ def measure(spec: dict[str, Any]) -> dict[str, Any]:
 
     cfg = EnvConfig(family=spec["family"], obs_size_px=spec["obs_size_px"])
     if spec.get("traffic"):
-        from priqn.config import apply_values
-        from priqn.env.traffic import TRAFFIC_SETTINGS
+        from priqn.env.traffic import traffic_setting
 
-        cfg = apply_values(cfg, TRAFFIC_SETTINGS[spec["traffic"]].env, "--traffic")
+        cfg = traffic_setting(spec["traffic"]).apply(cfg)
     if mode == "vector":
         return _measure_vector(cfg, spec)
     env = IntersectionEnv(cfg)

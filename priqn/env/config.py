@@ -84,9 +84,9 @@ class EnvConfig:
     sensor_query_range_m: float = 65.0
     """Radius around the ego within which actors are read from SUMO each step [m]; > 0.
     Path braking (the ``tm`` traffic settings, :mod:`priqn.env.path_braking`) reads its NPCs
-    from this same read: it looks up to ``traffic.path_look_ahead_max_m`` (50 m) plus half
-    the ego's diagonal, half an NPC's width and ``traffic.path_margin_m``, about 54 m, so a
-    range below that silently shortens the ``tm`` NPCs' look-ahead too."""
+    from this same read: it looks up to ``traffic.path_braking.look_ahead_max_m`` (50 m) plus
+    half the ego's diagonal, half an NPC's width and ``traffic.path_braking.margin_m``, about
+    54 m, so a range below that silently shortens the ``tm`` NPCs' look-ahead too."""
     reward: R.RewardConfig = dataclasses.field(default_factory=R.RewardConfig)
     """Reward term parameters."""
     traffic: TrafficBehaviour = dataclasses.field(

@@ -521,7 +521,8 @@ class IntersectionEnv(gymnasium.Env):
         spec = scene.traffic
         traffic = Traffic(
             sim, spec, scene.roadmap.npc_routes, density, trng, cfg.traffic, ego_id=EGO_ID,
-            paths=scene.npc_paths if cfg.traffic.path_braking else None, step_s=cfg.sim_step_s,
+            paths=scene.npc_paths if cfg.traffic.path_braking is not None else None,
+            step_s=cfg.sim_step_s,
         )  # fmt: skip
         traffic.setup()
         sim.vehicletype.copy("DEFAULT_VEHTYPE", EGO_TYPE)

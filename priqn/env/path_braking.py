@@ -7,7 +7,7 @@ length that grows with its speed (the "geodesic boundary": 2.5 m + (0.36 x speed
 current CARLA releases, ``CollisionStage::GetBoundingBoxExtention``; 2 m + 1.73 s x speed,
 capped at 50 m, in CARLA 0.9.10; ``tm`` was measured with
 2.5 m + 4.35 s x speed, see
-:attr:`priqn.env.traffic.TrafficBehaviour.path_look_ahead_form`), and
+:attr:`PathBrakingConfig.look_ahead_form`), and
 when any vehicle's box overlaps that boundary, the ego included
 (``ignore_vehicles_percentage`` defaults to 0), its motion planner brakes for it. So a TM
 NPC drives into the junction by its own right of way, but does not drive into an ego that
@@ -19,15 +19,15 @@ the TM's stage on top of SUMO's drivers, once per SUMO step:
 
 1. Each NPC near the ego looks along its own lane chain (approach lane, internal junction
    lanes, exit lane: :class:`NpcPaths`) from its front bumper, for
-   :meth:`PathBraking.look_ahead_m` (``path_look_ahead_form``: ``"linear"``,
-   ``min(path_look_ahead_max_m, path_look_ahead_min_m + path_look_ahead_s * speed)``, or
-   ``"carla"``, ``path_look_ahead_min_m + (path_look_ahead_vel_factor * speed)**2``, at least
-   ``path_stop_gap_m``, at most ``path_look_ahead_max_m``).
+   :meth:`PathBraking.look_ahead_m` (``look_ahead_form``: ``"linear"``,
+   ``min(look_ahead_max_m, look_ahead_min_m + look_ahead_s * speed)``, or ``"carla"``,
+   ``look_ahead_min_m + (look_ahead_vel_factor * speed)**2``, at least ``stop_gap_m``, at
+   most ``look_ahead_max_m``; the knobs are :class:`PathBrakingConfig`'s).
 2. The ego is in that path when a point of the path lies inside the ego's box grown by
    half the NPC's width (the NPC's front sweeping the path would touch the ego there).
    The distance along the path to the first such point is the *hazard distance* ``d``.
-3. From the first check at least ``path_reaction_time_s`` after the one that first saw the
-   hazard, the NPC brakes to stop ``path_stop_gap_m`` short of it: with the least
+3. From the first check at least ``reaction_time_s`` after the one that first saw the
+   hazard, the NPC brakes to stop ``stop_gap_m`` short of it: with the least
    deceleration that does (``v**2 / (2 * (d - gap))``), at most its vType's
    ``emergencyDecel``. From beyond its stopping distance that is below its ``decel``, so
    it stops comfortably; an ego that cuts in closer gets the emergency brake, and may be
@@ -35,11 +35,11 @@ the TM's stage on top of SUMO's drivers, once per SUMO step:
    the speed mode's deceleration bound lifted; its safe speed, car-following included,
    still applies). When the ego has left its path, SUMO drives the NPC again.
 
-The path is the lane's centre line unless ``path_follows_offset``: then it is shifted to the
+The path is the lane's centre line unless ``follows_offset``: then it is shifted to the
 NPC's own lateral position in its lane (SUMO's sublane model: a random offset that fades
 before the junction, or a lane change under way). On the centre line, an NPC that straddles
 two lanes (SUMO moves a vehicle only as far as it must to be in its target lane) looks
-along the new lane's centre and can miss an ego its body will sweep. ``path_margin_m``
+along the new lane's centre and can miss an ego its body will sweep. ``margin_m``
 grows the ego's box further: an NPC pulling past a standing ego in a sublane lane change
 turns its body off its path, and its corners reach beyond half its width.
 
@@ -69,6 +69,70 @@ SPEED_MODE_NO_DECEL_BOUND = 0b11011
 """SUMO speed mode while an NPC brakes for the ego: SUMO's default (31) without bit 2, so a
 commanded speed may fall faster than ``decel`` (:class:`PathBraking` bounds it by
 ``emergencyDecel`` itself); safe speed, acceleration bound and right of way still apply."""
+
+
+LOOK_AHEAD_FORMS = ("linear", "carla")
+"""Values of :attr:`PathBrakingConfig.look_ahead_form`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PathBrakingConfig:
+    """CARLA Traffic Manager's collision stage (:mod:`priqn.env.path_braking`), the knobs of
+    :attr:`priqn.env.traffic.TrafficBehaviour.path_braking` (``[env.traffic.path_braking]``;
+    docs/environment.md): every NPC brakes for the ego when the ego's box overlaps its own path ahead, within a
+    look-ahead that grows with its speed, after ``reaction_time_s``, at no more than its
+    vType's ``emergencyDecel``. The defaults are ``tm``'s, as it was measured."""
+
+    look_ahead_form: str = "linear"
+    """How the look-ahead grows with the NPC's speed v [m/s]: ``"linear"``,
+    ``min(look_ahead_max_m, look_ahead_min_m + look_ahead_s * v)``, as ``tm`` was measured
+    (no CARLA release uses it: 2.5 m + 4.35 s x v); ``"carla"``, CARLA's TM in current
+    releases (``CollisionStage::GetBoundingBoxExtention`` and ``GetGeodesicBoundary``):
+    ``look_ahead_min_m + (look_ahead_vel_factor * v)**2``, at least ``stop_gap_m`` (the lead
+    distance), at most ``look_ahead_max_m``
+    (:meth:`priqn.env.path_braking.PathBraking.look_ahead_m`, docs/environment.md)."""
+    look_ahead_min_m: float = 2.5
+    """Look-ahead along the path at standstill [m] (TM ``BOUNDARY_EXTENSION_MINIMUM``)."""
+    look_ahead_s: float = 4.35
+    """``"linear"`` form: look-ahead added per m/s of the NPC's speed [s] (TM
+    ``BOUNDARY_EXTENSION_RATE``, which CARLA declares in ``Constants.h`` but does not use)."""
+    look_ahead_vel_factor: float = 0.36
+    """``"carla"`` form: the factor whose product with the speed is squared [s/m^0.5], so that
+    ``(0.36 * v)**2`` is in metres for v in m/s (TM ``VEL_EXT_FACTOR``)."""
+    look_ahead_max_m: float = 50.0
+    """Longest look-ahead [m] (TM ``BOUNDARY_EXTENSION_MAXIMUM`` of CARLA 0.9.10; later
+    releases have no cap, and the ``"carla"`` form stays below it at the NPCs' speeds)."""
+    reaction_time_s: float = 0.0
+    """Delay from the check that first sees the ego in the path to the first braking check
+    [s]. Even at 0 a check acts on the next SUMO step (0.1 s), as SUMO's own drivers do;
+    CARLA's TM acts on the tick that sees the hazard, so ours lags it by one SUMO step."""
+    stop_gap_m: float = 2.0
+    """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``; the
+    ``"carla"`` look-ahead form's floor, the TM's distance to the leading vehicle, 2 m)."""
+    follows_offset: bool = False
+    """Look along the path at the NPC's own lateral position in its lane (its sublane offset,
+    or a lane change under way), not along the lane's centre line. False, as ``tm`` was
+    measured: an NPC straddling two lanes can miss an ego its body will sweep
+    (docs/environment.md)."""
+    margin_m: float = 0.0
+    """Clearance an NPC keeps from the ego beyond touching [m]: the ego's box is grown by
+    it, besides half the NPC's width, in the path test. 0, as ``tm`` was measured."""
+
+    def __post_init__(self) -> None:
+        if self.look_ahead_form not in LOOK_AHEAD_FORMS:
+            raise ValueError(
+                f"look_ahead_form: expected one of {', '.join(LOOK_AHEAD_FORMS)}, "
+                f"got {self.look_ahead_form!r}"
+            )
+        for name in ("look_ahead_min_m", "look_ahead_s", "look_ahead_vel_factor",
+                     "reaction_time_s", "stop_gap_m", "margin_m"):  # fmt: skip
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
+        if not self.look_ahead_max_m >= self.look_ahead_min_m:
+            raise ValueError(
+                f"look_ahead_max_m: expected >= look_ahead_min_m "
+                f"({self.look_ahead_min_m}), got {self.look_ahead_max_m}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,8 +239,8 @@ class _Braking:
 class PathBraking:
     """The collision stage of one episode (module docstring); :meth:`check` once per SUMO step.
 
-    ``behaviour``: the :class:`~priqn.env.traffic.TrafficBehaviour` with the ``path_*``
-    knobs; ``emergency_decel_mps2``: the NPCs' vType bound on braking; ``step_s``: the SUMO
+    ``config``: its knobs (:class:`PathBrakingConfig`, ``EnvConfig.traffic.path_braking``);
+    ``emergency_decel_mps2``: the NPCs' vType bound on braking; ``step_s``: the SUMO
     step length.
     """
 
@@ -184,14 +248,14 @@ class PathBraking:
         self,
         sim: ModuleType,
         paths: NpcPaths,
-        behaviour: Any,
+        config: PathBrakingConfig,
         step_s: float,
         emergency_decel_mps2: float,
         npc_prefix: str,
     ) -> None:
         self.sim = sim
         self.paths = paths
-        self.behaviour = behaviour
+        self.config = config
         self.step_s = float(step_s)
         self.emergency_decel_mps2 = float(emergency_decel_mps2)
         """The NPCs' hardest braking (vType ``emergencyDecel``) [m/s²]."""
@@ -205,15 +269,15 @@ class PathBraking:
 
     def look_ahead_m(self, speed_mps: float) -> float:
         """How far along its path an NPC at ``speed_mps`` looks for the ego [m]: the
-        behaviour's ``path_look_ahead_form`` (``"linear"``, as ``tm`` was measured, or
-        ``"carla"``, CARLA's current TM), at most ``path_look_ahead_max_m``."""
-        b = self.behaviour
-        if b.path_look_ahead_form == "carla":
-            grown = b.path_look_ahead_min_m + (b.path_look_ahead_vel_factor * speed_mps) ** 2
-            reach = max(b.path_stop_gap_m, grown)
+        config's ``look_ahead_form`` (``"linear"``, as ``tm`` was measured, or ``"carla"``,
+        CARLA's current TM), at most ``look_ahead_max_m``."""
+        c = self.config
+        if c.look_ahead_form == "carla":
+            grown = c.look_ahead_min_m + (c.look_ahead_vel_factor * speed_mps) ** 2
+            reach = max(c.stop_gap_m, grown)
         else:
-            reach = b.path_look_ahead_min_m + b.path_look_ahead_s * speed_mps
-        return min(b.path_look_ahead_max_m, reach)
+            reach = c.look_ahead_min_m + c.look_ahead_s * speed_mps
+        return min(c.look_ahead_max_m, reach)
 
     def check(
         self,
@@ -228,7 +292,7 @@ class PathBraking:
         Commands braking NPCs for the next step and hands the others back to SUMO."""
         import libsumo
 
-        sim, b = self.sim, self.behaviour
+        sim, c = self.sim, self.config
         cos_h, sin_h = float(np.cos(ego_heading_rad)), float(np.sin(ego_heading_rad))
         half_diag = 0.5 * float(np.hypot(ego_length_m, ego_width_m))
         hazards: dict[str, float] = {}
@@ -239,7 +303,7 @@ class PathBraking:
             speed = float(var[libsumo.VAR_SPEED])
             half_w = 0.5 * float(var[libsumo.VAR_WIDTH])
             reach = self.look_ahead_m(speed)
-            near_m = reach + half_diag + half_w + b.path_margin_m
+            near_m = reach + half_diag + half_w + c.margin_m
             if np.hypot(x - ego_xy[0], y - ego_xy[1]) > near_m:
                 continue
             d = self._hazard_m(vid, reach, half_w, ego_xy, cos_h, sin_h, ego_length_m, ego_width_m)
@@ -252,11 +316,11 @@ class PathBraking:
         self.hazard_m = hazards
         for vid, d in hazards.items():
             state = self._braking.setdefault(vid, _Braking(first_seen_s=now))
-            if now - state.first_seen_s < b.path_reaction_time_s - 1e-9:
+            if now - state.first_seen_s < c.reaction_time_s - 1e-9:
                 continue
             speed = float(actors[vid][libsumo.VAR_SPEED])
             target = braking_speed_mps(
-                speed, d - b.path_stop_gap_m, self.emergency_decel_mps2, self.step_s
+                speed, d - c.stop_gap_m, self.emergency_decel_mps2, self.step_s
             )
             if state.speed_mode is None:
                 state.speed_mode = int(sim.vehicle.getSpeedMode(vid))
@@ -284,7 +348,7 @@ class PathBraking:
         path = self.paths.find(lane_id, int(index) if index.isdigit() else 0, edge_id, exit_edge)
         if path is None:
             return None
-        margin = self.behaviour.path_margin_m
+        margin = self.config.margin_m
         half_len = 0.5 * ego_length_m + npc_half_width_m + margin
         half_wid = 0.5 * ego_width_m + npc_half_width_m + margin
 
@@ -296,9 +360,7 @@ class PathBraking:
             return np.flatnonzero(inside)
 
         lane_pos = sim.vehicle.getLanePosition(vid)
-        lateral = (
-            sim.vehicle.getLateralLanePosition(vid) if self.behaviour.path_follows_offset else 0.0
-        )
+        lateral = sim.vehicle.getLateralLanePosition(vid) if self.config.follows_offset else 0.0
         xy, ahead_m = path.ahead(lane_pos, reach_m, SAMPLE_STEP_M, lateral)
         hit = first_inside(xy)
         if not len(hit):

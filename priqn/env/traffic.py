@@ -27,15 +27,14 @@ docs/environment.md says which CARLA behaviour each knob stands in for.
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from types import ModuleType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from priqn.checks import check_density
-from priqn.env.path_braking import NpcPaths, PathBraking
+from priqn.env.path_braking import NpcPaths, PathBraking, PathBrakingConfig
 from priqn.errors import PriqnError, did_you_mean
 from priqn.sim.geometry import sumo_angle_deg
 from priqn.sim.scenario import TrafficSpec
@@ -52,8 +51,31 @@ IGNORE_IDS_PARAM = "junctionModel.ignoreIDs"
 """SUMO vehicle parameter: foes (space-separated ids) its junction model ignores."""
 
 
-LOOK_AHEAD_FORMS = ("linear", "carla")
-"""Values of :attr:`TrafficBehaviour.path_look_ahead_form`."""
+LEGACY_PATH_KNOBS: dict[str, str] = {
+    f"path_{f.name}": f.name for f in dataclasses.fields(PathBrakingConfig)
+}
+"""The flat ``[env.traffic]`` keys of run folders written before
+:class:`PathBrakingConfig` (``path_look_ahead_s = 4.35``) -> its fields
+(:func:`upgrade_traffic_table`)."""
+
+
+def upgrade_traffic_table(table: Mapping[str, Any]) -> dict[str, Any]:
+    """An ``[env.traffic]`` table of any recorded form as the current one: the flat form of
+    older run folders (``path_braking = true`` beside ``path_look_ahead_s = 4.35``, ...)
+    becomes ``path_braking = {look_ahead_s = 4.35, ...}``; ``path_braking = false`` (or
+    absent) is off, its flat knobs dropped (they did nothing). ``path_braking = true`` is
+    the table of defaults, also in the current form (``--set env.traffic.path_braking=true``).
+    A table of the current form comes back as it is."""
+    out = {k: v for k, v in table.items() if k not in LEGACY_PATH_KNOBS}
+    knobs = {LEGACY_PATH_KNOBS[k]: v for k, v in table.items() if k in LEGACY_PATH_KNOBS}
+    braking = table.get("path_braking")
+    if braking is True:
+        out["path_braking"] = knobs
+    elif braking is False:
+        out["path_braking"] = None
+    elif isinstance(braking, Mapping) and knobs:
+        out["path_braking"] = {**braking, **knobs}
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +87,14 @@ class TrafficBehaviour:
     every decision, no impatience, no path braking. A non-default value draws from its own
     generator (path braking draws nothing), so the defaults leave every episode bit for bit
     as it was. :data:`TRAFFIC_SETTINGS` names whole settings; ``tm`` is the
-    Traffic-Manager-like one."""
+    Traffic-Manager-like one. Run folders written before :class:`PathBrakingConfig` record
+    its knobs flat (``path_look_ahead_s``); they load as they were
+    (:func:`upgrade_traffic_table`)."""
+
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        old: f"path_braking.{new}" for old, new in LEGACY_PATH_KNOBS.items()
+    }
+    """Keys of the flat form -> where they are now (``--set`` errors name the new key)."""
 
     yield_to_ego_prob: float = 1.0
     """Probability that an NPC gives way to the ego at the junction, drawn once per NPC at
@@ -81,45 +110,16 @@ class TrafficBehaviour:
     impatience: float = 0.0
     """SUMO's vType ``impatience`` of the NPCs in [0, 1] (0 = SUMO's default): how readily an
     NPC that has waited forces its way past vehicles with priority, the ego included."""
-    path_braking: bool = False
-    """CARLA Traffic Manager's collision stage (:mod:`priqn.env.path_braking`): every NPC
-    brakes for the ego when the ego's box overlaps its own path ahead, within a look-ahead
-    that grows with its speed, after ``path_reaction_time_s``, at no more than its vType's
-    ``emergencyDecel``. Off: SUMO's drivers alone."""
-    path_look_ahead_form: str = "linear"
-    """How the look-ahead grows with the NPC's speed v [m/s]: ``"linear"``,
-    ``min(path_look_ahead_max_m, path_look_ahead_min_m + path_look_ahead_s * v)``, as ``tm``
-    was measured (no CARLA release uses it: 2.5 m + 4.35 s x v); ``"carla"``, CARLA's TM in
-    current releases (``CollisionStage::GetBoundingBoxExtention`` and ``GetGeodesicBoundary``):
-    ``path_look_ahead_min_m + (path_look_ahead_vel_factor * v)**2``, at least
-    ``path_stop_gap_m`` (the lead distance), at most ``path_look_ahead_max_m``
-    (:meth:`priqn.env.path_braking.PathBraking.look_ahead_m`, docs/environment.md)."""
-    path_look_ahead_min_m: float = 2.5
-    """Look-ahead along the path at standstill [m] (TM ``BOUNDARY_EXTENSION_MINIMUM``)."""
-    path_look_ahead_s: float = 4.35
-    """``"linear"`` form: look-ahead added per m/s of the NPC's speed [s] (TM
-    ``BOUNDARY_EXTENSION_RATE``, which CARLA declares in ``Constants.h`` but does not use)."""
-    path_look_ahead_vel_factor: float = 0.36
-    """``"carla"`` form: the factor whose product with the speed is squared [s/m^0.5], so that
-    ``(0.36 * v)**2`` is in metres for v in m/s (TM ``VEL_EXT_FACTOR``)."""
-    path_look_ahead_max_m: float = 50.0
-    """Longest look-ahead [m] (TM ``BOUNDARY_EXTENSION_MAXIMUM`` of CARLA 0.9.10; later
-    releases have no cap, and the ``"carla"`` form stays below it at the NPCs' speeds)."""
-    path_reaction_time_s: float = 0.0
-    """Delay from the check that first sees the ego in the path to the first braking check
-    [s]. Even at 0 a check acts on the next SUMO step (0.1 s), as SUMO's own drivers do;
-    CARLA's TM acts on the tick that sees the hazard, so ours lags it by one SUMO step."""
-    path_stop_gap_m: float = 2.0
-    """Where the NPC aims to stop, short of the ego [m] (TM ``MIN_FOLLOW_LEAD_DISTANCE``; the
-    ``"carla"`` look-ahead form's floor, the TM's distance to the leading vehicle, 2 m)."""
-    path_follows_offset: bool = False
-    """Look along the path at the NPC's own lateral position in its lane (its sublane offset,
-    or a lane change under way), not along the lane's centre line. False, as ``tm`` was
-    measured: an NPC straddling two lanes can miss an ego its body will sweep
-    (docs/environment.md)."""
-    path_margin_m: float = 0.0
-    """Clearance an NPC keeps from the ego beyond touching [m]: the ego's box is grown by
-    it, besides half the NPC's width, in the path test. 0, as ``tm`` was measured."""
+    path_braking: PathBrakingConfig | None = None
+    """CARLA Traffic Manager's collision stage with its knobs (:class:`PathBrakingConfig`,
+    a ``[env.traffic.path_braking]`` table; ``true`` is its defaults, ``tm``'s), or None
+    (``false``, absent): off, SUMO's drivers alone."""
+
+    @classmethod
+    def upgrade_table(cls, data: Mapping[str, Any]) -> dict[str, Any]:
+        """Its table of any recorded form as the current one (:func:`priqn.config.from_dict`
+        calls it: :func:`upgrade_traffic_table`)."""
+        return upgrade_traffic_table(data)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.yield_to_ego_prob <= 1.0:
@@ -131,76 +131,129 @@ class TrafficBehaviour:
             raise ValueError(
                 f"traffic.impatience: expected a value in [0, 1], got {self.impatience}"
             )
-        if self.path_look_ahead_form not in LOOK_AHEAD_FORMS:
-            raise ValueError(
-                f"traffic.path_look_ahead_form: expected one of {', '.join(LOOK_AHEAD_FORMS)}, "
-                f"got {self.path_look_ahead_form!r}"
-            )
-        for name in ("path_look_ahead_min_m", "path_look_ahead_s", "path_look_ahead_vel_factor",
-                     "path_reaction_time_s", "path_stop_gap_m", "path_margin_m"):  # fmt: skip
-            if not getattr(self, name) >= 0.0:
-                raise ValueError(f"traffic.{name}: expected >= 0, got {getattr(self, name)}")
-        if not self.path_look_ahead_max_m >= self.path_look_ahead_min_m:
-            raise ValueError(
-                f"traffic.path_look_ahead_max_m: expected >= path_look_ahead_min_m "
-                f"({self.path_look_ahead_min_m}), got {self.path_look_ahead_max_m}"
-            )
+
+
+LONG_EPISODE_STEPS = 200
+"""Decisions per training episode of the ``-long`` settings (100 s; the default is 100)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class TrafficSetting:
-    """A named traffic setting: the env fields it sets (``priqn train --traffic NAME``)."""
+    """A named traffic setting (``priqn train --traffic NAME``): how the NPCs treat the ego
+    and, apart from it, how long a training episode is. A run records the name it was
+    trained with (meta.json ``traffic``: :func:`run_setting_name`)."""
 
+    name: str
+    """What ``--traffic`` and experiment files call it (``tm-long``)."""
     description: str
     """What it is, in one line (``priqn train --help`` lists them)."""
-    env: tuple[tuple[str, Any], ...] = ()
-    """``(EnvConfig key, value)`` pairs, nested keys dotted (``traffic.top_up``)."""
-
-    def behaviour(self) -> TrafficBehaviour:
-        """How the setting's NPCs treat the ego: its ``traffic.*`` values over the defaults."""
-        knobs = {k.removeprefix("traffic."): v for k, v in self.env if k.startswith("traffic.")}
-        return TrafficBehaviour(**knobs)
+    behaviour: TrafficBehaviour = dataclasses.field(default_factory=TrafficBehaviour)
+    """How its NPCs treat the ego (``EnvConfig.traffic``)."""
+    max_episode_steps: int | None = None
+    """Decisions per training episode it sets (``EnvConfig.max_episode_steps``; the
+    ``-long`` settings: :data:`LONG_EPISODE_STEPS`); None keeps the config's."""
 
     def values(self) -> tuple[tuple[str, Any], ...]:
-        """The setting as typed TrainConfig values: ``(env.<key>, value)`` pairs
-        (:func:`priqn.config.apply_values`)."""
-        return tuple((f"env.{key}", value) for key, value in self.env)
+        """The setting as typed TrainConfig values (:func:`priqn.config.apply_values`):
+        ``(env.traffic.<field>, value)`` for each field of its behaviour that is not the
+        default, ``env.max_episode_steps`` if it sets one. Path braking with its defaults is
+        ``true``, as the flat form had it, so a cell run at a commit before
+        :class:`PathBrakingConfig` (``priqn sweep --code``) reads the same values."""
+        b, default = self.behaviour, TrafficBehaviour()
+        pairs: list[tuple[str, Any]] = []
+        for f in dataclasses.fields(b):
+            value = getattr(b, f.name)
+            if value == getattr(default, f.name):
+                continue
+            if isinstance(value, PathBrakingConfig):
+                value = True if value == PathBrakingConfig() else dataclasses.asdict(value)
+            pairs.append((f"env.traffic.{f.name}", value))
+        if self.max_episode_steps is not None:
+            pairs.append(("env.max_episode_steps", self.max_episode_steps))
+        return tuple(pairs)
+
+    def apply(self, env_cfg: Any) -> Any:
+        """``env_cfg`` (an :class:`~priqn.env.config.EnvConfig`) with this setting's NPC
+        behaviour and, if it sets one, its episode length."""
+        steps = self.max_episode_steps or env_cfg.max_episode_steps
+        return dataclasses.replace(env_cfg, traffic=self.behaviour, max_episode_steps=steps)
+
+    def plays(self, env_cfg: Any) -> bool:
+        """Whether ``env_cfg`` plays this setting: its NPC behaviour, and its episode length
+        if it sets one."""
+        return self.behaviour == env_cfg.traffic and self.max_episode_steps in (
+            None,
+            env_cfg.max_episode_steps,
+        )
 
 
-_RUDE = (("traffic.yield_to_ego_prob", 0.0),)
-_TM = _RUDE + (("traffic.path_braking", True),)
-_FINITE = (("traffic.top_up", False),)
-_LONG = (("max_episode_steps", 200),)
-_TM_CARLA = _TM + (("traffic.path_look_ahead_form", "carla"),)
+_SUMO = TrafficBehaviour()
+_RUDE = TrafficBehaviour(yield_to_ego_prob=0.0)
+_RUDE_FINITE = dataclasses.replace(_RUDE, top_up=False)
+_TM = dataclasses.replace(_RUDE, path_braking=PathBrakingConfig())
+_TM_CARLA = dataclasses.replace(_TM, path_braking=PathBrakingConfig(look_ahead_form="carla"))
+_TM_STRICT = dataclasses.replace(
+    _TM, path_braking=PathBrakingConfig(follows_offset=True, margin_m=0.5)
+)
+_LONG = LONG_EPISODE_STEPS
 TRAFFIC_SETTINGS: dict[str, TrafficSetting] = {
-    "sumo": TrafficSetting("SUMO's drivers: every NPC gives way to the ego (the default)"),
-    "rude": TrafficSetting("no NPC gives way to the ego at the junction", _RUDE),
-    "rude-long": TrafficSetting("rude, episodes of 200 decisions (100 s)", _RUDE + _LONG),
-    "rude-finite": TrafficSetting("rude, no top-up: the reset's NPCs only", _RUDE + _FINITE),
-    "rude-finite-long": TrafficSetting("rude, no top-up, 200 decisions", _RUDE + _FINITE + _LONG),
-    "sumo-finite-long": TrafficSetting("polite NPCs, no top-up, 200 decisions", _FINITE + _LONG),
-    "tm": TrafficSetting(
-        "CARLA Traffic Manager-like: no NPC gives way to the ego, but each brakes for an ego "
-        "in its path ahead",
-        _TM,
-    ),
-    "tm-finite": TrafficSetting("tm, no top-up: the reset's NPCs only", _TM + _FINITE),
-    "tm-long": TrafficSetting("tm, training episodes of 200 decisions (100 s)", _TM + _LONG),
-    "tm-carla": TrafficSetting(
-        "tm with the look-ahead of CARLA's current Traffic Manager: 2.5 m + (0.36 x speed)^2",
-        _TM_CARLA,
-    ),
-    "tm-carla-long": TrafficSetting(
-        "tm-carla, training episodes of 200 decisions (100 s)", _TM_CARLA + _LONG
-    ),
-    "tm-strict": TrafficSetting(
-        "tm, each NPC looking along its own lateral position and keeping 0.5 m clear of the ego",
-        _TM + (("traffic.path_follows_offset", True), ("traffic.path_margin_m", 0.5)),
-    ),
+    s.name: s
+    for s in (
+        TrafficSetting("sumo", "SUMO's drivers: every NPC gives way to the ego (the default)"),
+        TrafficSetting("rude", "no NPC gives way to the ego at the junction", _RUDE),
+        TrafficSetting("rude-long", "rude, episodes of 200 decisions (100 s)", _RUDE, _LONG),
+        TrafficSetting("rude-finite", "rude, no top-up: the reset's NPCs only", _RUDE_FINITE),
+        TrafficSetting("rude-finite-long", "rude, no top-up, 200 decisions", _RUDE_FINITE, _LONG),
+        TrafficSetting(
+            "sumo-finite-long",
+            "polite NPCs, no top-up, 200 decisions",
+            dataclasses.replace(_SUMO, top_up=False),
+            _LONG,
+        ),
+        TrafficSetting(
+            "tm",
+            "CARLA Traffic Manager-like: no NPC gives way to the ego, but each brakes for an "
+            "ego in its path ahead",
+            _TM,
+        ),
+        TrafficSetting(
+            "tm-finite",
+            "tm, no top-up: the reset's NPCs only",
+            dataclasses.replace(_TM, top_up=False),
+        ),
+        TrafficSetting("tm-long", "tm, training episodes of 200 decisions (100 s)", _TM, _LONG),
+        TrafficSetting(
+            "tm-carla",
+            "tm with the look-ahead of CARLA's current Traffic Manager: 2.5 m + (0.36 x speed)^2",
+            _TM_CARLA,
+        ),
+        TrafficSetting(
+            "tm-carla-long",
+            "tm-carla, training episodes of 200 decisions (100 s)",
+            _TM_CARLA,
+            _LONG,
+        ),
+        TrafficSetting(
+            "tm-strict",
+            "tm, each NPC looking along its own lateral position and keeping 0.5 m clear of "
+            "the ego",
+            _TM_STRICT,
+        ),
+    )
 }
 """Named traffic settings (issue 48's calibration candidates, issue 62's ``tm`` family;
 ``tm-carla`` looks ahead as CARLA's TM does, and ``tm-strict`` mends what ``tm`` missed, both
 added after ``tm``'s cells were measured; docs/environment.md)."""
+
+
+def traffic_setting(name: str) -> TrafficSetting:
+    """The named traffic setting; an unknown name is a one-line error listing the valid ones."""
+    if name not in TRAFFIC_SETTINGS:
+        raise PriqnError(
+            f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
+            + did_you_mean(name, TRAFFIC_SETTINGS)
+        )
+    return TRAFFIC_SETTINGS[name]
 
 
 def traffic_names(text: str, where: str = "--traffic") -> list[str]:
@@ -210,38 +263,32 @@ def traffic_names(text: str, where: str = "--traffic") -> list[str]:
     if not names:
         raise PriqnError(f"{where}: expected one or more setting names, e.g. sumo,tm")
     for name in names:
-        traffic_values(name)
+        traffic_setting(name)
     return names
 
 
 def traffic_values(name: str | None) -> tuple[tuple[str, Any], ...]:
-    """The typed TrainConfig values of the named traffic setting, ``(dotted key, value)``
-    pairs (none for None); an unknown name is a one-line error listing the valid ones."""
-    if name is None:
-        return ()
-    if name not in TRAFFIC_SETTINGS:
-        raise PriqnError(
-            f"traffic: unknown setting {name!r} (valid: {', '.join(TRAFFIC_SETTINGS)})"
-            + did_you_mean(name, TRAFFIC_SETTINGS)
-        )
-    return TRAFFIC_SETTINGS[name].values()
+    """The typed TrainConfig values of the named traffic setting (:meth:`TrafficSetting.values`;
+    none for None); an unknown name is a one-line error listing the valid ones."""
+    return () if name is None else traffic_setting(name).values()
 
 
 def setting_name(env_cfg: Any) -> str:
-    """The named traffic setting an env config plays ('' for none): the setting whose NPC
-    behaviour equals ``env_cfg.traffic`` and whose every other value ``env_cfg`` has, the one
-    with most values where several do (a ``tm`` run with 200-decision episodes is
-    ``tm-long``, not ``tm``)."""
+    """The named traffic setting an env config plays ('' for none), inferred from its values:
+    for a run that recorded no name (:func:`run_setting_name`). Of the settings it plays
+    (:meth:`TrafficSetting.plays`), one that sets the episode length wins over one that
+    does not (a ``tm`` run with 200-decision episodes is ``tm-long``, not ``tm``)."""
+    fits = [s for s in TRAFFIC_SETTINGS.values() if s.plays(env_cfg)]
+    fits.sort(key=lambda s: s.max_episode_steps is None)  # stable: file order among equals
+    return fits[0].name if fits else ""
 
-    def has(key: str, value: Any) -> bool:
-        return functools.reduce(getattr, key.split("."), env_cfg) == value
 
-    fits = [
-        (len(s.env), name)
-        for name, s in TRAFFIC_SETTINGS.items()
-        if s.behaviour() == env_cfg.traffic and all(has(k, v) for k, v in s.env)
-    ]
-    return max(fits, key=lambda fit: fit[0])[1] if fits else ""
+def run_setting_name(meta: Mapping[str, Any], env_cfg: Any) -> str:
+    """The traffic setting a run was trained with: the name its meta.json records
+    (``traffic``, written since runs record it), else the one its env config plays
+    (:func:`setting_name`; '' for none)."""
+    recorded = meta.get("traffic")
+    return recorded if isinstance(recorded, str) and recorded else setting_name(env_cfg)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -331,7 +378,7 @@ class Traffic:
         self._density_sum = 0.0
         self._density_steps = 0
         self.obstacles: list[Obstacle] = []
-        if behaviour.path_braking and paths is None:
+        if behaviour.path_braking is not None and paths is None:
             raise PriqnError("traffic.path_braking: the traffic was given no NPC paths")
         self._paths = paths
         self._step_s = step_s
@@ -362,11 +409,11 @@ class Traffic:
         sim.vehicletype.copy("DEFAULT_VEHTYPE", OBSTACLE_TYPE)
         sim.vehicletype.setColor(OBSTACLE_TYPE, (200, 40, 40, 255))
         self.emergency_decel_mps2 = float(sim.vehicletype.getEmergencyDecel(NPC_TYPE))
-        if self._paths is not None and self.behaviour.path_braking:
+        if self._paths is not None and self.behaviour.path_braking is not None:
             self.path_braking = PathBraking(
                 sim,
                 self._paths,
-                self.behaviour,
+                self.behaviour.path_braking,
                 self._step_s,
                 emergency_decel_mps2=self.emergency_decel_mps2,
                 npc_prefix=NPC_PREFIX,

@@ -245,9 +245,9 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     if args.family is not None:
         values.append(("family", args.family))
     if args.traffic is not None:
-        from priqn.env.traffic import traffic_values
+        from priqn.env.traffic import traffic_setting
 
-        traffic_values(args.traffic)  # an unknown name: one line, before any episode
+        traffic_setting(args.traffic)  # an unknown name: one line, before any episode
         values.append(("traffic", args.traffic))
     if args.snapshot is not None:
         if args.snapshot <= 0:

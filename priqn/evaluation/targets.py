@@ -109,10 +109,10 @@ def evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None
     else:
         env_cfg = dataclasses.replace(env_config, family=cfg.family, nets=(), junction="")
     if cfg.traffic:
-        from priqn.env.traffic import TRAFFIC_SETTINGS, traffic_values
+        from priqn.env.traffic import traffic_setting
 
-        traffic_values(cfg.traffic)  # an unknown name: one line listing the valid ones
-        env_cfg = dataclasses.replace(env_cfg, traffic=TRAFFIC_SETTINGS[cfg.traffic].behaviour())
+        # its NPCs only (an unknown name: one line listing the valid ones)
+        env_cfg = dataclasses.replace(env_cfg, traffic=traffic_setting(cfg.traffic).behaviour)
     limit = cfg.episode_limit or cfg.max_episode_steps
     if limit:
         env_cfg = dataclasses.replace(env_cfg, max_episode_steps=limit)

@@ -37,10 +37,12 @@ def start_session(
     force: bool,
     provenance: Provenance,
     labels: Mapping[str, Any],
+    traffic: str = "",
 ) -> dict[str, Any]:
     """Check / create ``run`` for a training session; write config.toml, nets.json
     (own nets) and meta.json (``provenance``, ``labels``, status running, this process
-    as the trainer). Returns the meta.
+    as the trainer; a new run's ``traffic``, the named setting it was trained with, where
+    one was chosen: :func:`priqn.env.traffic.run_setting_name`). Returns the meta.
 
     Everything that can refuse the run comes before the folder is touched (what
     gathering ``provenance`` refuses comes before this call).
@@ -52,6 +54,8 @@ def start_session(
             "stop that process first (a run folder has one writer)"
         )
     meta = _resumed_meta(run, cfg, provenance) if resume else _new_meta(run, cfg, force)
+    if traffic and not resume:
+        meta["traffic"] = traffic
     try:
         run.path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -79,6 +79,9 @@ class Cell:
     ``priqn.evaluation.protocol.control_config``); empty for Pr-IQN rows."""
     snapshots: tuple[int, ...] = ()
     """Budgets whose kept policy is evaluated too, into ``eval-at<N>/`` (``checkpoint.keep_at``)."""
+    traffic: str = ""
+    """The named traffic setting the cell trains under ('' = the preset's), which its run
+    records (:meth:`priqn.experiment.Experiment.row_traffic`)."""
 
     @property
     def evaluations(self) -> tuple[str, ...]:
@@ -176,6 +179,7 @@ def cell_of(exp: Experiment, pol: PolicySpec, seed: int) -> Cell:
         source=str(exp.path),
         controls=tuple(e.controls) if has_scalar_value(pol.agent) else (),
         snapshots=pol.keep_at,
+        traffic=exp.row_traffic(pol),
     )
 
 

@@ -38,7 +38,7 @@ def train_and_evaluate(cell: Cell) -> None:
             train(cfg, cell.run_dir, resume=True)
         else:
             # Nothing to resume (new, or killed before its first checkpoint): start over.
-            train(cfg, cell.run_dir, force=cell.run_dir.exists())
+            train(cfg, cell.run_dir, force=cell.run_dir.exists(), traffic=cell.traffic)
     eval_cfg = build_eval_config(cell)
     own = eval_cfg.family  # the experiment's [evaluate] family is the cell's own: eval/
     for name in ("", *cell.controls):  # each returns at once if already complete

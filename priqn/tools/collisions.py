@@ -65,9 +65,9 @@ def collision_rows(
     policy = load_policy(cell.path, device="cpu", snapshot=cell.snapshot)
     env_cfg = evaluation_env(policy.env_config, cell.eval_config, None)
     if traffic is not None:
-        from priqn.env.traffic import TRAFFIC_SETTINGS
+        from priqn.env.traffic import traffic_setting
 
-        env_cfg = dataclasses.replace(env_cfg, traffic=TRAFFIC_SETTINGS[traffic].behaviour())
+        env_cfg = dataclasses.replace(env_cfg, traffic=traffic_setting(traffic).behaviour)
     rows = []
     played = replayed_episodes(
         policy, env_cfg, scenes, cell.eval_config.seed, workers=workers, quantiles=False
@@ -116,8 +116,10 @@ def analyse(
 
 
 def _traffic_name(run: Path) -> str:
-    """The named traffic setting a run played ('' for none)."""
-    from priqn.env.traffic import setting_name
+    """The named traffic setting a run was trained with ('' for none): the name it
+    records, else the one its config plays (:func:`priqn.env.traffic.run_setting_name`)."""
+    from priqn.env.traffic import run_setting_name
     from priqn.run.folder import RunFolder
 
-    return setting_name(RunFolder(run).config().env)
+    folder = RunFolder(run)
+    return run_setting_name(folder.meta(), folder.config().env)

@@ -343,11 +343,11 @@ def run(args: argparse.Namespace) -> int:
     if args.target != DEFAULT_TARGET and not args.standstill:
         raise PriqnError("--target: only with --standstill")
     if args.traffic is not None:
-        from priqn.env.traffic import traffic_values
+        from priqn.env.traffic import traffic_setting
 
         if not args.collisions:
             raise PriqnError("--traffic: only with --collisions")
-        traffic_values(args.traffic)  # an unknown name: one line listing the valid ones
+        traffic_setting(args.traffic)  # an unknown name: one line listing the valid ones
     cfg = MechanismConfig(
         episodes=args.episodes,
         top=args.top,

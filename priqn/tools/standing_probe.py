@@ -107,13 +107,12 @@ def probe(spec: dict[str, Any]) -> list[dict[str, Any]]:
     import numpy as np
     from tqdm import tqdm
 
-    from priqn.config import apply_values
     from priqn.env.config import EnvConfig
     from priqn.env.intersection import IntersectionEnv
     from priqn.env.traffic import TRAFFIC_SETTINGS
 
     cfg = EnvConfig(family="holdout", obs_size_px=32, max_episode_steps=100)
-    cfg = apply_values(cfg, TRAFFIC_SETTINGS[spec["traffic"]].env, "--traffic")
+    cfg = TRAFFIC_SETTINGS[spec["traffic"]].apply(cfg)
     env = IntersectionEnv(cfg)
     table = env.action_table()
     cruise = int(np.argmin(np.abs(table[:, 0] - CRUISE_MPS) + np.abs(table[:, 1])))
