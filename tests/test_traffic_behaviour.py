@@ -322,10 +322,10 @@ def _drive_stage(
     from priqn.env import geometry, reads
     from priqn.sim.sumo import simulation_args
 
-    tm = TRAFFIC_SETTINGS[setting].behaviour
-    behaviour = dataclasses.replace(
-        tm, path_braking=dataclasses.replace(tm.path_braking, reaction_time_s=reaction_s)
-    )
+    behaviour = TRAFFIC_SETTINGS[setting].behaviour
+    if behaviour.path_braking is not None:  # `rude` has no stage to delay
+        braking = dataclasses.replace(behaviour.path_braking, reaction_time_s=reaction_s)
+        behaviour = dataclasses.replace(behaviour, path_braking=braking)
     sim.start(simulation_args(net, seed=1, lateral_resolution_m=0.8))
     try:
         routes = {"left": ["SC", "CW"], "right": ["SC", "CE"], "behind": ["WC", "CE"]}
@@ -573,6 +573,36 @@ def test_old_flat_traffic_tables_load_as_they_were() -> None:
     assert setting_name(cfg.env) == "tm-carla"
     oldest = from_dict(TrainConfig, {"env": {"traffic": {"top_up": True}}}, "x")  # no path_*
     assert oldest.env.traffic == TrafficBehaviour() and setting_name(oldest.env) == "sumo"
+
+
+COMMITTED_SETTINGS = {
+    "paper-point-tm": "tm-long",
+    "budget-tm": "tm-long",
+    "paper-point": "rude",
+    "headline": "sumo",
+}
+"""Committed grids under results/ (run folders of the flat ``[env.traffic]`` form, recording
+no setting name) -> the setting every one of their cells trained under."""
+
+
+@pytest.mark.parametrize("grid", sorted(COMMITTED_SETTINGS))
+def test_committed_run_folders_load_and_name_their_setting(grid: str) -> None:
+    """Every committed cell of a grid written before :class:`PathBrakingConfig` and before
+    runs recorded their setting loads through the run folder, and is named the setting its
+    grid trained under (inferred from its config, as it records none)."""
+    from priqn.env.traffic import run_setting_name
+    from priqn.run.folder import RunFolder
+
+    cells = sorted(
+        (Path(__file__).resolve().parent.parent / "results" / grid).glob("*/config.toml")
+    )
+    assert cells, grid
+    names = {}
+    for config in cells:
+        folder = RunFolder(config.parent)
+        assert "traffic" not in folder.meta()  # an old run: the name is inferred
+        names[config.parent.name] = run_setting_name(folder.meta(), folder.config().env)
+    assert set(names.values()) == {COMMITTED_SETTINGS[grid]}, names
 
 
 # ------------------------------------------------ an NPC straddling two lanes (issue 62)

@@ -13,7 +13,7 @@ the runs' episodes only).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,11 @@ from priqn.analysis.load import EVAL_SETTINGS, SORT_COLUMNS, Evaluation, RunInfo
 from priqn.config import config_differences, flatten
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX
-from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
+from priqn.evaluation.reference import (
+    REFERENCES,
+    SCENE_NEUTRAL_FIELDS,
+    recorded_env_config,
+)
 from priqn.io import read_json
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluation_dir, recorded_eval_status
@@ -87,7 +91,9 @@ def load_references(
                 f"{info.holdout_hash[:12]} vs {evaluation.holdout_hash[:12]}); re-evaluate it"
             )
         _check_settings(folder.path, info.eval_config, evaluation.eval_config, EVAL_SETTINGS)
-        env = _current_form(read_json(folder.eval_dir / RunFolder.META).get("env_config") or {})
+        env = recorded_env_config(
+            read_json(folder.eval_dir / RunFolder.META).get("env_config") or {}
+        )
         # Keys one record lacks (written before the field existed) are not compared.
         only_one = set(flatten(run_env)) ^ set(flatten(env))
         ignore = ENV_NEUTRAL_FIELDS | only_one
@@ -136,20 +142,8 @@ def _runs_env(evaluation: Evaluation) -> dict[str, Any]:
     for info in evaluation.runs:
         meta = read_json(info.path / info.eval_dir / RunFolder.META)
         if meta.get("env_config"):
-            return _current_form(meta["env_config"])
+            return recorded_env_config(meta["env_config"])
     return {}
-
-
-def _current_form(env: Mapping[str, Any]) -> dict[str, Any]:
-    """A recorded env config (an evaluation's meta.json ``env_config``) in the current
-    form: the flat ``path_*`` traffic keys of older records as their table
-    (:func:`priqn.env.traffic.upgrade_traffic_table`), so old and new records compare."""
-    from priqn.env.traffic import upgrade_traffic_table
-
-    out = dict(env)
-    if isinstance(out.get("traffic"), Mapping):
-        out["traffic"] = upgrade_traffic_table(out["traffic"])
-    return out
 
 
 def _check_settings(
