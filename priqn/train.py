@@ -3,15 +3,18 @@
 Read :func:`_train_loop` top to bottom, CleanRL style: act (ε-greedy over the agent's
 acting rule) → step the env workers → learn while they simulate → collect the step and
 store it → log → evaluate on the hold-out nets → keep a snapshot at a listed budget →
-checkpoint, each a named call of :class:`Trainer`. Before the loop, :class:`Trainer`
-builds the network, learner, policy and replay buffer, :func:`_resume` restores a
-checkpoint and :class:`HoldoutEvaluation` starts its env worker. A checkpoint or snapshot
-is copied in the loop and its files written by a background thread
-(:class:`priqn.run.writer.BackgroundWriter`) while the loop goes on. The config is
-:mod:`priqn.run.train_config`; every file of the run folder goes through
-:class:`priqn.run.folder.RunFolder`, in :mod:`priqn.run.checkpoint`'s format for the torch
-files; :mod:`priqn.run.provenance` gathers what meta.json records about the run's origin;
-tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
+checkpoint, each a named call of :class:`Trainer`. The first four are the stepper's
+(:mod:`priqn.run.stepper`, chosen once from the config: every worker at once, the
+updates overlapped with the step or after it, or the workers in groups that step in
+turn); the loop handles each step it yields. Before the loop, :class:`Trainer` builds
+the network, learner, policy and replay buffer, :func:`_resume` restores a checkpoint
+and :class:`HoldoutEvaluation` starts its env worker. A checkpoint or snapshot is copied
+in the loop (:func:`priqn.run.checkpointer.capture_training`) and its files written by
+a background thread (:class:`priqn.run.writer.BackgroundWriter`) while the loop goes
+on. The config is :mod:`priqn.run.train_config`; every file of the run folder goes
+through :class:`priqn.run.folder.RunFolder`, in :mod:`priqn.run.checkpoint`'s format for
+the torch files; :mod:`priqn.run.provenance` gathers what meta.json records about the
+run's origin; tqdm, TensorBoard and metrics.csv sit behind one :class:`TrainLogger`.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from priqn.objectives import subset_columns
 from priqn.run.checkpoint import REMEDY, Checkpoint, PolicyState, restore
 from priqn.run.checkpointer import (
     CheckpointWrite,
-    capture_checkpoint,
+    capture_training,
     copy_tensors,
     keep_snapshot,
     load_checkpoint,
@@ -58,6 +61,7 @@ from priqn.run.session import (
     start_session,
     undo_failed_start,
 )
+from priqn.run.stepper import ALL_ENVS, make_stepper, open_env_workers
 from priqn.run.timing import SectionClock
 from priqn.run.train_config import (
     NETS,
@@ -72,9 +76,6 @@ from priqn.run.train_config import (
 )
 from priqn.run.writer import BackgroundWriter
 from priqn.sim.scenario import family_net_refs
-
-ALL_ENVS = slice(None)
-"""Every env worker (the rows of an ``[E, ...]`` array); a group's rows are a slice of them."""
 
 
 def linear_epsilon(cfg: ExplorationConfig, step: int, total_steps: int) -> float:
@@ -256,17 +257,12 @@ def _train_loop(
     Checkpoints and snapshots are written by a background thread (``background_writes``),
     every meta.json write of the loop with them; leaving the ``with`` block waits for the
     one in flight, so :func:`_finish` writes after it."""
-    from priqn.env.vector import EnvGroups, make_vector_env
-
     meta = run.meta()
     seeds: dict[str, int] = meta["seeds"]
     session = len(meta["sessions"]) - 1
     device = _torch_device(cfg)
     with contextlib.ExitStack() as stack:  # closes the logger and the env workers once
-        if cfg.env_groups > 1:  # stepped in turn: _pipelined_steps
-            envs = EnvGroups(cfg.env, cfg.num_envs, cfg.env_groups, seed=seeds["env"], preload=True)
-        else:
-            envs = make_vector_env(cfg.env, cfg.num_envs, seed=seeds["env"], preload=True)
+        envs = open_env_workers(cfg, seeds["env"])  # in groups with env_groups > 1
         stack.callback(envs.close)
         writer = stack.enter_context(BackgroundWriter(background_writes))
         t = Trainer(cfg, agent, envs, seeds, device, writer)
@@ -279,106 +275,28 @@ def _train_loop(
         logger = stack.enter_context(TrainLogger(cfg, run, t.step, resume))
 
         t.start()
-        if cfg.env_groups > 1:  # the same steps, the groups in turn
-            _pipelined_steps(cfg, run, t, envs, obs, evaluation, logger)
-        while t.step < cfg.total_steps and cfg.env_groups == 1:
-            actions = t.act(obs)  # 1. act: the agent's acting rule, ε-greedy on top
-            t.issue(envs, actions)  # 2. step: the env workers simulate it meanwhile
-            landed = None if cfg.overlap_updates else t.collect(envs, obs, actions)
-            t.learn(t.step + cfg.num_envs)  # 3. learn, while they simulate (serial: after)
-            obs, ended, infos = landed or t.collect(envs, obs, actions)  # 4. collect, store
-            t.step += cfg.num_envs
-            t.log(logger, ended, infos)  # 5. log
+        stepper = make_stepper(cfg, t, envs, obs)  # serial, overlapped or in groups
+        for ended, infos, rows in stepper:  # 1.-4. act, step, learn, collect and store
+            t.log(logger, ended, infos, rows)  # 5. log
             if evaluation is not None and t.step >= t.next_eval:
                 t.evaluate(evaluation, logger)  # 6. evaluate greedily on the hold-out nets
             if t.step in cfg.checkpoint.keep_at:
                 t.keep_snapshot(run)  # 7. keep the policy at a listed budget
             if t.step >= t.next_ckpt or t.step >= cfg.total_steps:
-                t.checkpoint(run, logger, envs, obs)  # 8. checkpoint (written in the background)
+                t.checkpoint(run, logger, envs, stepper.observations())  # 8. checkpoint
     _finish(run, t)
-
-
-def _pipelined_steps(
-    cfg: TrainConfig,
-    run: RunFolder,
-    t: Trainer,
-    envs: Any,
-    obs: Mapping[str, np.ndarray],
-    evaluation: HoldoutEvaluation | None,
-    logger: TrainLogger,
-) -> None:
-    """The loop's steps with ``env_groups`` > 1 (:class:`~priqn.env.vector.EnvGroups`):
-    the groups step in turn, and while the others simulate the loop collects one group's
-    step, learns, logs, evaluates, keeps a snapshot, then acts for that group and sends
-    its next step.
-
-    The pipeline empties at every checkpoint (and at the budget): no group is sent a step
-    that would pass it, the steps in flight are collected, and the checkpoint is written
-    with none in flight, so a resume continues exactly. The order of everything is fixed
-    by the config, never by timing: one seed, one run.
-    """
-    pipe = _Pipeline(t, envs, obs)
-    while t.step < cfg.total_steps:
-        empty_at = min(t.next_ckpt, cfg.total_steps)
-        for g in range(cfg.env_groups):
-            pipe.send(g, empty_at)  # 1.-2. act for each group and send its step
-        while pipe.in_flight:
-            g, ended, infos = pipe.collect()  # 3. collect the group sent first, store it
-            t.learn(t.step)  # 4. learn, while the other groups simulate
-            t.log(logger, ended, infos, envs.rows[g])  # 5. log
-            if evaluation is not None and t.step >= t.next_eval:
-                t.evaluate(evaluation, logger)  # 6. evaluate greedily on the hold-out nets
-            if t.step in cfg.checkpoint.keep_at:
-                t.keep_snapshot(run)  # 7. keep the policy at a listed budget
-            pipe.send(g, empty_at)  # 1.-2. its next step
-        t.checkpoint(run, logger, envs, pipe.observations())  # 8. empty: checkpoint
-
-
-class _Pipeline:
-    """The env groups' steps in flight, in the order they were sent (:func:`_pipelined_steps`)."""
-
-    def __init__(self, t: Trainer, envs: Any, obs: Mapping[str, np.ndarray]) -> None:
-        self.t, self.envs = t, envs
-        self.obs_G = [{k: v[rows] for k, v in obs.items()} for rows in envs.rows]
-        """Per group, the observations its workers stand at (keys → ``[E / G, ...]``)."""
-        self.actions_G: list[np.ndarray] = [np.empty(0, dtype=np.int64) for _ in envs.rows]
-        """Per group, the actions of its step in flight ``[E / G]``."""
-        self.in_flight: deque[int] = deque()
-        """The groups with a step in flight, the one sent first on the left."""
-
-    def send(self, g: int, empty_at: int) -> None:
-        """Act for group ``g`` and send its step, unless the decisions sent would then
-        pass ``empty_at`` (the next checkpoint or the budget)."""
-        t, size = self.t, self.envs.size
-        if t.step + len(self.in_flight) * size < empty_at:
-            self.actions_G[g] = t.act(self.obs_G[g], self.envs.rows[g])
-            t.issue(self.envs.groups[g], self.actions_G[g])
-            self.in_flight.append(g)
-
-    def collect(self) -> tuple[int, np.ndarray, dict[str, Any]]:
-        """Collect the step sent first and store it; returns (its group, ended ``[E / G]``,
-        infos). ``step`` counts its decisions."""
-        g = self.in_flight.popleft()
-        env, rows = self.envs.groups[g], self.envs.rows[g]
-        self.obs_G[g], ended, infos = self.t.collect(env, self.obs_G[g], self.actions_G[g], rows)
-        self.t.step += self.envs.size
-        return g, ended, infos
-
-    def observations(self) -> dict[str, np.ndarray]:
-        """Every worker's observation (keys → ``[E, ...]``), in worker order."""
-        return {k: np.concatenate([o[k] for o in self.obs_G]) for k in self.obs_G[0]}
 
 
 class Trainer:
     """The learning side of one training session, and the steps of its loop.
 
     Built before the loop: the network, learner, greedy policy and replay buffer, then
-    the replay and exploration generators. :func:`_train_loop` calls :meth:`act`,
-    :meth:`issue`, :meth:`collect`, :meth:`learn`, :meth:`log`, :meth:`evaluate`,
-    :meth:`keep_snapshot` and :meth:`checkpoint`
-    for every env step; ``step`` counts env decisions (all workers together). The files
-    of a checkpoint or snapshot are written by ``writer`` (its thread, while the loop goes
-    on) from copies the loop takes.
+    the replay and exploration generators. For every env step the stepper
+    (:mod:`priqn.run.stepper`) calls :meth:`act`, :meth:`issue`, :meth:`collect` and
+    :meth:`learn`, then :func:`_train_loop` calls :meth:`log`, :meth:`evaluate`,
+    :meth:`keep_snapshot` and :meth:`checkpoint`; ``step`` counts env decisions (all
+    workers together). The files of a checkpoint or snapshot are written by ``writer``
+    (its thread, while the loop goes on) from copies the loop takes.
     """
 
     def __init__(
@@ -586,43 +504,17 @@ class Trainer:
         """checkpoints/latest.pt (+ the replay rows added since the last one, and every
         worker's episode in flight), metrics and meta.json's progress.
 
-        The state is captured here (copies of the learner's tensors, the generators, the
-        observations; the replay rows stay in the ring, :meth:`_spare_checkpoint_rows`)
-        and metrics.csv flushed, then the writer writes the files and, once latest.pt is
-        on disk, meta.json's ``steps_done``, then learning_curve.png. It first waits for
-        the previous checkpoint (whose error, if any, is raised here); the run's last one
-        is waited for."""
+        The state is captured here (:func:`~priqn.run.checkpointer.capture_training`:
+        copies of the learner's tensors, the generators, the observations; the replay rows
+        stay in the ring, :meth:`_spare_checkpoint_rows`) and metrics.csv flushed, then the
+        writer writes the files and, once latest.pt is on disk, meta.json's
+        ``steps_done``, then learning_curve.png. It first waits for the previous
+        checkpoint (whose error, if any, is raised here); the run's last one is waited
+        for."""
         with self.clock("checkpoint"):
             self.writer.wait()
             self.next_ckpt = _next_multiple(self.step, self.cfg.checkpoint.interval_steps)
-            wall = self.wall_before + time.perf_counter() - self.t0
-            state = Checkpoint(
-                step=self.step,
-                episodes=self.episodes,
-                wall_s=wall,
-                learner=copy_tensors(self.learner.state_dict()),
-                rng_replay=self.rng_replay.bit_generator.state,
-                rng_act=self.rng_act.bit_generator.state,
-                obs={k: np.array(v) for k, v in obs.items()},
-                obs_shapes=self.obs_shapes,
-                num_actions=self.num_actions,
-                config=to_dict(self.cfg),
-                objectives=list(self.objectives),
-                replay_chunks=self.replay_chunks,
-                in_flight=list(envs.call("episode_record")),
-                logging={
-                    "subset_sum": self.subset_sizes.sum_EN.tolist(),
-                    "subset_count": self.subset_sizes.count_E.tolist(),
-                    "update_stats": dict(self.latest_update_stats),
-                },
-            )
-            progress = {
-                "steps_done": self.step,
-                "episodes_done": self.episodes,
-                "wall_s": round(wall, 1),
-            }
-            replay = self.replay if self.cfg.checkpoint.save_replay else None
-            self.writing = pending = capture_checkpoint(run, state, replay, progress)
+            self.writing = pending = capture_training(run, self, envs, obs)
             self.replay_chunks = pending.state.replay_chunks
             logger.checkpoint()  # metrics.csv holds every row to here before latest.pt does
             rows = list(logger.rows)

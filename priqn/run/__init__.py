@@ -9,8 +9,11 @@ it comes from. Torch-free at import (the analysis and the sweep read run folders
   meta.json's ``sessions``;
 - :mod:`~priqn.run.checkpoint` — the format of a run's torch files (``Checkpoint``,
   ``PolicyState``);
-- :mod:`~priqn.run.checkpointer` — those files saved and loaded in a run folder, and
-  ``load_policy`` (the network built by :mod:`priqn.agents.build`);
+- :mod:`~priqn.run.checkpointer` — those files saved and loaded in a run folder, a
+  training session's checkpoint captured (``capture_training``), and ``load_policy``
+  (the network built by :mod:`priqn.agents.build`);
+- :mod:`~priqn.run.stepper` — how the training loop steps its env workers (all at once,
+  the updates overlapped or after the step, or in groups in turn), chosen from the config;
 - :mod:`~priqn.run.writer` — ``BackgroundWriter``: the thread that writes a training
   session's checkpoints, snapshots and meta.json records while the loop goes on;
 - :mod:`~priqn.run.metrics` — the format of ``metrics.csv``, written and read;

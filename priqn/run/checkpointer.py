@@ -5,10 +5,11 @@ loaded back from them (:func:`load_policy`).
 Where each file lives is :class:`~priqn.run.folder.RunFolder`'s (its paths), what is in
 it :mod:`priqn.run.checkpoint`'s (the format); this module decides the order of the
 writes (replay files first, then ``latest.pt`` naming them, then meta.json's record) and
-which file a policy is loaded from. A checkpoint is captured (:func:`capture_checkpoint`)
-apart from its writing (:meth:`CheckpointWrite.write`), which the training loop hands to
-its background writer (:mod:`priqn.run.writer`). The network a policy acts with is built
-by :mod:`priqn.agents.build`.
+which file a policy is loaded from. A checkpoint is captured (:func:`capture_checkpoint`;
+a training session's gathered from its trainer by :func:`capture_training`) apart from
+its writing (:meth:`CheckpointWrite.write`), which the training loop hands to its
+background writer (:mod:`priqn.run.writer`). The network a policy acts with is built by
+:mod:`priqn.agents.build`.
 Torch-free at import, like the format.
 """
 
@@ -17,11 +18,14 @@ from __future__ import annotations
 import copy
 import dataclasses
 import os
+import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from priqn.config import to_dict
 from priqn.errors import PriqnError
 from priqn.io import atomic_open, sha256_file
 from priqn.run import checkpoint
@@ -109,6 +113,48 @@ def capture_checkpoint(
         chunks.append({"file": name, "end": [int(n) for n in frozen.written]})
     state = dataclasses.replace(state, replay_file=None, replay_chunks=chunks)
     return CheckpointWrite(run, state, frozen, since, dict(progress or {}))
+
+
+def capture_training(
+    run: RunFolder, trainer: Any, envs: Any, obs: Mapping[str, np.ndarray]
+) -> CheckpointWrite:
+    """The checkpoint of a training session as it stands now (:func:`capture_checkpoint`),
+    with meta.json's ``steps_done``, ``episodes_done`` and ``wall_s`` to record once it is
+    written.
+
+    ``trainer`` is the session's :class:`priqn.train.Trainer`; from it: the counters and
+    the wall time, a copy of the learner's state (networks, optimiser, τ generator), the
+    replay and exploration generators, the logging state (the acting rule's subset-size
+    means, the latest update's statistics) and, with ``checkpoint.save_replay``, the
+    replay buffer. ``envs`` (no step in flight) and ``obs``: the env workers and their
+    observations; every worker's episode in flight is recorded, so a resume plays it
+    again to this very decision (:func:`priqn.env.vector.restore_episodes`).
+    """
+    t = trainer
+    wall = t.wall_before + time.perf_counter() - t.t0
+    state = Checkpoint(
+        step=t.step,
+        episodes=t.episodes,
+        wall_s=wall,
+        learner=copy_tensors(t.learner.state_dict()),
+        rng_replay=t.rng_replay.bit_generator.state,
+        rng_act=t.rng_act.bit_generator.state,
+        obs={k: np.array(v) for k, v in obs.items()},
+        obs_shapes=t.obs_shapes,
+        num_actions=t.num_actions,
+        config=to_dict(t.cfg),
+        objectives=list(t.objectives),
+        replay_chunks=t.replay_chunks,
+        in_flight=list(envs.call("episode_record")),
+        logging={
+            "subset_sum": t.subset_sizes.sum_EN.tolist(),
+            "subset_count": t.subset_sizes.count_E.tolist(),
+            "update_stats": dict(t.latest_update_stats),
+        },
+    )
+    progress = {"steps_done": t.step, "episodes_done": t.episodes, "wall_s": round(wall, 1)}
+    replay = t.replay if t.cfg.checkpoint.save_replay else None
+    return capture_checkpoint(run, state, replay, progress)
 
 
 def frozen_rows(replay: Any) -> Any:
