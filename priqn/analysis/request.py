@@ -3,8 +3,8 @@
 A :class:`ReportRequest` holds ``priqn report``'s arguments (or a sweep's experiment);
 :func:`report_command` is the one builder of the command a report records in
 ``report.md`` and ``meta.json``: re-running it from the working directory regenerates the
-folder byte for byte. :mod:`priqn.analysis.reports` chooses the kind and its writer; the
-writers import only this module (a writer called without a command records this one).
+folder byte for byte. :mod:`priqn.analysis.reports` chooses the kind and its builder, which
+gets this command to record.
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ class ReportRequest:
     min_seeds: int | None = None
     """Grid: refuse a policy with fewer training seeds (``--seeds``)."""
     partial: bool = False
-    """Grid: report the evaluated runs of a grid still running (``--partial``)."""
+    """Report what is in while cells are missing (``--partial``): the grid's evaluated runs,
+    an evaluation design's or a traffic report's complete cells."""
     references: tuple[str, ...] = ()
     """Grid: reference drivers' folders (``--reference``)."""
     horizon: tuple[int, ...] = ()
