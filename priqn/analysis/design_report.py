@@ -33,8 +33,8 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
-from priqn.analysis.mixes import paired_changes, seed_rates
-from priqn.analysis.questions import OUTCOME_RATES
+from priqn.analysis.mixes import paired_changes
+from priqn.analysis.questions import OUTCOME_RATES, seed_rates
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError

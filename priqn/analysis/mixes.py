@@ -7,7 +7,8 @@ calibration report (:mod:`priqn.analysis.calibration`) chooses a setting by it, 
 question report's outcome-mix section (:mod:`priqn.analysis.questions_outcomes`) sets
 each row beside the paper's by it. The same policies played under two conditions (another
 episode limit, traffic or family) are compared scene by scene (:func:`common_scenes`,
-:func:`outcome_of`) and seed by seed (:func:`seed_rates`, :func:`paired_changes`).
+:func:`outcome_of`) and seed by seed (:func:`paired_changes` of
+:func:`priqn.analysis.questions.seed_rates`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
-from priqn.analysis.questions import OUTCOME_RATES
 from priqn.objectives import OUTCOMES
 
 
@@ -86,18 +86,6 @@ def mix_table(episodes: pd.DataFrame, by: str) -> pd.DataFrame:
     table = per_seed.groupby(keys).mean()
     table["seeds"] = per_seed.groupby(keys).size()
     return table.reset_index()[[*keys, "seeds", *OUTCOMES]]
-
-
-def seed_rates(episodes: pd.DataFrame) -> dict[str, float]:
-    """One training seed's score of every rate of
-    :data:`~priqn.analysis.questions.OUTCOME_RATES` (success, violation, timeout, collision,
-    off-road): its rate per density, then the mean over densities (each density weighted
-    equally, nets pooled within a density), as the designs score a seed."""
-    out = {}
-    for name, flags in OUTCOME_RATES.items():
-        hit = episodes[list(flags)].astype(bool).any(axis=1)
-        out[name] = float(hit.groupby(episodes["density"]).mean().mean())
-    return out
 
 
 def paired_changes(

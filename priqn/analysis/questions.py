@@ -68,12 +68,18 @@ def endpoint_by_density(eval_dir: str | Path, endpoint: str) -> tuple[pd.Series,
     return _rate_by_density(episodes, endpoint), len(episodes)
 
 
+def seed_rates(episodes: pd.DataFrame) -> dict[str, float]:
+    """Every rate of :data:`OUTCOME_RATES` of one training seed's episodes: its rate per
+    density, then the mean over densities (each density weighted equally, nets pooled
+    within a density), as the designs score a seed."""
+    return {o: float(_rate_by_density(episodes, o).mean()) for o in OUTCOME_RATES}
+
+
 def outcome_rates(eval_dir: str | Path) -> tuple[dict[str, float], int]:
-    """Every rate of :data:`OUTCOME_RATES` for one evaluation, each averaged over the
-    densities as the endpoints are, and the number of episodes (one read of the table)."""
+    """Every rate of :data:`OUTCOME_RATES` for one evaluation (:func:`seed_rates`) and the
+    number of episodes (one read of the table)."""
     episodes = read_episodes(eval_dir)
-    rates = {o: float(_rate_by_density(episodes, o).mean()) for o in OUTCOME_RATES}
-    return rates, len(episodes)
+    return seed_rates(episodes), len(episodes)
 
 
 def rows_of(exp: Experiment, design: SequentialSpec) -> list[str]:

@@ -8,7 +8,7 @@ decides; frames, then estimates, then sections:
 
 1. **frames** (:func:`traffic_episodes`): every run's episodes under both, over the scenes
    both played (:func:`~priqn.analysis.mixes.common_scenes`), and each training seed's
-   rates (:func:`~priqn.analysis.mixes.seed_rates`: per density, then the mean);
+   rates (:func:`~priqn.analysis.questions.seed_rates`: per density, then the mean);
 2. **estimates**: the outcome mix per row, traffic and density; per row, the change
    NAME − own paired per training seed with its t interval
    (:func:`~priqn.analysis.mixes.paired_changes`); between every two rows under each
@@ -37,8 +37,8 @@ from priqn.analysis.mixes import (
     mix_table,
     outcome_of,
     paired_changes,
-    seed_rates,
 )
+from priqn.analysis.questions import seed_rates
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
 from priqn.analysis.tables import policy_order
@@ -93,7 +93,7 @@ def traffic_episodes(
 
 def seed_scores(episodes: pd.DataFrame) -> pd.DataFrame:
     """One row per (row, training seed, traffic): ``label, seed, where`` and every rate of
-    :func:`~priqn.analysis.mixes.seed_rates`."""
+    :func:`~priqn.analysis.questions.seed_rates`."""
     rows = [
         {"label": label, "seed": int(seed), "where": where, **seed_rates(part)}
         for (label, seed, where), part in episodes.groupby(
