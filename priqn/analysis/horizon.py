@@ -28,7 +28,7 @@ from typing import Any
 import pandas as pd
 
 from priqn.analysis.load import find_run_dirs, read_episodes
-from priqn.analysis.mixes import SCENE_KEY, common_scenes, mix_table, outcome_of
+from priqn.analysis.mixes import common_scenes, mix_table, paired_outcomes
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
@@ -66,24 +66,18 @@ def limit_episodes(runs: str | Path, limits: Sequence[int]) -> pd.DataFrame:
 def timeout_table(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per row and longer limit: the episodes its own limit cut, what they end in at the
     longer limit (shares), and the share of all episodes whose outcome changed otherwise."""
-    frame = episodes.assign(outcome=outcome_of(episodes))
-    key = ["run", *SCENE_KEY]
-    own = frame[frame["limit"] == frame["own_limit"]].set_index(key)
+    at_own = episodes["limit"] == episodes["own_limit"]
     rows = []
-    for (label, limit), longer in frame[frame["limit"] != frame["own_limit"]].groupby(
-        ["label", "limit"]
-    ):
-        joined = longer.set_index(key)[["outcome"]].join(
-            own[["outcome"]], rsuffix="_own", how="inner"
-        )
-        cut = joined[joined["outcome_own"] == "timeout"]
-        other = joined[joined["outcome_own"] != "timeout"]
+    for (label, limit), longer in episodes[~at_own].groupby(["label", "limit"]):
+        joined = paired_outcomes(episodes[at_own], longer)
+        cut = joined[joined["outcome_base"] == "timeout"]
+        other = joined[joined["outcome_base"] != "timeout"]
         row: dict[str, Any] = {"label": label, "limit": int(limit), "episodes": len(joined)}
         row["cut_at_own_limit"] = len(cut) / max(len(joined), 1)
         for o in OUTCOMES:
             row[f"cut_then_{o}"] = float((cut["outcome"] == o).mean()) if len(cut) else 0.0
         row["others_changed"] = (
-            float((other["outcome"] != other["outcome_own"]).mean()) if len(other) else 0.0
+            float((other["outcome"] != other["outcome_base"]).mean()) if len(other) else 0.0
         )
         rows.append(row)
     return pd.DataFrame(rows)

@@ -21,6 +21,7 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
+from priqn.evaluation.protocol import SCENE_COLUMNS
 from priqn.objectives import OUTCOMES
 
 
@@ -56,15 +57,11 @@ def rates_of(lines: pd.DataFrame) -> dict[tuple[str, float], float]:
     return dict(zip(keys, lines.rate.astype(float), strict=True))
 
 
-SCENE_KEY: tuple[str, ...] = ("eval_run", "net", "density", "episode")
-"""Columns that name one scene of the evaluation protocol (the same at every limit)."""
-
-
 def common_scenes(episodes: pd.DataFrame, by: str) -> pd.DataFrame:
     """Only each run's scenes played under every one of its conditions (column ``by``: the
     episode limit, the traffic; a longer limit may have played fewer, e.g. ``--eval-runs
     1``), so that every condition's mix is over the same scenes."""
-    key = ["run", *SCENE_KEY]
+    key = ["run", *SCENE_COLUMNS]
     conditions = episodes.groupby("run")[by].nunique()
     counts = episodes.groupby(key)[by].nunique().rename("played").reset_index()
     counts = counts[counts["played"] == counts["run"].map(conditions)]
@@ -75,6 +72,17 @@ def outcome_of(episodes: pd.DataFrame) -> pd.Series:
     """The one outcome of each episode (a name of :data:`OUTCOMES`)."""
     flags = episodes[list(OUTCOMES)].astype(bool)
     return flags.idxmax(axis=1).where(flags.any(axis=1), "timeout")
+
+
+def paired_outcomes(base: pd.DataFrame, other: pd.DataFrame) -> pd.DataFrame:
+    """Scene by scene (``run`` and :data:`SCENE_COLUMNS`), each scene's outcome in ``other``
+    (``outcome``) beside its outcome in ``base`` (``outcome_base``) and ``base``'s
+    ``label``: the scenes both played, in ``other``'s order (the same policies under two
+    conditions; a traffic report's transitions, a horizon report's timeouts)."""
+    key = ["run", *SCENE_COLUMNS]
+    base = base.assign(outcome_base=outcome_of(base)).set_index(key)[["label", "outcome_base"]]
+    other = other.assign(outcome=outcome_of(other)).set_index(key)[["outcome"]]
+    return other.join(base, how="inner")
 
 
 def mix_table(episodes: pd.DataFrame, by: str) -> pd.DataFrame:

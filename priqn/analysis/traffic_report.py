@@ -31,13 +31,7 @@ import pandas as pd
 
 from priqn.analysis import inference
 from priqn.analysis.load import find_run_dirs, read_episodes
-from priqn.analysis.mixes import (
-    SCENE_KEY,
-    common_scenes,
-    mix_table,
-    outcome_of,
-    paired_changes,
-)
+from priqn.analysis.mixes import common_scenes, mix_table, paired_changes, paired_outcomes
 from priqn.analysis.questions import seed_rates
 from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
@@ -124,12 +118,9 @@ def transitions(episodes: pd.DataFrame, traffic: str) -> pd.DataFrame:
     """Scene by scene, per row and outcome under its own traffic (``own``): how many
     episodes ended so (``episodes``) and the share of them ending in each outcome under
     ``traffic``."""
-    key = ["run", *SCENE_KEY]
-    ends = episodes.assign(outcome=outcome_of(episodes))
-    own = ends[ends["traffic"] == OWN].set_index(key)[["label", "outcome"]]
-    other = ends[ends["traffic"] == traffic].set_index(key)[["outcome"]]
-    joined = own.join(other, rsuffix="_then", how="inner")
-    counts = pd.crosstab([joined["label"], joined["outcome"]], joined["outcome_then"])
+    under = episodes["traffic"]
+    joined = paired_outcomes(episodes[under == OWN], episodes[under == traffic])
+    counts = pd.crosstab([joined["label"], joined["outcome_base"]], joined["outcome"])
     counts = counts.reindex(columns=list(OUTCOMES), fill_value=0)
     table = counts.div(counts.sum(axis=1), axis=0)
     table.insert(0, "episodes", counts.sum(axis=1))

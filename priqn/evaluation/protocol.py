@@ -74,6 +74,10 @@ def episode_columns(objectives: Sequence[str] = OBJECTIVES) -> tuple[str, ...]:
 EPISODE_COLUMNS: tuple[str, ...] = episode_columns(OBJECTIVES)
 """Columns of ``eval/episodes.csv`` with the default objectives (one row per episode)."""
 
+SCENE_COLUMNS: tuple[str, ...] = ("eval_run", "net", "density", "episode")
+"""Columns of an episode row that name its scene (:class:`EvalScene`): the same scene in
+two evaluations of one run (another limit, traffic or snapshot) has the same values."""
+
 
 ACTINGS: tuple[str, ...] = ("own", "near-greedy")
 """Values of ``EvalConfig.acting``; each evaluates into its own folder (:func:`eval_dir_of`)."""

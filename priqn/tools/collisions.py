@@ -26,13 +26,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from priqn.evaluation.protocol import SCENE_COLUMNS
 from priqn.objectives import COLLISION_COLUMNS
 from priqn.run.checkpointer import load_policy
 from priqn.run.episodes import resolve_outcomes
 from priqn.tools.cells import ReplayCell, replayed_episodes
-
-SCENE_KEYS: tuple[str, ...] = ("eval_run", "net", "density", "episode")
-"""The columns that name an evaluation scene."""
 
 
 def collision_rows(
@@ -54,7 +52,7 @@ def collision_rows(
     from priqn.evaluation.protocol import make_scenes
     from priqn.evaluation.targets import evaluation_env
 
-    keys = {tuple(r[k] for k in SCENE_KEYS): r for r in hits.to_dict("records")}
+    keys = {tuple(r[k] for k in SCENE_COLUMNS): r for r in hits.to_dict("records")}
     scenes = [
         s
         for s in make_scenes(cell.eval_config, cell.net_ids)
@@ -85,7 +83,7 @@ def collision_rows(
 
 def _identity(row: dict) -> dict:
     """The scene and row of an episode row."""
-    keep = ("label", "agent", "train_seed", *SCENE_KEYS, "command")
+    keep = ("label", "agent", "train_seed", *SCENE_COLUMNS, "command")
     return {k: row.get(k, "") for k in keep}
 
 
