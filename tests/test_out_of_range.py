@@ -117,6 +117,43 @@ def test_evaluate_run_routes_by_the_runs_own_family(tmp_path: Path, monkeypatch)
     assert calls == ["out-of-range", "holdout", "out-of-range"]
 
 
+def test_the_env_plays_the_family() -> None:
+    """The evaluation env of a run is set to the family, and the env draws from its nets
+    (found only by playing it: the pool names were fixed to the training ones, so 'priqn
+    evaluate --family out-of-range' stopped in EnvConfig with a traceback); an unknown
+    family is one line naming env.family, with the nearest name."""
+    from priqn.env.scenes import ScenePool, known_pools
+    from priqn.evaluation.targets import evaluation_env
+    from priqn.run.train_config import resolve_config
+
+    env = evaluation_env(resolve_config().env, EvalConfig(family="out-of-range"), None)
+    assert env.family == "out-of-range" and "out-of-range" in known_pools()
+    pool = ScenePool(env.family, env.nets_dir, marking_width_m=0.5)
+    assert len(pool) == 8 and all(ref.startswith("out-of-range/") for ref in pool.refs)
+    with pytest.raises(
+        PriqnError,
+        match=r"^evaluation env\.family: unknown pool 'out-of-rang' .*did you mean 'out-of-range'\?$",
+    ):
+        evaluation_env(resolve_config().env, EvalConfig(family="out-of-rang"), None)
+
+
+def test_an_out_of_range_net_resets_and_steps() -> None:
+    """One episode start on a three-lane, skewed out-of-range net, in SUMO."""
+    import gymnasium
+
+    import priqn  # noqa: F401 - registers the env
+
+    env = gymnasium.make("priqn/Intersection-v0", family="out-of-range", obs_size_px=64)
+    try:
+        options = {"density": 1.0, "net": "out-of-range/tjunction_02", "command": "left"}
+        obs, info = env.reset(seed=0, options=options)
+        assert info["net"] == "out-of-range/tjunction_02"
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert reward.shape == (5,)
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("side", ["eval-family-out-of-range", "eval-traffic-tm-carla"])
 def test_table2_never_reads_a_family_or_traffic_evaluation(runs: Path, side: str) -> None:
     """Evaluations on another family or under another traffic (issue 68's

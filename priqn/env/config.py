@@ -16,7 +16,7 @@ from priqn.checks import check_density
 from priqn.config import NAMED_HINT
 from priqn.env import rewards as R
 from priqn.env import sensors
-from priqn.env.scenes import FAMILIES
+from priqn.env.scenes import FAMILIES, known_pools
 from priqn.env.traffic import TrafficBehaviour
 from priqn.errors import did_you_mean
 from priqn.objectives import OBJECTIVES
@@ -31,7 +31,7 @@ class EnvConfig:
     """Configuration of :class:`~priqn.env.intersection.IntersectionEnv` (units in names; see docs/environment.md)."""
 
     family: str = "tjunction"
-    """Net pool: 'tjunction', 'fourway', 'all' (both training pools) or 'holdout'."""
+    """Net pool: 'tjunction', 'fourway', 'all' (both training pools), 'holdout', or any other generated scenario family on its own (e.g. 'out-of-range', an evaluation family)."""
     nets_dir: str = ""
     """Folder holding ``<family>/manifest.json`` and the nets ('' = ./sumo_nets if it has the family, else the nets shipped with priqn)."""
     nets: str | os.PathLike | tuple[str, ...] = ()
@@ -132,10 +132,12 @@ class EnvConfig:
                 f"ego_driver: {self.ego_driver!r} is not one of {', '.join(EGO_DRIVERS)}"
             )
         if self.family not in FAMILIES:
-            raise ValueError(
-                f"family: unknown pool {self.family!r} (valid: {', '.join(FAMILIES)})"
-                + did_you_mean(self.family, FAMILIES)
-            )
+            valid = known_pools(self.nets_dir)
+            if self.family not in valid:
+                raise ValueError(
+                    f"family: unknown pool {self.family!r} (valid: {', '.join(valid)})"
+                    + did_you_mean(self.family, valid)
+                )
 
     def _check_observation(self) -> None:
         """Observation and render sizes, the range actors are read in, the BEV's range and

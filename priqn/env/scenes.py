@@ -36,7 +36,25 @@ FAMILIES: dict[str, tuple[str, ...]] = {
     "all": ("tjunction", "fourway"),
     "holdout": ("holdout",),
 }
-"""Net pools by ``EnvConfig.family``: 'all' joins both training pools."""
+"""Net pools by ``EnvConfig.family``: 'all' joins both training pools. Any other
+generated family is a pool of its own nets (:func:`pool_families`)."""
+
+
+def pool_families(family: str) -> tuple[str, ...]:
+    """The scenario families the pool ``family`` draws from: those :data:`FAMILIES` names,
+    else the family itself (a family generated beside them, e.g. ``out-of-range``)."""
+    return FAMILIES.get(family, (family,))
+
+
+def known_pools(nets_dir: str = "") -> list[str]:
+    """Every pool name ``EnvConfig.family`` may take with this ``nets_dir`` ('' = ./sumo_nets
+    and the shipped nets): the names of :data:`FAMILIES`, then every other family with a
+    manifest there."""
+    from priqn.sim.scenario import list_generated
+
+    generated = list_generated(Path(nets_dir) if nets_dir else None)
+    return [*FAMILIES, *(f for f in generated if f not in FAMILIES)]
+
 
 SITE_END_MARGIN_M = 5.0
 """Obstacle sites keep this far from the dead end / the start of an arm [m]."""
@@ -134,7 +152,7 @@ class Scene:
 class ScenePool:
     """The nets of a pool and their :class:`Scene` cache.
 
-    ``family``: a key of :data:`FAMILIES`; ``nets_dir``: folder holding
+    ``family``: a pool name (:func:`pool_families`); ``nets_dir``: folder holding
     ``<family>/manifest.json`` and the nets ('' = ``./sumo_nets/`` or the shipped nets);
     ``marking_width_m``: width the lane markings are rasterised with. ``nets``: your own
     ``.net.xml`` files or folders of them instead of a family (no manifest needed), each
@@ -155,7 +173,7 @@ class ScenePool:
         self.junction = junction or None
         self._own: dict[str, Path] = own_net_files(nets) if nets else {}
         self.refs: tuple[str, ...] = (
-            tuple(self._own) if nets else tuple(_pool_refs(FAMILIES[family], self.root))
+            tuple(self._own) if nets else tuple(_pool_refs(pool_families(family), self.root))
         )
         """The nets ``reset`` draws from, ``"family/net_id"`` (own nets: ``"<folder>/<stem>"``)."""
         self._scenes: dict[str, Scene] = {}

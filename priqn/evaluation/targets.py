@@ -102,7 +102,15 @@ def evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None
     """``env_config`` (a run's EnvConfig) set to play ``cfg``'s scenes: on the checked files
     of ``nets`` by their absolute paths, else on the hold-out family (also for a run trained
     on its own nets or junction); ``cfg.traffic``'s NPCs instead of the run's, if set;
-    ``cfg.episode_limit``, else ``cfg.max_episode_steps``, if set."""
+    ``cfg.episode_limit``, else ``cfg.max_episode_steps``, if set. A value the env refuses
+    (a family with no nets) is one line naming the env's field."""
+    try:
+        return _evaluation_env(env_config, cfg, nets)
+    except ValueError as exc:
+        raise PriqnError(f"evaluation env.{exc}") from None
+
+
+def _evaluation_env(env_config: Any, cfg: EvalConfig, nets: dict[str, Any] | None) -> Any:
     if nets is not None:
         files = tuple(n["path"] for n in nets["nets"])
         env_cfg = dataclasses.replace(env_config, nets=files, junction=cfg.junction)
