@@ -267,9 +267,37 @@ def test_report_states_verdicts_budgets_and_regenerates_byte_identically(tmp_pat
         "| a | 200 | 8 (0–7) | 0.100 | 0.800 | 0.100 |\n| a | 400 | 4 (0–3) | 0.900 | 0.100 | 0.000 |\n"
         "| b | 200 | 8 (0–7) | 0.600 | 0.200 | 0.200 |\n| b | 400 | 4 (0–3) | 0.300 | 0.100 | 0.600 |\n"
     ) in text
+    # The difference at every budget over each question's seeds complete there (a − b):
+    # success 0.1 − 0.6 at 200 (the safety question's 8 seeds; the long one's 4), 0.9 − 0.3
+    # at 400 over 4 (both questions: one row naming both); no spread, a point interval.
+    assert "| a − b | success | 200 | 8 / 8 | -50.0 | [-50.0, -50.0] | a vs b |" in text
+    assert "| a − b | success | 200 | 4 / 4 | -50.0 | [-50.0, -50.0] | a > b |" in text
+    assert "| a − b | success | 400 | 4 / 4 | +60.0 | [+60.0, +60.0] | a vs b; a > b |" in text
+    differences = pd.read_csv(tmp_path / "r1" / "tables" / "budget_differences.csv")
+    assert len(differences) == 6 and set(differences["endpoint"]) == {"success", "violation"}
     assert "![outcomes by budget](figures/outcomes_by_budget.png)" in text
     assert (tmp_path / "r1" / "figures" / "outcomes_by_budget.png").stat().st_size > 0
     assert second.read_text() == text
+
+
+def test_outcome_mix_at_a_budget_no_question_asks(tmp_path: Path) -> None:
+    """A budget the groups reach only as kept snapshots gets its outcome mix too, over the
+    seeds whose snapshot there is evaluated (here: 200, taken as if no question asked)."""
+    from priqn.analysis.questions_outcomes import _mix_section, budget_episodes
+
+    exp = grid(tmp_path)
+    t = questions_report.design_tables(exp)
+    at = budget_episodes(exp, t.budgets, skip={400})
+    assert list(at) == [200]
+    assert sorted(at[200].groupby("label")["train_seed"].nunique().items()) == [
+        ("IQN a", 8),
+        ("IQN b", 8),
+    ]  # both groups are IQN: the label gets the group's name
+    # a at 200: 1 success in 10 (each seed plays the same episodes).
+    assert at[200].loc[at[200]["label"] == "IQN a", "success"].mean() == pytest.approx(0.1)
+    text = "\n".join(_mix_section(at, others=[200]).lines)
+    assert "At 200, where no question asks" in text and "### At 200 decisions" in text
+    assert budget_episodes(exp, t.budgets, skip={200, 400}) == {}
 
 
 def report_section(tmp_path: Path, start: str, end: str) -> tuple[str, str]:

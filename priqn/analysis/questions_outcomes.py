@@ -1,4 +1,5 @@
-"""How the cells a questions report counts end their episodes, at each question's budget:
+"""How the cells a questions report counts end their episodes, at each question's budget
+(the outcome mix also at every other budget the groups reach):
 the descriptive sections of :mod:`priqn.analysis.questions_report` (outcome mix beside the
 paper's Table II row, outcome by manoeuvre, Table I), their tables and figures.
 
@@ -31,13 +32,19 @@ from priqn.run.evaluations import evaluation_dir
 from priqn.run.folder import RunFolder
 
 
-def outcome_sections(exp: Experiment, scores: pd.DataFrame) -> list[Section]:
+def outcome_sections(
+    exp: Experiment, scores: pd.DataFrame, budgets: pd.DataFrame | None = None
+) -> list[Section]:
     """The outcome-mix, outcome-by-manoeuvre and Table I sections of the cells every
     question counts (``scores``, with a ``question`` column), at each question's budget,
-    with their tables and figures. Empty sections while no cell is counted."""
+    with their tables and figures; the outcome mix also at every other budget the groups
+    reach (``budgets``: :func:`~priqn.analysis.questions_report.budget_frame`'s rows, the
+    kept snapshots of the questions' seeds). Empty sections while no cell is counted."""
     episodes_by_budget = counted_episodes(exp, scores)
+    other = budget_episodes(exp, budgets, skip=set(episodes_by_budget))
+    mixes = dict(sorted({**episodes_by_budget, **other}.items()))
     return [
-        _mix_section(episodes_by_budget),
+        _mix_section(mixes, others=sorted(other)),
         _manoeuvre_section(episodes_by_budget),
         _returns_section(episodes_by_budget),
     ]
@@ -54,22 +61,56 @@ def counted_episodes(exp: Experiment, scores: pd.DataFrame) -> dict[int, pd.Data
     cells = scores.assign(budget=scores["question"].map(budget_of)).drop_duplicates(
         ["budget", "policy", "train_seed"]
     )
+    return {
+        int(budget): _episodes_at(
+            int(budget),
+            [
+                (
+                    row.policy,
+                    Path(row.run_dir),
+                    row.evaluation if isinstance(row.evaluation, str) else "",
+                )
+                for row in part.itertuples(index=False)
+            ],
+        )  # fmt: skip
+        for budget, part in cells.groupby("budget", sort=True)
+    }
+
+
+def budget_episodes(
+    exp: Experiment, budgets: pd.DataFrame | None, skip: set[int]
+) -> dict[int, pd.DataFrame]:
+    """As :func:`counted_episodes`, at every budget of ``budgets`` (group, budget and
+    training seed of each complete evaluation: the questions' seeds at every budget their
+    groups reach) but those in ``skip``: each cell's evaluation at that budget (a kept
+    snapshot's, ``eval-at<N>/``)."""
+    if budgets is None or not len(budgets):
+        return {}
     out = {}
-    for budget, part in cells.groupby("budget", sort=True):
-        frames = []
-        for row in part.itertuples(index=False):
-            run = Path(row.run_dir)
-            evaluation = row.evaluation if isinstance(row.evaluation, str) else ""
-            frame, _ = read_evaluation(run.name, run, evaluation_dir(RunFolder(run), evaluation))
-            label = str(frame["label"].iloc[0]).removesuffix(f" @{budget_text(int(budget))}")
-            frames.append(frame.assign(label=label, group=row.policy))
-        episodes = pd.concat(frames, ignore_index=True)
-        shared = episodes.groupby("label")["group"].transform("nunique") > 1
-        episodes.loc[shared, "label"] += " " + episodes.loc[shared, "group"]
-        episodes = resolve_outcomes(episodes.drop(columns="group"))
-        episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort")
-        out[int(budget)] = episodes.reset_index(drop=True)
+    for budget, part in budgets[~budgets["budget"].isin(skip)].groupby("budget", sort=True):
+        cells = []
+        for group, seed in part[["group", "train_seed"]].itertuples(index=False):
+            where = exp.cell_at(group, int(seed), int(budget))
+            if where is not None:
+                cells.append((group, where[1], where[2]))
+        out[int(budget)] = _episodes_at(int(budget), cells)
     return out
+
+
+def _episodes_at(budget: int, cells: list[tuple[str, Path, str]]) -> pd.DataFrame:
+    """The episodes of ``cells`` (group, run folder, evaluation name) at ``budget``, each
+    cell read once, labelled as :func:`counted_episodes` says."""
+    frames = []
+    for group, run, evaluation in cells:
+        frame, _ = read_evaluation(run.name, run, evaluation_dir(RunFolder(run), evaluation))
+        label = str(frame["label"].iloc[0]).removesuffix(f" @{budget_text(budget)}")
+        frames.append(frame.assign(label=label, group=group))
+    episodes = pd.concat(frames, ignore_index=True)
+    shared = episodes.groupby("label")["group"].transform("nunique") > 1
+    episodes.loc[shared, "label"] += " " + episodes.loc[shared, "group"]
+    episodes = resolve_outcomes(episodes.drop(columns="group"))
+    episodes = episodes.sort_values(list(SORT_COLUMNS), kind="mergesort")
+    return episodes.reset_index(drop=True)
 
 
 def returns_tables(episodes_by_budget: dict[int, pd.DataFrame]) -> dict[int, tables.Table]:
@@ -153,11 +194,11 @@ def mix_rows(
     return md_rows, records, seed_records
 
 
-def _mix_section(episodes_by_budget: dict[int, pd.DataFrame]) -> Section:
-    """The outcome-mix section: per question budget, how each group's hold-out episodes
-    end at each density beside the paper's Table II row of the same label, with the L1
-    distance calibration uses (``tables/outcome_mix_<budget>.csv``); none while no cell
-    is counted."""
+def _mix_section(episodes_by_budget: dict[int, pd.DataFrame], others: list[int]) -> Section:
+    """The outcome-mix section: per budget, how each group's hold-out episodes end at each
+    density beside the paper's Table II row of the same label, with the L1 distance
+    calibration uses (``tables/outcome_mix_<budget>.csv``); ``others``: the budgets no
+    question asks at (said so in the text); none while no cell is counted."""
     if not episodes_by_budget:
         return Section([])
     tables_by_name: dict[str, pd.DataFrame] = {}
@@ -173,6 +214,13 @@ def _mix_section(episodes_by_budget: dict[int, pd.DataFrame]) -> Section:
         "Descriptive: no test decides on these.",
         "",
     ]
+    if others:
+        lines += [
+            f"At {', '.join(budget_text(b) for b in others)}, where no question asks, the "
+            "same over the questions' seeds whose kept snapshot there is evaluated "
+            "(`eval-at<N>/`).",
+            "",
+        ]
     for budget, episodes in episodes_by_budget.items():
         md_rows, records, seed_records = mix_rows(episodes)
         name = f"outcome_mix_{budget_text(budget)}"

@@ -99,6 +99,21 @@ def change_frame(frame: pd.DataFrame, a: str, b: str, endpoint: str) -> pd.DataF
     return pd.DataFrame(rows, columns=["from", "to", "seeds", "change", "lo", "hi"])
 
 
+def difference_frame(frame: pd.DataFrame, a: str, b: str, endpoint: str) -> pd.DataFrame:
+    """``a − b`` on ``endpoint`` at each budget both groups reach, over the seeds complete
+    there for each: mean(a) − mean(b) with its Welch 95 % interval (descriptive; budgets
+    where a group has fewer than 2 seeds are left out)."""
+    rows = []
+    for budget in sorted(set(frame["budget"])):
+        at = frame[frame["budget"] == budget]
+        a_S, b_S = (at.loc[at["group"] == g, endpoint].to_numpy(float) for g in (a, b))
+        if min(a_S.size, b_S.size) < 2:
+            continue
+        lo, hi = inference.welch_interval(a_S, b_S)
+        rows.append((budget, a_S.size, b_S.size, float(a_S.mean() - b_S.mean()), lo, hi))
+    return pd.DataFrame(rows, columns=["budget", "seeds_a", "seeds_b", "difference", "lo", "hi"])
+
+
 def _comparison_rows(
     exp: Experiment, question: SequentialSpec, scores: pd.DataFrame, result: Looks
 ) -> list[dict[str, Any]]:
@@ -409,6 +424,31 @@ def budget_outcomes_figure(budgets: pd.DataFrame) -> Any:
     return fig
 
 
+def _difference_lines(differences: pd.DataFrame) -> list[str]:
+    """Each difference at every budget both its groups reach, once per pair of groups (the
+    comparisons that compare them named beside it); none: no lines."""
+    if not len(differences):
+        return []
+    rows = [
+        [f"{r['a']} − {r['b']}", str(r["endpoint"]), budget_text(r["budget"]),
+         f"{r['seeds_a']} / {r['seeds_b']}", _pts(r["difference"]),
+         f"[{_pts(r['lo'])}, {_pts(r['hi'])}]", str(r["comparisons"])]
+        for r in differences.to_dict("records")
+    ]  # fmt: skip
+    heads = ["a − b", "endpoint", "budget", "seeds (a / b)", "difference [points]",
+             "Welch 95 %", "comparisons"]  # fmt: skip
+    return [
+        "## The difference at every budget (descriptive)",
+        "",
+        "At each budget both groups reach, over the seeds complete there: mean(a) − mean(b) "
+        "of the endpoint with its Welch 95 % interval. Only the question's own budget has "
+        "a verdict (above); these numbers decide nothing.",
+        "",
+        *markdown_table(heads, rows).split("\n"),
+        "",
+    ]
+
+
 def _change_lines(changes: pd.DataFrame) -> list[str]:
     """How each difference changes between budgets over the same seeds, once per pair of
     groups (the comparisons that compare them named beside it); none: no lines."""
@@ -472,21 +512,26 @@ def _look_rows(question: SequentialSpec, result: Looks) -> list[dict[str, Any]]:
 
 def _budget_tables(
     exp: Experiment, question: SequentialSpec
-) -> tuple[pd.DataFrame, list[pd.DataFrame]] | None:
-    """``question``'s budget frame and its comparisons' change frames, when one of its
-    groups reaches more than one budget (else None)."""
+) -> tuple[pd.DataFrame, list[pd.DataFrame], list[pd.DataFrame]] | None:
+    """``question``'s budget frame and its comparisons' change and difference frames
+    (:func:`change_frame`, :func:`difference_frame`), when one of its groups reaches more
+    than one budget (else None)."""
     groups = questions.rows_of(exp, question)
     if not any(len(budgets_of(exp, g)) > 1 for g in groups):
         return None
     frame = budget_frame(exp, question)
-    changes = [
-        change_frame(frame, c.a, c.b, endpoint).assign(
-            comparison=c.name, endpoint=endpoint, a=c.a, b=c.b
-        )
-        for c in question.comparisons
-        for endpoint in questions.ENDPOINT_FLAGS
-    ]
-    return frame.assign(question=question.name), changes
+
+    def per_comparison(tabulate: Any) -> list[pd.DataFrame]:
+        return [
+            tabulate(frame, c.a, c.b, endpoint).assign(
+                comparison=c.name, endpoint=endpoint, a=c.a, b=c.b
+            )
+            for c in question.comparisons
+            for endpoint in questions.ENDPOINT_FLAGS
+        ]
+
+    changes, differences = per_comparison(change_frame), per_comparison(difference_frame)
+    return frame.assign(question=question.name), changes, differences
 
 
 def _efficiency_lines(efficiency: curves.Efficiency) -> list[str]:
@@ -535,6 +580,10 @@ class DesignTables:
     """Each group's outcome rates at every budget it reaches: ``tables/budgets.csv``."""
     budget_changes: pd.DataFrame
     """How each difference changes with the budget: ``tables/budget_changes.csv``."""
+    budget_differences: pd.DataFrame
+    """Each difference at every budget both its groups reach:
+    ``tables/budget_differences.csv`` (written only when some group reaches more than one
+    budget)."""
     by_question: dict[str, pd.DataFrame]
     """Each question's counted cells."""
     results: list[tuple[SequentialSpec, Looks]]
@@ -546,7 +595,9 @@ class DesignTables:
 
 def design_tables(exp: Experiment) -> DesignTables:
     """Take every question's looks and tabulate them (:class:`DesignTables`)."""
-    scores_by_q, comparison_rows, look_rows, budget_frames, change_frames = {}, [], [], [], []
+    scores_by_q, comparison_rows, look_rows, budget_frames = {}, [], [], []
+    change_frames: list[pd.DataFrame] = []
+    difference_frames: list[pd.DataFrame] = []
     results: list[tuple[SequentialSpec, Looks]] = []
     for q in exp.designs:
         scores, result = questions.take_looks(exp, q)
@@ -558,26 +609,45 @@ def design_tables(exp: Experiment) -> DesignTables:
         if by_budget is not None:
             budget_frames.append(by_budget[0])
             change_frames += by_budget[1]
+            difference_frames += by_budget[2]
     budgets = pd.concat(budget_frames, ignore_index=True) if budget_frames else pd.DataFrame()
     budgets = (
         budgets.drop_duplicates(["group", "budget", "train_seed"]) if len(budgets) else budgets
     )
     change_frames = [f for f in change_frames if len(f)]  # (pandas warns on empty ones)
     changes = pd.concat(change_frames, ignore_index=True) if change_frames else pd.DataFrame()
-    if len(changes):  # one row per pair of groups and budgets, naming the comparisons
-        keys = ["a", "b", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]
-        changes = (
-            changes.groupby(keys, sort=False, dropna=False)["comparison"]
-            .agg("; ".join)
-            .reset_index()
-            .rename(columns={"comparison": "comparisons"})
+    if len(changes):
+        changes = _name_comparisons(
+            changes, ["a", "b", "endpoint", "from", "to", "seeds", "change", "lo", "hi"]
         )
+    difference_frames = [f for f in difference_frames if len(f)]
+    differences = (
+        _name_comparisons(
+            pd.concat(difference_frames, ignore_index=True),
+            ["a", "b", "endpoint", "budget", "seeds_a", "seeds_b", "difference", "lo", "hi"],
+        )
+        if difference_frames
+        else pd.DataFrame()
+    )
     all_scores = pd.concat(
         [s.assign(question=name) for name, s in scores_by_q.items()], ignore_index=True
     )
     comparisons = pd.DataFrame(comparison_rows)
     looks = pd.DataFrame(look_rows, columns=LOOK_COLUMNS)
-    return DesignTables(all_scores, comparisons, looks, budgets, changes, scores_by_q, results)
+    return DesignTables(
+        all_scores, comparisons, looks, budgets, changes, differences, scores_by_q, results
+    )
+
+
+def _name_comparisons(frame: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+    """One row per distinct ``keys`` (a pair of groups, an endpoint and budgets) with the
+    comparisons that compare them joined in ``comparisons``."""
+    return (
+        frame.groupby(keys, sort=False, dropna=False)["comparison"]
+        .agg("; ".join)
+        .reset_index()
+        .rename(columns={"comparison": "comparisons"})
+    )
 
 
 def questions_report(exp: Experiment, command: str) -> Report:
@@ -596,7 +666,8 @@ def questions_report(exp: Experiment, command: str) -> Report:
             f"{e.description}",
             "",
         ],
-        tables={name: getattr(t, name) for name in DesignTables.CSV},
+        tables={name: getattr(t, name) for name in DesignTables.CSV}
+        | ({"budget_differences": t.budget_differences} if len(t.budget_differences) else {}),
     )
     budget_figures = (
         {"outcomes_by_budget": budget_outcomes_figure(t.budgets),
@@ -611,12 +682,13 @@ def questions_report(exp: Experiment, command: str) -> Report:
             figures={} if monitoring is None else {"looks": monitoring},
         ),
         Section(_budget_lines(t.budgets), figures=budget_figures),
+        Section(_difference_lines(t.budget_differences)),
         Section(_change_lines(t.budget_changes)),
         Section(
             ["![per-seed endpoints](figures/questions.png)", ""],
             figures={"questions": figure(exp, t.by_question)},
         ),
-        *outcome_sections(exp, t.scores),
+        *outcome_sections(exp, t.scores, t.budgets),
         Section(
             _efficiency_lines(efficiency),
             tables={"sample_efficiency": efficiency.curve} if efficiency.drawn else {},
