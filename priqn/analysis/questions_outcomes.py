@@ -61,20 +61,12 @@ def counted_episodes(exp: Experiment, scores: pd.DataFrame) -> dict[int, pd.Data
     cells = scores.assign(budget=scores["question"].map(budget_of)).drop_duplicates(
         ["budget", "policy", "train_seed"]
     )
-    return {
-        int(budget): _episodes_at(
-            int(budget),
-            [
-                (
-                    row.policy,
-                    Path(row.run_dir),
-                    row.evaluation if isinstance(row.evaluation, str) else "",
-                )
-                for row in part.itertuples(index=False)
-            ],
-        )  # fmt: skip
-        for budget, part in cells.groupby("budget", sort=True)
-    }
+    out = {}
+    for budget, part in cells.groupby("budget", sort=True):
+        evaluations = [e if isinstance(e, str) else "" for e in part["evaluation"]]
+        where = zip(part["policy"], map(Path, part["run_dir"]), evaluations, strict=True)
+        out[int(budget)] = _episodes_at(int(budget), list(where))
+    return out
 
 
 def budget_episodes(
