@@ -351,6 +351,8 @@ def test_net_refs_and_missing_net_error(tmp_path, monkeypatch):
         net_path("fourway_00")
     with pytest.raises(PriqnError, match="no manifest for family 'nofam'"):
         load_manifest("nofam")
+    with pytest.raises(PriqnError, match=r"; did you mean 'out-of-range'\?$"):
+        load_manifest("out-of-rang")
 
 
 # --------------------------------------------------------------------------- CLI

@@ -21,7 +21,7 @@ from typing import Any
 
 from priqn import paths
 from priqn.config import from_dict, load_toml, to_dict
-from priqn.errors import PriqnError
+from priqn.errors import PriqnError, did_you_mean
 
 KINDS: tuple[str, ...] = ("tjunction", "fourway")
 """Net kinds: a T-junction has 3 arms, a four-way 4."""
@@ -257,10 +257,11 @@ def load_manifest(family: str, root: Path | None = None) -> dict[str, Any]:
     """Read ``<root>/<family>/manifest.json`` (no root: ``./sumo_nets`` if it has it, else shipped)."""
     path = (root if root is not None else paths.nets_root_for(family)) / family / "manifest.json"
     if not path.is_file():
-        have = ", ".join(list_generated(root)) or "none"
+        generated = list_generated(root)
         raise PriqnError(
             f"{path}: no manifest for family {family!r}; run 'priqn scenario generate "
-            f"--family {family}' (generated families: {have})"
+            f"--family {family}' (generated families: {', '.join(generated) or 'none'})"
+            + did_you_mean(family, generated)
         )
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
