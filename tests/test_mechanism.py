@@ -306,3 +306,34 @@ def test_a_kept_snapshot_replays_on_its_own_evaluation(tmp_path):
     res = mechanism("--snapshot", "200")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
     assert "eval-at200 not evaluated; run priqn evaluate" in res.stderr
+
+
+BUDGET_CELL = Path("results/budget-tm/iqn__seed80")
+SAME_NAME_CELL = Path("results/paper-point-tm/iqn__seed80")
+
+
+@pytest.mark.skipif(
+    not (BUDGET_CELL / "eval").is_dir() or not (SAME_NAME_CELL / "eval").is_dir(),
+    reason="budget-tm or paper-point-tm cell not committed",
+)
+def test_cells_of_the_same_name_from_two_designs_are_named_apart(tmp_path):
+    """Seed 80 of IQN at 240k (budget-tm) and at 60k (paper-point-tm) share a name; a
+    report groups by the row before __seed, so each is named <design>/<name> and forms
+    its own row (they were one group of two 'seeds'); alone, a cell keeps its name. Two
+    such cells of one design folder name are one line."""
+    import shutil
+
+    from priqn.analysis.decisions import CellRows
+    from priqn.errors import PriqnError
+    from priqn.tools.cells import load_cells
+
+    assert [c.name for c in load_cells([BUDGET_CELL])] == ["iqn__seed80"]
+    cells = load_cells([BUDGET_CELL, SAME_NAME_CELL])
+    assert [c.name for c in cells] == ["budget-tm/iqn__seed80", "paper-point-tm/iqn__seed80"]
+    rows = {CellRows(c.name, 80, c.episodes, None).row for c in cells}
+    assert rows == {"budget-tm/iqn", "paper-point-tm/iqn"}
+    for where in ("a", "b"):
+        copy = tmp_path / where / "budget-tm" / "iqn__seed80"
+        shutil.copytree(BUDGET_CELL, copy, ignore=shutil.ignore_patterns("*.pt", "eval-*"))
+    with pytest.raises(PriqnError, match="report them separately"):
+        load_cells([tmp_path / "a" / "budget-tm", tmp_path / "b" / "budget-tm"])

@@ -98,6 +98,35 @@ def load_cell(path: Path, snapshot: int = 0) -> ReplayCell:
     )
 
 
+def load_cells(paths: Sequence[str | Path], snapshot: int = 0) -> list[ReplayCell]:
+    """:func:`load_cell` for every run under ``paths``. A report names each cell once and
+    groups cells by the row before ``__seed``, so runs of the same name from different
+    designs (``results/budget-tm/iqn__seed80`` beside ``results/paper-point-tm/iqn__seed80``)
+    are named ``<design>/<name>`` and grouped apart; the same name twice in one design
+    folder is a one-line error."""
+    from priqn.evaluation.targets import find_runs
+
+    cells = [load_cell(p, snapshot) for p in find_runs(paths)]
+    names = [c.name for c in cells]
+    if len(set(names)) == len(names):
+        return cells
+    qualified = [
+        dataclasses.replace(c, name=f"{Path(c.path).parent.name}/{c.name}")
+        if names.count(c.name) > 1
+        else c
+        for c in cells
+    ]
+    seen: dict[str, Path] = {}
+    for cell in qualified:
+        if cell.name in seen:
+            raise PriqnError(
+                f"{cell.path}: named {cell.name} like {seen[cell.name]}; a report names each "
+                "cell once: report them separately"
+            )
+        seen[cell.name] = Path(cell.path)
+    return qualified
+
+
 def replay_scenes(scenes: Sequence[Any], episodes: int) -> list[Any]:
     """The first ``episodes`` (0 = all) of a cell's evaluation scenes in the order
     (eval run, episode, net, density): every net and density of the first evaluation run

@@ -61,7 +61,7 @@ from priqn.errors import PriqnError
 from priqn.io import ensure_dir, removed_on_failure
 from priqn.run.checkpointer import load_policy
 from priqn.run.folder import RunFolder
-from priqn.tools.cells import ReplayCell, load_cell, replay_scenes, replayed_episodes
+from priqn.tools.cells import ReplayCell, load_cells, replay_scenes, replayed_episodes
 from priqn.tools.decisions import decision_key, greedy_removals
 
 # ----------------------------------------------------------------------------- counting
@@ -200,9 +200,7 @@ def analyse(paths: Sequence[str | Path], out: Path, cfg: MechanismConfig, comman
     (:func:`priqn.analysis.mechanism.mechanism_report`); returns its report.md."""
     from tqdm.auto import tqdm
 
-    from priqn.evaluation.targets import find_runs
-
-    cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
+    cells = load_cells(paths, cfg.snapshot)
     cache = cfg.cache()
     replayed = []
     wanted = {c.name: min(cfg.episodes or len(c.episodes), len(c.episodes)) for c in cells}
@@ -370,10 +368,9 @@ def _write(args: argparse.Namespace, cfg: MechanismConfig) -> int:
         print(_standstill(args.runs, out, cfg, args.target, command))
         return 0
     if args.collisions:
-        from priqn.evaluation.targets import find_runs
         from priqn.tools import collisions
 
-        cells = [load_cell(p, cfg.snapshot) for p in find_runs(args.runs)]
+        cells = load_cells(args.runs, cfg.snapshot)
         print(collisions.analyse(cells, out, cfg.workers, command, args.traffic))
         return 0
     print(analyse(args.runs, out, cfg, command))
@@ -386,10 +383,9 @@ def _standstill(
     """``--standstill``: :func:`priqn.tools.standstill.analyse` on the cells under
     ``paths`` (any agent), each on the first ``cfg.episodes`` scenes of its evaluation."""
     from priqn.evaluation.protocol import make_scenes
-    from priqn.evaluation.targets import find_runs
     from priqn.tools import standstill
 
-    cells = [load_cell(p, cfg.snapshot) for p in find_runs(paths)]
+    cells = load_cells(paths, cfg.snapshot)
 
     def scenes(cell: ReplayCell) -> list[Any]:
         return replay_scenes(make_scenes(cell.eval_config, cell.net_ids), cfg.episodes)
