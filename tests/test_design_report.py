@@ -141,6 +141,25 @@ def test_an_evaluation_under_other_traffic_is_refused(tmp_path: Path) -> None:
         read_scores(_design(tmp_path))
 
 
+def test_the_same_traffic_recorded_in_two_forms_is_the_same_traffic(tmp_path: Path) -> None:
+    """The committed in-range evaluations recorded tm's path braking flat (older code);
+    the out-of-range ones record the table: the same traffic, so the cells are read. A
+    table that really differs (CARLA's look-ahead) is still refused."""
+    flat = {"path_braking": True, "path_look_ahead_s": 4.35, "path_look_ahead_max_m": 50.0,
+            "path_look_ahead_min_m": 2.5, "path_reaction_time_s": 0.0, "path_stop_gap_m": 2.0}  # fmt: skip
+    table = {"look_ahead_form": "linear", "look_ahead_s": 4.35, "look_ahead_max_m": 50.0,
+             "look_ahead_min_m": 2.5, "reaction_time_s": 0.0, "stop_gap_m": 2.0}  # fmt: skip
+    for where, braking in (("same", table), ("other", {**table, "look_ahead_form": "carla"})):
+        root = tmp_path / where
+        _cells(root, env_out={**ENV, "traffic": {"path_braking": braking}})
+        for meta in root.glob("grid/*/eval/meta.json"):
+            record = json.loads(meta.read_text())
+            meta.write_text(json.dumps({**record, "env_config": {**ENV, "traffic": flat}}))
+    assert len(read_scores(_design(tmp_path / "same")).scores) == 12
+    with pytest.raises(PriqnError, match="env traffic .* differs from eval/'s"):
+        read_scores(_design(tmp_path / "other"))
+
+
 def test_the_same_seed_gives_the_same_report(tmp_path: Path) -> None:
     _cells(tmp_path)
     design = _design(tmp_path)

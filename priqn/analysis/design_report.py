@@ -24,6 +24,7 @@ first missing one, or with ``--partial`` reported as far as it goes, every verdi
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,7 @@ from priqn.analysis.render import markdown_table
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.evaluation.design import FEATURES, net_features
-from priqn.evaluation.protocol import FAMILY_PREFIX
+from priqn.evaluation.protocol import FAMILY_PREFIX, recorded_traffic
 from priqn.io import read_json
 from priqn.run.evaluations import evaluation_complete, evaluation_dir
 from priqn.run.folder import RunFolder
@@ -86,8 +87,12 @@ def read_scores(design: Any, root: str | Path = ".") -> Frames:
                 continue
             both = [evaluation_dir(folder, source.in_range), evaluation_dir(folder, name)]
             envs = [read_json(d / RunFolder.META)["env_config"] for d in both]
+            played = [
+                {"traffic": recorded_traffic(env), "max_episode_steps": env["max_episode_steps"]}
+                for env in envs
+            ]
             for key in ("traffic", "max_episode_steps"):
-                if envs[0][key] != envs[1][key]:
+                if played[0][key] != played[1][key]:
                     raise PriqnError(
                         f"{both[1]}: env {key} {envs[1][key]!r} differs from {both[0].name}/'s "
                         f"{envs[0][key]!r}; the design plays each cell as its in-range evaluation"
@@ -227,6 +232,11 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
 
+def _interval(lo: float, hi: float) -> str:
+    """``[lo, hi]`` in points; "" where there is none (a row with one seed)."""
+    return "" if math.isnan(lo) or math.isnan(hi) else f"[{_pts(lo)}, {_pts(hi)}]"
+
+
 def design_report(
     design: Any, command: str, seed: int, partial: bool, root: str | Path = "."
 ) -> Report:
@@ -294,7 +304,7 @@ def _verdict_section(design: Any, verdicts: list[Verdict]) -> Section:
             _pct(v.mean_a),
             _pct(v.mean_b),
             _pts(v.diff),
-            f"[{_pts(v.lo)}, {_pts(v.hi)}]",
+            _interval(v.lo, v.hi) or "– (one seed)",
             _pts(v.hi_family),
             f"{v.p:.3g}",
             f"{v.p_holm:.3g}",
@@ -314,27 +324,39 @@ def _verdict_section(design: Any, verdicts: list[Verdict]) -> Section:
             "descriptive 95 % one; the bound is the one-sided bound at α / (sources) that "
             "rules the paper's effect out.",
             "",
-            markdown_table(
-                [
-                    "source",
-                    "role",
-                    "endpoint",
-                    "seeds a / b",
-                    "a",
-                    "b",
-                    "a − b (pts)",
-                    "95 % interval",
-                    "bound",
-                    "p",
-                    "p (Holm)",
-                    "verdict",
-                ],  # fmt: skip
-                rows,
+            (
+                markdown_table(
+                    [
+                        "source",
+                        "role",
+                        "endpoint",
+                        "seeds a / b",
+                        "a",
+                        "b",
+                        "a − b (pts)",
+                        "95 % interval",
+                        "bound",
+                        "p",
+                        "p (Holm)",
+                        "verdict",
+                    ],  # fmt: skip
+                    rows,
+                )
+                if rows
+                else "No source has evaluated seeds of both rows yet: no verdict."
             ),
             "",
         ],
         tables={"verdicts": table},
     )
+
+
+def _change_interval(row: Any, endpoint: str) -> str:
+    """`` [lo, hi]`` of a row's mean change on ``endpoint``, or ``, one seed``."""
+    interval = _interval(
+        getattr(row, f"{endpoint}_change_lo"), getattr(row, f"{endpoint}_change_hi")
+    )
+    return f" {interval}" if interval else ", one seed"
 
 
 def _drop_section(table: pd.DataFrame, frames: Frames) -> Section:
@@ -344,8 +366,7 @@ def _drop_section(table: pd.DataFrame, frames: Frames) -> Section:
             [r.source, r.label, str(r.seeds)]
             + [
                 f"{_pct(getattr(r, f'{e}_in'))} → {_pct(getattr(r, f'{e}_out'))} "
-                f"({_pts(getattr(r, f'{e}_change'))} [{_pts(getattr(r, f'{e}_change_lo'))}, "
-                f"{_pts(getattr(r, f'{e}_change_hi'))}])"
+                f"({_pts(getattr(r, f'{e}_change'))}{_change_interval(r, e)})"
                 for e in ENDPOINTS
             ]
         )

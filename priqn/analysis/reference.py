@@ -22,12 +22,8 @@ import pandas as pd
 from priqn.analysis.load import EVAL_SETTINGS, SORT_COLUMNS, Evaluation, RunInfo, read_evaluation
 from priqn.config import config_differences, flatten
 from priqn.errors import PriqnError
-from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX
-from priqn.evaluation.reference import (
-    REFERENCES,
-    SCENE_NEUTRAL_FIELDS,
-    recorded_env_config,
-)
+from priqn.evaluation.protocol import NETS_HASH_CHARS, NETS_PREFIX, recorded_env_config
+from priqn.evaluation.reference import REFERENCES, SCENE_NEUTRAL_FIELDS
 from priqn.io import read_json
 from priqn.run.episodes import resolve_outcomes
 from priqn.run.evaluations import evaluation_dir, recorded_eval_status

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -254,6 +254,30 @@ _FAMILY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 TRAFFIC_PREFIX = "traffic-"
 """Evaluations under another traffic setting's NPCs than the run's own are
 ``eval-traffic-<name>[-<control>]/`` (:func:`evaluation_name`)."""
+
+
+def recorded_env_config(env: Mapping[str, Any]) -> dict[str, Any]:
+    """A recorded env config (an evaluation's meta.json ``env_config``) in the current
+    form: the flat ``path_*`` traffic keys of older records as their table
+    (:func:`priqn.env.traffic.upgrade_traffic_table`), so old and new records compare
+    (``priqn.analysis.reference``, which reads files only, calls it here)."""
+    from priqn.env.traffic import upgrade_traffic_table
+
+    out = dict(env)
+    if isinstance(out.get("traffic"), Mapping):
+        out["traffic"] = upgrade_traffic_table(out["traffic"])
+    return out
+
+
+def recorded_traffic(env: Mapping[str, Any]) -> Any:
+    """The traffic a recorded env config played (an evaluation's meta.json
+    ``env_config``), as a :class:`priqn.env.traffic.TrafficBehaviour` with every default
+    filled in: records of any form (the flat ``path_*`` keys of older ones, or fields added
+    since) compare by what the NPCs did, not by how it was written."""
+    from priqn.config import from_dict
+    from priqn.env.traffic import TrafficBehaviour
+
+    return from_dict(TrafficBehaviour, env.get("traffic") or {}, "env_config.traffic")
 
 
 def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:

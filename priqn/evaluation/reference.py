@@ -4,7 +4,7 @@ models, or uniform random actions, evaluated on the same scenes as every policy.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,19 +37,6 @@ SCENE_NEUTRAL_FIELDS: frozenset[str] = OBSERVATION_FIELDS | {
 }
 """EnvConfig fields a reference evaluation may take from any of its runs (the nets are the
 evaluation's own)."""
-
-
-def recorded_env_config(env: Mapping[str, Any]) -> dict[str, Any]:
-    """A recorded env config (an evaluation's meta.json ``env_config``) in the current
-    form: the flat ``path_*`` traffic keys of older records as their table
-    (:func:`priqn.env.traffic.upgrade_traffic_table`), so old and new records compare
-    (``priqn.analysis.reference``, which reads files only, calls it here)."""
-    from priqn.env.traffic import upgrade_traffic_table
-
-    out = dict(env)
-    if isinstance(out.get("traffic"), Mapping):
-        out["traffic"] = upgrade_traffic_table(out["traffic"])
-    return out
 
 
 def reference_label(name: str) -> str:
