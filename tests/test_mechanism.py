@@ -308,8 +308,8 @@ def test_a_kept_snapshot_replays_on_its_own_evaluation(tmp_path):
     assert "eval-at200 not evaluated; run priqn evaluate" in res.stderr
 
 
-BUDGET_CELL = Path("results/budget-tm/iqn__seed80")
-SAME_NAME_CELL = Path("results/paper-point-tm/iqn__seed80")
+BUDGET_CELL = CELL.parents[1] / "budget-tm" / "iqn__seed80"
+SAME_NAME_CELL = CELL.parents[1] / "paper-point-tm" / "iqn__seed80"
 
 
 @pytest.mark.skipif(
