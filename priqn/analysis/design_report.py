@@ -306,8 +306,8 @@ def _verdict_section(design: Any, verdicts: list[Verdict]) -> Section:
             _pts(v.diff),
             _interval(v.lo, v.hi) or "– (one seed)",
             _pts(v.hi_family),
-            f"{v.p:.3g}",
-            f"{v.p_holm:.3g}",
+            "–" if math.isnan(v.p) else f"{v.p:.3g}",
+            "–" if math.isnan(v.p_holm) else f"{v.p_holm:.3g}",
             v.word,
         ]  # fmt: skip
         for v in verdicts
