@@ -15,7 +15,7 @@ from typing import Any
 
 import pandas as pd
 
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import markdown_table, percent
 from priqn.analysis.sections import Report, Section
 from priqn.objectives import COLLISION_KINDS
 
@@ -64,16 +64,12 @@ def prevented_table(collisions: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.0f} %"
-
-
 def _prevented_text(prevented: pd.DataFrame, traffic: str) -> list[str]:
     """The report's lines on a replay under ``traffic`` (:func:`prevented_table`): how many
     still collide, in all and per row."""
     again, scenes = int(prevented["again"].sum()), int(prevented["scenes"].sum())
     rows = [
-        [r["traffic"], r["label"], str(r["scenes"]), str(r["again"]), _pct(r["prevented"])]
+        [r["traffic"], r["label"], str(r["scenes"]), str(r["again"]), percent(r["prevented"], 0)]
         for r in prevented.to_dict("records")
     ]
     return [
@@ -99,9 +95,9 @@ def _kinds_markdown(table: pd.DataFrame) -> str:
             r["density"] if r["density"] == "all" else f"{r['density']:g}",
             str(r["collisions"]),
             str(r["seeds"]),
-            *(_pct(r[k]) for k in COLLISION_KINDS),
-            _pct(r["npc_struck"]),
-            _pct(r["tm_would_prevent"]),
+            *(percent(r[k], 0) for k in COLLISION_KINDS),
+            percent(r["npc_struck"], 0),
+            percent(r["tm_would_prevent"], 0),
         ]
         for r in table.to_dict("records")
     ]

@@ -36,7 +36,7 @@ from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
 from priqn.analysis.mixes import paired_changes
 from priqn.analysis.questions import OUTCOME_RATES, seed_rates
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import interval, markdown_table, percent, points
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.evaluation.design import FEATURES, net_features
@@ -224,17 +224,9 @@ def feature_table(frames: Frames) -> pd.DataFrame:
     )
 
 
-def _pts(x: float) -> str:
-    return f"{100 * x:+.1f}"
-
-
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f} %"
-
-
 def _interval(lo: float, hi: float) -> str:
     """``[lo, hi]`` in points; "" where there is none (a row with one seed)."""
-    return "" if math.isnan(lo) or math.isnan(hi) else f"[{_pts(lo)}, {_pts(hi)}]"
+    return "" if math.isnan(lo) or math.isnan(hi) else interval(lo, hi)
 
 
 def design_report(
@@ -301,11 +293,11 @@ def _verdict_section(design: Any, verdicts: list[Verdict]) -> Section:
             role[v.source],
             v.endpoint,
             f"{v.seeds_a} / {v.seeds_b}",
-            _pct(v.mean_a),
-            _pct(v.mean_b),
-            _pts(v.diff),
+            percent(v.mean_a),
+            percent(v.mean_b),
+            points(v.diff),
             _interval(v.lo, v.hi) or "– (one seed)",
-            _pts(v.hi_family),
+            points(v.hi_family),
             "–" if math.isnan(v.p) else f"{v.p:.3g}",
             "–" if math.isnan(v.p_holm) else f"{v.p_holm:.3g}",
             v.word,
@@ -318,7 +310,7 @@ def _verdict_section(design: Any, verdicts: list[Verdict]) -> Section:
             "",
             "Per training seed, the rate over its out-of-range episodes (densities weighted "
             "equally). Success: one-sided against the paper's "
-            f"{_pts(d.paper_success_difference)} points; violations (collision or off-road): "
+            f"{points(d.paper_success_difference)} points; violations (collision or off-road): "
             f"two-sided. Welch over seeds, p the larger of Welch's and the permutation test's, "
             f"Holm across the sources per endpoint at α = {d.alpha:g}. The interval is the "
             "descriptive 95 % one; the bound is the one-sided bound at α / (sources) that "
@@ -365,8 +357,8 @@ def _drop_section(table: pd.DataFrame, frames: Frames) -> Section:
         rows.append(
             [r.source, r.label, str(r.seeds)]
             + [
-                f"{_pct(getattr(r, f'{e}_in'))} → {_pct(getattr(r, f'{e}_out'))} "
-                f"({_pts(getattr(r, f'{e}_change'))}{_change_interval(r, e)})"
+                f"{percent(getattr(r, f'{e}_in'))} → {percent(getattr(r, f'{e}_out'))} "
+                f"({points(getattr(r, f'{e}_change'))}{_change_interval(r, e)})"
                 for e in ENDPOINTS
             ]
         )
@@ -395,7 +387,7 @@ def _feature_section(table: pd.DataFrame) -> Section:
         cell = {(r.source, r.label): r for r in part.itertuples()}
         rows.append(
             [feature, level, str(int(part["nets"].max()))]
-            + [_pct(cell[c].violation) if c in cell else "" for c in columns]
+            + [percent(cell[c].violation) if c in cell else "" for c in columns]
         )
     return Section(
         [

@@ -29,7 +29,7 @@ import pandas as pd
 
 from priqn.analysis.load import find_run_dirs, read_episodes
 from priqn.analysis.mixes import common_scenes, mix_table, paired_outcomes
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import markdown_table, percent
 from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.evaluation.protocol import LIMIT_PREFIX
@@ -112,10 +112,6 @@ def horizon_report(
     return Report("horizon", "horizon.md", sections, command, experiment, fields)
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f} %"
-
-
 def _title_section(
     runs: str | Path, limits: Sequence[int], own: Sequence[int], command: str
 ) -> Section:
@@ -141,7 +137,7 @@ def _mix_section(mix: pd.DataFrame) -> Section:
                 str(r.limit),
                 f"{r.density:g}",
                 str(r.seeds),
-                *(_pct(getattr(r, o)) for o in OUTCOMES),
+                *(percent(getattr(r, o)) for o in OUTCOMES),
             ]
             for r in mix.itertuples()
         ],
@@ -166,9 +162,9 @@ def _timeouts_section(moved: pd.DataFrame) -> Section:
                 r.label,
                 str(r.limit),
                 str(r.episodes),
-                _pct(r.cut_at_own_limit),
-                *(_pct(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
-                _pct(r.others_changed),
+                percent(r.cut_at_own_limit),
+                *(percent(getattr(r, f"cut_then_{o}")) for o in OUTCOMES),
+                percent(r.others_changed),
             ]
             for r in moved.itertuples()
         ],

@@ -27,7 +27,7 @@ from priqn.analysis.curves import CURVE_REPS, CURVE_SEED
 from priqn.analysis.figures import efficiency_figure, looks_figure
 from priqn.analysis.load import RESUMED_NOTE, commit_text, resumed_before, resumed_text
 from priqn.analysis.questions_outcomes import outcome_sections
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import interval, markdown_table, points
 from priqn.analysis.sections import Report, Section
 from priqn.analysis.sequential import Looks, row_verdict
 from priqn.experiment import Experiment, SequentialSpec
@@ -156,10 +156,6 @@ def _comparison_rows(
     return out
 
 
-def _pts(x: float) -> str:
-    return "–" if x is None or math.isnan(x) else f"{100 * x:+.1f}"
-
-
 def figure(exp: Experiment, scores_by_question: dict[str, pd.DataFrame]) -> Any:
     """One panel per question: each group's per-seed endpoint (dots in the group's colour
     of the sample-efficiency figure, :func:`priqn.analysis.figures.seed_dots`: open for a
@@ -243,11 +239,11 @@ def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
         paper = (
             "–"
             if r.paper_difference is None or pd.isna(r.paper_difference)
-            else _pts(r.paper_difference)
+            else points(r.paper_difference)
         )
         rows.append([
             str(r.question), str(r.comparison), budget_text(r.budget), f"{r.seeds_a} / {r.seeds_b}",
-            _pts(r.difference), f"[{_pts(r.lo)}, {_pts(r.hi)}]", mdd, paper, str(r.looks),
+            points(r.difference), interval(r.lo, r.hi), mdd, paper, str(r.looks),
             f"**{r.verdict}**",
         ])  # fmt: skip
     return [
@@ -301,8 +297,8 @@ def _look_table(looks: pd.DataFrame) -> list[str]:
     if not len(looks):
         return []
     rows = [
-        [str(int(r.look)), r.comparison, f"{r.seeds_a} vs {r.seeds_b}", _pts(r.difference),
-         f"[{_pts(r.lo)}, {_pts(r.hi)}]", _needed_pts(r.needed), r.decision]
+        [str(int(r.look)), r.comparison, f"{r.seeds_a} vs {r.seeds_b}", points(r.difference),
+         interval(r.lo, r.hi), _needed_pts(r.needed), r.decision]
         for r in looks.itertuples(index=False)
     ]  # fmt: skip
     heads = ["look", "comparison", "seeds", "difference [points]", "Welch 95 %", "needed",
@@ -431,8 +427,8 @@ def _difference_lines(differences: pd.DataFrame) -> list[str]:
         return []
     rows = [
         [f"{r['a']} − {r['b']}", str(r["endpoint"]), budget_text(r["budget"]),
-         f"{r['seeds_a']} / {r['seeds_b']}", _pts(r["difference"]),
-         f"[{_pts(r['lo'])}, {_pts(r['hi'])}]", str(r["comparisons"])]
+         f"{r['seeds_a']} / {r['seeds_b']}", points(r["difference"]),
+         interval(r["lo"], r["hi"]), str(r["comparisons"])]
         for r in differences.to_dict("records")
     ]  # fmt: skip
     heads = ["a − b", "endpoint", "budget", "seeds (a / b)", "difference [points]",
@@ -463,8 +459,8 @@ def _change_lines(changes: pd.DataFrame) -> list[str]:
     ]
     rows = [
         [f"{r['a']} − {r['b']}", str(r["endpoint"]), budget_text(r["from"]),
-         budget_text(r["to"]), str(r["seeds"]), _pts(r["change"]),
-         f"[{_pts(r['lo'])}, {_pts(r['hi'])}]", str(r["comparisons"])]
+         budget_text(r["to"]), str(r["seeds"]), points(r["change"]),
+         interval(r["lo"], r["hi"]), str(r["comparisons"])]
         for r in changes.to_dict("records")
     ]  # fmt: skip
     heads = ["a − b", "endpoint", "from", "to", "seeds", "change [points]", "Welch 95 %",

@@ -2,14 +2,15 @@
 
 The report kinds (:mod:`priqn.analysis.report`, ``sequential_report``,
 ``questions_report``, ``calibration``, ``horizon``, ``mechanism``, ``standstill``,
-``collisions``, ``design_report``) choose their columns and format their cells; the shape
-of the text is decided here, so a committed CSV or table reads the same whichever report
-made it. Every file is written by :mod:`priqn.analysis.artifacts` (a report's by its
+``collisions``, ``design_report``) choose their columns; the shape of the text and of its
+numbers (:func:`percent`, :func:`points`, :func:`interval`) is decided here, so a
+committed CSV or table reads the same whichever report made it. Every file is written by :mod:`priqn.analysis.artifacts` (a report's by its
 ``render``, a CSV outside any report by its ``write_csv``); nothing here writes.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -43,3 +44,26 @@ def markdown_table(
     ]
     lines += ["| " + " | ".join(cells) + " |" for cells in rows]
     return "\n".join(lines)
+
+
+def percent(share: float, digits: int = 1) -> str:
+    """A share as a percentage: ``0.1234`` -> ``12.3 %`` (``digits`` decimals)."""
+    return f"{100 * share:.{digits}f} %"
+
+
+def points(difference: float | None) -> str:
+    """A difference of shares in signed percentage points: ``0.021`` -> ``+2.1``; ``–``
+    where there is none (None or NaN)."""
+    if difference is None or math.isnan(difference):
+        return "–"
+    return f"{100 * difference:+.1f}"
+
+
+def interval(lo: float, hi: float) -> str:
+    """An interval of differences in points: ``[-3.2, +1.0]``."""
+    return f"[{points(lo)}, {points(hi)}]"
+
+
+def points_interval(difference: float, lo: float, hi: float) -> str:
+    """A difference and its interval in points: ``+2.1 [-3.2, +7.4]``."""
+    return f"{points(difference)} {interval(lo, hi)}"

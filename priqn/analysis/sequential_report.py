@@ -26,7 +26,7 @@ from priqn.analysis import curves, inference, questions
 from priqn.analysis.curves import CURVE_REPS, CURVE_SEED
 from priqn.analysis.figures import efficiency_figure, looks_figure
 from priqn.analysis.load import RESUMED_NOTE, resumed_before, resumed_text
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import markdown_table, points, points_interval
 from priqn.analysis.sections import Report, Section
 from priqn.analysis.sequential import ComparisonLook, Looks, relative_path, row_verdict
 from priqn.experiment import cell_dir_name
@@ -170,10 +170,6 @@ def _needed(x: float) -> str:
     return "none possible (too few splits)" if not np.isfinite(x) else f"{100 * x:.1f} points"
 
 
-def _pts(x: float) -> str:
-    return f"{100 * x:+.1f}"
-
-
 def _density_lines(frame: pd.DataFrame, steps: int | None) -> list[str]:
     """The report's per-density section (descriptive) from :func:`density_frame`; ``steps``:
     the cells' training decisions (the paper's values come from the paper preset's)."""
@@ -263,11 +259,11 @@ def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
     ]
     for c in exp.sequential.comparisons:
         row = None if last is None else next(x for x in last.comparisons if x.name == c.name)
-        paper = "–" if c.paper_difference is None else _pts(c.paper_difference)
+        paper = points(c.paper_difference)
         if row is None:
             est, seeds = "no look yet", f"{int(counts.get(c.a, 0))} vs {int(counts.get(c.b, 0))}"
         else:
-            est = f"{_pts(row.diff)} [{_pts(row.lo)}, {_pts(row.hi)}]"
+            est = f"{points_interval(row.diff, row.lo, row.hi)}"
             seeds = f"{row.n_a} vs {row.n_b}"
         decided = result.decisions[c.name]
         if row is not None and row.decided_at:
@@ -325,7 +321,7 @@ def _looks_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
             "| comparison | estimate [95% CI], points | decision |",
             "|:--|:--|:--|",
             *[
-                f"| {c.name} | {_pts(c.diff)} [{_pts(c.lo)}, {_pts(c.hi)}] | {c.decision} |"
+                f"| {c.name} | {points_interval(c.diff, c.lo, c.hi)} | {c.decision} |"
                 for c in look.comparisons
             ],
             "",

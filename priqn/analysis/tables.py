@@ -28,7 +28,7 @@ import pandas as pd
 from priqn.agents.config import SHIPPED_AGENTS
 from priqn.agents.labels import CHECK, CROSS, DASH, PolicyLabel, flag_value
 from priqn.analysis.load import CONFIG_COLUMNS, config_key
-from priqn.analysis.render import csv_text
+from priqn.analysis.render import csv_text, markdown_table, percent
 from priqn.objectives import OBJECTIVES, OUTCOMES, names_in_columns
 
 AGENT_ORDER: tuple[str, ...] = tuple(SHIPPED_AGENTS)
@@ -516,11 +516,14 @@ def outcomes_by_command(episodes: pd.DataFrame, order: Sequence[str]) -> pd.Data
 
 def outcomes_markdown(frame: pd.DataFrame) -> str:
     """The outcome table as Markdown: one row per (policy, command), percentages."""
-    lines = [
-        "| Policy | Command | Episodes | Success | Collision | Off-road | Timeout |",
-        "|:--|:--|--:|--:|--:|--:|--:|",
+    rows = [
+        [
+            row.label,
+            row.command,
+            str(row.episodes),
+            *(percent(getattr(row, o), 0) for o in OUTCOMES),
+        ]
+        for row in frame.itertuples(index=False)
     ]
-    for row in frame.itertuples(index=False):
-        cells = [f"{100 * getattr(row, o):.0f} %" for o in OUTCOMES]
-        lines.append(f"| {row.label} | {row.command} | {row.episodes} | {' | '.join(cells)} |")
-    return "\n".join(lines) + "\n"
+    heads = ["Policy", "Command", "Episodes", "Success", "Collision", "Off-road", "Timeout"]
+    return markdown_table(heads, rows, "llrrrrr") + "\n"

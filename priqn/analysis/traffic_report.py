@@ -33,7 +33,7 @@ from priqn.analysis import inference
 from priqn.analysis.load import find_run_dirs, read_episodes
 from priqn.analysis.mixes import common_scenes, mix_table, paired_changes, paired_outcomes
 from priqn.analysis.questions import seed_rates
-from priqn.analysis.render import markdown_table
+from priqn.analysis.render import markdown_table, percent, points_interval
 from priqn.analysis.sections import Report, Section
 from priqn.analysis.tables import policy_order
 from priqn.errors import PriqnError
@@ -149,14 +149,6 @@ def seeds_figure(scores: pd.DataFrame, order: list[str], traffic: str) -> plt.Fi
     return fig
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f} %"
-
-
-def _pts(x: float, lo: float, hi: float) -> str:
-    return f"{100 * x:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-
-
 def traffic_report(
     runs: str | Path, traffic: str, command: str, partial: bool, experiment: str | None = None
 ) -> Report:
@@ -214,9 +206,9 @@ def _changes_section(changes: pd.DataFrame, traffic: str, fig: plt.Figure) -> Se
             cell
             for e in ENDPOINTS
             for cell in (
-                _pct(r[f"{e}_in"]),
-                _pct(r[f"{e}_out"]),
-                _pts(r[f"{e}_change"], r[f"{e}_change_lo"], r[f"{e}_change_hi"]),
+                percent(r[f"{e}_in"]),
+                percent(r[f"{e}_out"]),
+                points_interval(r[f"{e}_change"], r[f"{e}_change_lo"], r[f"{e}_change_hi"]),
             )
         ]  # fmt: skip
         for r in changes.to_dict("records")
@@ -242,7 +234,7 @@ def _rows_section(rows: pd.DataFrame) -> Section:
     heads = ["traffic", "a − b", "seeds"] + [f"{e}, points [Welch 95 %]" for e in ENDPOINTS]
     body = [
         [r["traffic"], f"{r['a']} − {r['b']}", f"{r['seeds_a']} vs {r['seeds_b']}"]
-        + [_pts(r[e], r[f"{e}_lo"], r[f"{e}_hi"]) for e in ENDPOINTS]
+        + [points_interval(r[e], r[f"{e}_lo"], r[f"{e}_hi"]) for e in ENDPOINTS]
         for r in rows.to_dict("records")
     ]
     return Section(
@@ -259,7 +251,7 @@ def _mix_section(mix: pd.DataFrame) -> Section:
             r.traffic,
             f"{r.density:g}",
             str(r.seeds),
-            *(_pct(getattr(r, o)) for o in OUTCOMES),
+            *(percent(getattr(r, o)) for o in OUTCOMES),
         ]
         for r in mix.itertuples()
     ]
@@ -270,7 +262,7 @@ def _mix_section(mix: pd.DataFrame) -> Section:
 def _transitions_section(moved: pd.DataFrame, traffic: str) -> Section:
     heads = ["row", f"under {OWN}", "episodes", *(f"then {o} under {traffic}" for o in OUTCOMES)]
     body = [
-        [r["label"], r["own"], str(r["episodes"]), *(_pct(r[o]) for o in OUTCOMES)]
+        [r["label"], r["own"], str(r["episodes"]), *(percent(r[o]) for o in OUTCOMES)]
         for r in moved.to_dict("records")
     ]
     return Section(
