@@ -219,3 +219,29 @@ def test_reference_rows_in_the_generalisation_table(runs: Path, tmp_path: Path) 
     assert f"| *{SUMO}* | – | 16 | 1.000 ± 0.000 |" in section
     csv = pd.read_csv(tmp_path / f"r/tables/generalisation_{NETS_HASH[:8]}.csv")
     assert csv["reference"].tolist() == [False, True]
+
+
+def _record_traffic(meta_path: Path, traffic: dict) -> None:
+    """Write ``traffic`` as the ``env_config.traffic`` an evaluation's meta.json records."""
+    meta = json.loads(meta_path.read_text())
+    meta_path.write_text(json.dumps({**meta, "env_config": {"traffic": traffic}}))
+
+
+def test_reference_traffic_compares_as_played(runs: Path, tmp_path: Path) -> None:
+    # The runs recorded tm's path braking in the older flat form (the knobs beside
+    # path_braking = true); a reference in the table form with the same knobs drove the
+    # same traffic, and is accepted.
+    flat = {"yield_to_ego_prob": 0.0, "path_braking": True, "path_look_ahead_s": 4.35}
+    for meta_path in runs.glob("*/eval/meta.json"):
+        _record_traffic(meta_path, flat)
+    refs = tmp_path / "reference"
+    same = write_reference(refs, "sumo", always("success"))
+    _record_traffic(same / "eval" / "meta.json",
+                    {"yield_to_ego_prob": 0.0, "path_braking": {"look_ahead_s": 4.35}})  # fmt: skip
+    make_report(runs, tmp_path / "r", seed=0, reps=20, references=(same,))
+    # Path braking off in the reference is other traffic, though every key it lacks is
+    # one the runs' record has: refused, naming the key.
+    off = write_reference(refs, "random", always("success"))
+    _record_traffic(off / "eval" / "meta.json", {"yield_to_ego_prob": 0.0})
+    with pytest.raises(PriqnError, match=r"its env differs from the runs' \(traffic\.path_braking"):
+        make_report(runs, tmp_path / "r2", seed=0, reps=20, references=(off,))

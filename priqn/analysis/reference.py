@@ -90,8 +90,11 @@ def load_references(
         env = recorded_env_config(
             read_json(folder.eval_dir / RunFolder.META).get("env_config") or {}
         )
-        # Keys one record lacks (written before the field existed) are not compared.
-        only_one = set(flatten(run_env)) ^ set(flatten(env))
+        # Keys one record lacks (written before the field existed) are not compared; the
+        # traffic, with every default filled in (recorded_env_config), always is.
+        only_one = {
+            k for k in set(flatten(run_env)) ^ set(flatten(env)) if not k.startswith("traffic.")
+        }
         ignore = ENV_NEUTRAL_FIELDS | only_one
         diff = config_differences(run_env, env, ignore=ignore) if run_env else []
         if diff:

@@ -258,14 +258,13 @@ TRAFFIC_PREFIX = "traffic-"
 
 def recorded_env_config(env: Mapping[str, Any]) -> dict[str, Any]:
     """A recorded env config (an evaluation's meta.json ``env_config``) in the current
-    form: the flat ``path_*`` traffic keys of older records as their table
-    (:func:`priqn.env.traffic.upgrade_traffic_table`), so old and new records compare
-    (``priqn.analysis.reference``, which reads files only, calls it here)."""
-    from priqn.env.traffic import upgrade_traffic_table
-
+    form, so old and new records compare (``priqn.analysis.reference``, which reads files
+    only, calls it here): its traffic table as the traffic played
+    (:func:`recorded_traffic`: the flat ``path_*`` keys of older records as their table,
+    every field added since at its default)."""
     out = dict(env)
     if isinstance(out.get("traffic"), Mapping):
-        out["traffic"] = upgrade_traffic_table(out["traffic"])
+        out["traffic"] = to_dict(recorded_traffic(out))
     return out
 
 
@@ -275,9 +274,10 @@ def recorded_traffic(env: Mapping[str, Any]) -> Any:
     filled in: records of any form (the flat ``path_*`` keys of older ones, or fields added
     since) compare by what the NPCs did, not by how it was written."""
     from priqn.config import from_dict
-    from priqn.env.traffic import TrafficBehaviour
+    from priqn.env.traffic import TrafficBehaviour, upgrade_traffic_table
 
-    return from_dict(TrafficBehaviour, env.get("traffic") or {}, "env_config.traffic")
+    table = upgrade_traffic_table(env.get("traffic") or {})
+    return from_dict(TrafficBehaviour, table, "env_config.traffic")
 
 
 def eval_config_differences(old: dict[str, Any], new: dict[str, Any]) -> list[tuple[str, Any, Any]]:
