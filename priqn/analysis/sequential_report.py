@@ -263,7 +263,7 @@ def _verdict_lines(exp: Any, scores: pd.DataFrame, result: Looks) -> list[str]:
         if row is None:
             est, seeds = "no look yet", f"{int(counts.get(c.a, 0))} vs {int(counts.get(c.b, 0))}"
         else:
-            est = f"{points_interval(row.diff, row.lo, row.hi)}"
+            est = points_interval(row.diff, row.lo, row.hi)
             seeds = f"{row.n_a} vs {row.n_b}"
         decided = result.decisions[c.name]
         if row is not None and row.decided_at:
