@@ -1,12 +1,21 @@
-"""The one way reports write CSV text and Markdown tables (priqn.analysis.render)."""
+"""The one way reports write CSV text, Markdown tables and their numbers (priqn.analysis.render)."""
 
 from __future__ import annotations
+
+import math
 
 import pandas as pd
 import pytest
 
 from priqn.analysis.artifacts import write_csv
-from priqn.analysis.render import csv_text, markdown_table
+from priqn.analysis.render import (
+    csv_text,
+    interval,
+    markdown_table,
+    percent,
+    points,
+    points_interval,
+)
 
 
 def test_markdown_table_by_hand() -> None:
@@ -19,6 +28,19 @@ def test_markdown_table_by_hand() -> None:
     assert markdown_table(["only"], []) == "| only |\n|---|"
     with pytest.raises(ValueError, match="one letter per column"):
         markdown_table(["a", "b"], [], "l")
+
+
+def test_number_formats_by_hand() -> None:
+    # Shares as percentages, differences of shares in signed points, by hand.
+    assert percent(0.1234) == "12.3 %"
+    assert percent(0.125, 0) == "12 %"  # rounds half to even, as Python's format does
+    assert percent(1.0) == "100.0 %"
+    assert points(0.021) == "+2.1"
+    assert points(-0.177) == "-17.7"
+    assert points(0.0) == "+0.0"
+    assert points(None) == points(math.nan) == "–"  # none: a one-seed row, no paper figure
+    assert interval(-0.032, 0.01) == "[-3.2, +1.0]"
+    assert points_interval(0.021, -0.032, 0.074) == "+2.1 [-3.2, +7.4]"
 
 
 def test_csv_text_and_write_csv(tmp_path) -> None:
