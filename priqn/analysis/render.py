@@ -4,8 +4,9 @@ The report kinds (:mod:`priqn.analysis.report`, ``sequential_report``,
 ``questions_report``, ``calibration``, ``horizon``, ``mechanism``, ``standstill``,
 ``collisions``, ``design_report``) choose their columns; the shape of the text and of its
 numbers (:func:`percent`, :func:`points`, :func:`interval`) is decided here, so a
-committed CSV or table reads the same whichever report made it. Every file is written by :mod:`priqn.analysis.artifacts` (a report's by its
-``render``, a CSV outside any report by its ``write_csv``); nothing here writes.
+committed CSV or table reads the same whichever report made it. Every file is written by
+:mod:`priqn.analysis.artifacts` (a report's by its ``render``, a CSV outside any report by
+its ``write_csv``); nothing here writes.
 """
 
 from __future__ import annotations
