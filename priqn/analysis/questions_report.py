@@ -507,15 +507,19 @@ def _look_rows(question: SequentialSpec, result: Looks) -> list[dict[str, Any]]:
 
 
 def _budget_tables(
-    exp: Experiment, question: SequentialSpec
+    exp: Experiment, question: SequentialSpec, read: dict[Any, pd.DataFrame]
 ) -> tuple[pd.DataFrame, list[pd.DataFrame], list[pd.DataFrame]] | None:
     """``question``'s budget frame and its comparisons' change and difference frames
     (:func:`change_frame`, :func:`difference_frame`), when one of its groups reaches more
-    than one budget (else None)."""
+    than one budget (else None). ``read``: the budget frames read so far, by groups and
+    seeds (questions that share both share the frame: its cells are read once)."""
     groups = questions.rows_of(exp, question)
     if not any(len(budgets_of(exp, g)) > 1 for g in groups):
         return None
-    frame = budget_frame(exp, question)
+    key = (tuple(groups), tuple(question.seeds))
+    if key not in read:
+        read[key] = budget_frame(exp, question)
+    frame = read[key]
 
     def per_comparison(tabulate: Any) -> list[pd.DataFrame]:
         return [
@@ -595,13 +599,14 @@ def design_tables(exp: Experiment) -> DesignTables:
     change_frames: list[pd.DataFrame] = []
     difference_frames: list[pd.DataFrame] = []
     results: list[tuple[SequentialSpec, Looks]] = []
+    read: dict[Any, pd.DataFrame] = {}
     for q in exp.designs:
         scores, result = questions.take_looks(exp, q)
         scores_by_q[q.name] = scores
         results.append((q, result))
         comparison_rows += _comparison_rows(exp, q, scores, result)
         look_rows += _look_rows(q, result)
-        by_budget = _budget_tables(exp, q)
+        by_budget = _budget_tables(exp, q, read)
         if by_budget is not None:
             budget_frames.append(by_budget[0])
             change_frames += by_budget[1]
