@@ -245,3 +245,14 @@ def test_reference_traffic_compares_as_played(runs: Path, tmp_path: Path) -> Non
     _record_traffic(off / "eval" / "meta.json", {"yield_to_ego_prob": 0.0})
     with pytest.raises(PriqnError, match=r"its env differs from the runs' \(traffic\.path_braking"):
         make_report(runs, tmp_path / "r2", seed=0, reps=20, references=(off,))
+    # A record written before traffic settings existed played SUMO's drivers (the defaults):
+    # accepted beside runs that recorded the defaults, refused beside tm's path braking.
+    before = write_reference(tmp_path / "before", "sumo", always("success"))
+    meta_path = before / "eval" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta_path.write_text(json.dumps({**meta, "env_config": {"max_episode_steps": 0}}))
+    with pytest.raises(PriqnError, match=r"its env differs from the runs' \(traffic\."):
+        make_report(runs, tmp_path / "r3", seed=0, reps=20, references=(before,))
+    for meta_path in runs.glob("*/eval/meta.json"):
+        _record_traffic(meta_path, {})
+    make_report(runs, tmp_path / "r4", seed=0, reps=20, references=(before,))

@@ -96,7 +96,7 @@ def load_references(
             k for k in set(flatten(run_env)) ^ set(flatten(env)) if not k.startswith("traffic.")
         }
         ignore = ENV_NEUTRAL_FIELDS | only_one
-        diff = config_differences(run_env, env, ignore=ignore) if run_env else []
+        diff = config_differences(run_env, env, ignore=ignore) if run_env and env else []
         if diff:
             key, a, b = diff[0]
             raise PriqnError(

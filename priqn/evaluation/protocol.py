@@ -259,11 +259,12 @@ TRAFFIC_PREFIX = "traffic-"
 def recorded_env_config(env: Mapping[str, Any]) -> dict[str, Any]:
     """A recorded env config (an evaluation's meta.json ``env_config``) in the current
     form, so old and new records compare (``priqn.analysis.reference``, which reads files
-    only, calls it here): its traffic table as the traffic played
-    (:func:`recorded_traffic`: the flat ``path_*`` keys of older records as their table,
-    every field added since at its default)."""
+    only, calls it here): its traffic as the traffic played (:func:`recorded_traffic`: the
+    flat ``path_*`` keys of older records as their table, every field added since at its
+    default, and a record written before traffic settings existed as SUMO's drivers, the
+    defaults). An empty record stays empty: it says nothing of what was played."""
     out = dict(env)
-    if isinstance(out.get("traffic"), Mapping):
+    if out and isinstance(out.get("traffic", {}), Mapping):
         out["traffic"] = to_dict(recorded_traffic(out))
     return out
 
