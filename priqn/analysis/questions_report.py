@@ -236,14 +236,9 @@ def _verdict_lines(comparisons: pd.DataFrame) -> list[str]:
     rows = []
     for r in comparisons.itertuples():
         mdd = "∞" if math.isinf(r.mdd) else f"±{100 * r.mdd:.1f}"
-        paper = (
-            "–"
-            if r.paper_difference is None or pd.isna(r.paper_difference)
-            else points(r.paper_difference)
-        )
         rows.append([
             str(r.question), str(r.comparison), budget_text(r.budget), f"{r.seeds_a} / {r.seeds_b}",
-            points(r.difference), interval(r.lo, r.hi), mdd, paper, str(r.looks),
+            points(r.difference), interval(r.lo, r.hi), mdd, points(r.paper_difference), str(r.looks),
             f"**{r.verdict}**",
         ])  # fmt: skip
     return [
