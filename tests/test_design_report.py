@@ -129,7 +129,9 @@ def test_missing_cells_are_refused_or_pending(tmp_path: Path) -> None:
     words = report.sections[1].tables["verdicts"]["word"].tolist()
     assert words == ["pending (5 of 6 cells)"] * 2
     path = render(tmp_path / "out", report)
-    assert "b__seed3" in path.read_text() and (tmp_path / "out/figures/seeds.png").is_file()
+    # The missing cells folded per (grid, policy): one line with the seed range.
+    assert "b__seed*`: seeds 3\n" in path.read_text()
+    assert (tmp_path / "out/figures/seeds.png").is_file()
     assert json.loads((tmp_path / "out/meta.json").read_text())["missing"][0].endswith("b__seed3")
 
 

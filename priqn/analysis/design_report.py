@@ -32,6 +32,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from priqn.agents.labels import seeds_text
 from priqn.analysis import inference
 from priqn.analysis.load import read_episodes
 from priqn.analysis.mixes import paired_changes
@@ -410,10 +411,20 @@ def _cells_section(frames: Frames) -> Section:
     lines = ["## Cells", ""]
     if frames.missing:
         lines += [f"Not yet evaluated ({len(frames.missing)}):", ""]
-        lines += [f"- `{cell}`" for cell in frames.missing]
+        lines += [f"- `{cells}`: seeds {seeds}" for cells, seeds in _seed_ranges(frames.missing)]
     else:
         lines += [f"All {frames.cells} cells evaluated (per-seed rates: `tables/seeds.csv`)."]
     return Section([*lines, ""])
+
+
+def _seed_ranges(cells: tuple[str, ...]) -> list[tuple[str, str]]:
+    """Cell folders ``<grid>/<policy>__seed<k>`` folded per (grid, policy), in first-seen
+    order: ``("results/x/iqn__seed*", "82–99")``."""
+    seeds: dict[str, list[int]] = {}
+    for cell in cells:
+        stem, _, seed = cell.rpartition("__seed")
+        seeds.setdefault(f"{stem}__seed*", []).append(int(seed))
+    return [(stem, seeds_text(found)) for stem, found in seeds.items()]
 
 
 def _seed_figure(scores: pd.DataFrame) -> plt.Figure:
