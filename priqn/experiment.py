@@ -505,6 +505,13 @@ def cell_dir_name(policy: str, seed: int) -> str:
     return f"{policy}__seed{seed}"
 
 
+def cell_dir_parts(name: str) -> tuple[str, int]:
+    """The policy and seed of a cell's run-folder name: the inverse of :func:`cell_dir_name`
+    (``iqn__seed82`` -> ``("iqn", 82)``)."""
+    policy, seed = name.rsplit("__seed", 1)
+    return policy, int(seed)
+
+
 def resolve_experiment_path(name_or_path: str | os.PathLike) -> Path:
     """A path, or a bare name: ``table2`` -> ``./experiments/table2.toml``, else the shipped one."""
     p = Path(name_or_path)

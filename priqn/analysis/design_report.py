@@ -42,6 +42,7 @@ from priqn.analysis.sections import Report, Section
 from priqn.errors import PriqnError
 from priqn.evaluation.design import FEATURES, net_features
 from priqn.evaluation.protocol import FAMILY_PREFIX, recorded_traffic
+from priqn.experiment import cell_dir_parts
 from priqn.io import read_json
 from priqn.run.evaluations import evaluation_complete, evaluation_dir
 from priqn.run.folder import RunFolder
@@ -99,11 +100,11 @@ def read_scores(design: Any, root: str | Path = ".") -> Frames:
                         f"{envs[0][key]!r}; the design plays each cell as its in-range evaluation"
                     )
             hashes.add(read_json(both[1] / RunFolder.META)["holdout_hash"])
-            row, seed = cell.name.rsplit("__seed", 1)
+            row, seed = cell_dir_parts(cell.name)
             for where, eval_dir in zip(WHERE, both, strict=True):
                 episodes = read_episodes(eval_dir)
                 key = {"source": source.experiment, "role": source.role, "row": row,
-                       "label": str(episodes["label"].iloc[0]), "seed": int(seed)}  # fmt: skip
+                       "label": str(episodes["label"].iloc[0]), "seed": seed}  # fmt: skip
                 scores.append({**key, "where": where, "episodes": len(episodes),
                                **seed_rates(episodes)})  # fmt: skip
             played = episodes.merge(nets, on="net", how="left")
@@ -422,8 +423,8 @@ def _seed_ranges(cells: tuple[str, ...]) -> list[tuple[str, str]]:
     order: ``("results/x/iqn__seed*", "82–99")``."""
     seeds: dict[str, list[int]] = {}
     for cell in cells:
-        stem, _, seed = cell.rpartition("__seed")
-        seeds.setdefault(f"{stem}__seed*", []).append(int(seed))
+        stem, seed = cell_dir_parts(cell)
+        seeds.setdefault(f"{stem}__seed*", []).append(seed)
     return [(stem, seeds_text(found)) for stem, found in seeds.items()]
 
 
